@@ -1,0 +1,45 @@
+# One place that sets language standard and warnings for every polmap target.
+function(polmap_target_defaults target)
+  target_compile_features(${target} PUBLIC cxx_std_23)
+  set_target_properties(${target} PROPERTIES CXX_EXTENSIONS OFF)
+  get_target_property(_type ${target} TYPE)
+  if(NOT _type STREQUAL "INTERFACE_LIBRARY")
+    target_compile_options(${target} PRIVATE -Wall -Wextra -Wpedantic -Werror
+      -Wno-error=deprecated-declarations)
+  endif()
+endfunction()
+
+# polmap_add_library(NAME SOURCES ... DEPS ...): a module library with
+# include/ as its public include root.
+function(polmap_add_library name)
+  cmake_parse_arguments(ARG "" "" "SOURCES;DEPS;PRIVATE_DEPS" ${ARGN})
+  if(NOT ARG_SOURCES)
+    # A module may be header-only for a while; keep it a real library target.
+    file(WRITE ${CMAKE_CURRENT_BINARY_DIR}/${name}_anchor.cpp "// header-only module\n")
+    set(ARG_SOURCES ${CMAKE_CURRENT_BINARY_DIR}/${name}_anchor.cpp)
+  endif()
+  add_library(${name} ${ARG_SOURCES})
+  target_include_directories(${name} PUBLIC ${CMAKE_CURRENT_SOURCE_DIR}/include)
+  target_link_libraries(${name} PUBLIC ${ARG_DEPS} PRIVATE ${ARG_PRIVATE_DEPS})
+  polmap_target_defaults(${name})
+endfunction()
+
+# polmap_add_test(NAME SOURCES ... DEPS ... [LABELS ...]): one GoogleTest binary
+# registered with ctest (tests run from the build dir; POLMAP_SOURCE_DIR and
+# POLMAP_DATA_DIR locate checked-in sources and data).
+function(polmap_add_test name)
+  cmake_parse_arguments(ARG "" "TIMEOUT" "SOURCES;DEPS;LABELS" ${ARGN})
+  add_executable(${name} ${ARG_SOURCES})
+  target_link_libraries(${name} PRIVATE ${ARG_DEPS} GTest::gtest_main)
+  target_compile_definitions(${name} PRIVATE
+    POLMAP_SOURCE_DIR="${CMAKE_SOURCE_DIR}"
+    POLMAP_DATA_DIR="${CMAKE_SOURCE_DIR}/data"
+    POLMAP_BINARY_DIR="${CMAKE_BINARY_DIR}")
+  polmap_target_defaults(${name})
+  include(GoogleTest)
+  if(NOT ARG_TIMEOUT)
+    set(ARG_TIMEOUT 300)
+  endif()
+  gtest_discover_tests(${name} DISCOVERY_TIMEOUT 60
+    PROPERTIES TIMEOUT ${ARG_TIMEOUT} LABELS "${ARG_LABELS}")
+endfunction()

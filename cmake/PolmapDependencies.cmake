@@ -25,3 +25,4 @@ target_link_libraries(polmap_opencv INTERFACE ${OpenCV_LIBS})
 target_include_directories(polmap_opencv SYSTEM INTERFACE ${OpenCV_INCLUDE_DIRS})
 
 find_package(pugixml REQUIRED)
+pkg_check_modules(OPENSSL REQUIRED IMPORTED_TARGET openssl)

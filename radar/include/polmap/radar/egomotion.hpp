@@ -1,0 +1,195 @@
+#pragma once
+/// @file egomotion.hpp
+/// Instantaneous radar ego-motion (paper §III-A, Kellner et al.): forward
+/// velocity v and yaw rate ω at the rear-axle centre (zero side slip) from the
+/// Doppler detections of all sensors together.
+///
+/// Model. Sensor s has mount (x_m, y_m, yaw_m). A detection at sensor azimuth φ
+/// looks along u = (cos θ, sin θ), θ = φ + yaw_m, in the vehicle frame. The
+/// sensor moves with v_s = (v − ω·y_m, ω·x_m), so a static target has
+///     v_r = −v_s·u = h·(v, ω)ᵀ,   h = (−cos θ, y_m·cos θ − x_m·sin θ),
+/// linear in (v, ω): a two-parameter least-squares problem whose minimal
+/// RANSAC sample is two detections.
+///
+/// Aliasing (Nyquist-zone augmentation). Measured radial velocities are
+/// aliased into [−v_ua, v_ua). Instead of folding the model, every detection is
+/// copied to v_meas + 2k·v_ua for every zone k whose velocity is physically
+/// reachable for that detection's direction (given the configured speed and
+/// yaw-rate ranges). Plain RANSAC then runs on the augmented set: wrong copies
+/// are just more outliers. The final least-squares refinement uses, per
+/// detection, only its best-matching copy.
+///
+/// Sequential triggering (sensors fire 0/33/66 ms into each cycle). process()
+/// combines the new frame with the most recent frame of every other sensor that
+/// is at most `combine_window_s` older. The motion state is not constant over
+/// that span, so each older detection is corrected to the new frame's time t
+/// with the acceleration a and yaw acceleration α estimated from previous
+/// estimates (slope of a line fit over `accel_window_s`):
+///     m(t_s) = m(t) − (a, α)·(t − t_s)   ⇒   v_r + h·(a, α)ᵀ·(t − t_s) = h·m(t),
+/// i.e. the measured radial velocity of a detection taken at t_s is shifted by
+/// the change in radial velocity the extrapolated motion predicts, after which
+/// all detections share the unknown m(t). (The target direction need not be
+/// corrected: it is the direction at t_s, matching the measurement at t_s.)
+/// Without a usable acceleration (start-up, after outages) no shift is applied.
+///
+/// Plausibility (acceleration limits). With a recent accepted estimate m₀ at
+/// t₀, a new estimate must satisfy |v − v₀| ≤ a_max·(t − t₀) + slack_v and
+/// |ω − ω₀| ≤ α_max·(t − t₀) + slack_ω. If the best RANSAC hypothesis violates
+/// this (e.g. a large moving vehicle dominates the detections), a second
+/// RANSAC restricted to hypotheses consistent with the limits looks for the
+/// best consistent one; if none has enough inliers the estimate is
+/// Status::Rejected. After `max_prior_age_s` without an accepted estimate the
+/// prior is dropped (so a wrong prior cannot lock the estimator forever).
+///
+/// Noise model and weighting. A detection's radial-velocity error combines the
+/// Doppler noise σ_vr and the azimuth noise σ_φ propagated through
+/// ∂v_r/∂θ = g·(v, ω), g = (sin θ, −y_m·sin θ − x_m·cos θ):
+///     σ_i² = σ_vr² + σ_φ²·(g·m)².
+/// The inlier threshold scales with σ_i (inlier_threshold_mps at σ_i = σ_vr),
+/// and the refinement is weighted least squares with weights 1/σ_i². The
+/// covariance is s²·(HᵀWH)⁻¹ with s² = Σ w_i r_i² / (n − 2) (residual variance
+/// factor), so it reflects the actual scatter of the inliers.
+///
+/// Determinism: RANSAC draws from a std::mt19937_64 reseeded at every
+/// process() call from (config seed, call number), so a given frame sequence
+/// always yields the same estimates.
+#include <Eigen/Core>
+#include <cstdint>
+#include <deque>
+#include <numbers>
+#include <optional>
+#include <vector>
+
+#include "polmap/schema/radar_spec.hpp"
+#include "polmap/schema/recording.hpp"
+
+namespace polmap::radar {
+
+/// Parameters of EgoMotionEstimator. Defaults suit the paper's sensors (Table III,
+/// σ_vr = 0.05 m/s, σ_φ = 0.5°) on passenger cars.
+struct EgoMotionConfig {
+  // --- plausible motion range (bounds the Nyquist zones and RANSAC hypotheses) ---
+  /// Highest forward speed considered. Determines how many Nyquist zones are
+  /// augmented (25 m/s with v_ua = 5 m/s: up to 4 copies per detection).
+  double max_speed_mps = 25.0;
+  /// Lowest speed considered (negative = reversing).
+  double min_speed_mps = -5.0;
+  /// Largest |yaw rate| considered (1 rad/s: tight manoeuvring at walking speed).
+  double max_yaw_rate_rps = 1.0;
+
+  // --- noise model and RANSAC ---
+  /// Doppler noise σ_vr of one detection.
+  double vr_sigma_mps = 0.05;
+  /// Azimuth noise σ_φ of one detection; 0 disables the azimuth term.
+  double azimuth_sigma_rad = 0.5 * std::numbers::pi / 180.0;
+  /// Inlier threshold on |v_r − h·m| for a detection with σ_i = σ_vr (2σ);
+  /// scaled by σ_i/σ_vr for detections with larger azimuth sensitivity.
+  double inlier_threshold_mps = 0.1;
+  /// RANSAC stops when this confidence of having drawn an all-inlier sample is
+  /// reached (adaptive), after at least min_iterations and at most max_iterations.
+  double ransac_confidence = 0.999;
+  int min_iterations = 50;
+  int max_iterations = 600;
+  /// Fewer static inliers than this -> Status::TooFewDetections.
+  int min_inliers = 10;
+  /// An estimate whose standard deviations exceed these is not reported (its
+  /// inliers do not constrain the motion, e.g. all near one azimuth, where an
+  /// aliasing zone can be explained by a wrong speed): TooFewDetections, or
+  /// Rejected for the limit-consistent fallback.
+  double max_v_std_mps = 0.1;
+  double max_yaw_rate_std_rps = 0.025;
+  /// Refinement rounds (re-select best copies/inliers, re-solve weighted LS).
+  int refinement_rounds = 3;
+  /// Seed of the RANSAC random generator.
+  std::uint64_t seed = 1;
+
+  // --- sequential triggering ---
+  /// Frames of other sensors at most this much older than the new frame are
+  /// combined with it (0.09 s: one frame of each of the other two sensors at
+  /// 10 Hz with offsets 0/33/66 ms). 0 = per-frame estimates only.
+  double combine_window_s = 0.09;
+  /// Previous accepted estimates within this window give the acceleration used
+  /// to correct older frames to the new frame's time (line fit of v and ω).
+  double accel_window_s = 0.3;
+  /// At least this many estimates spanning ≥ accel_window_s/3 are needed for an
+  /// acceleration; otherwise no correction is applied.
+  int accel_min_estimates = 3;
+
+  // --- physical plausibility vs. the previous estimate ---
+  double max_accel_mps2 = 6.0;       ///< |dv/dt| limit
+  double max_yaw_accel_rps2 = 1.0;   ///< |dω/dt| limit
+  double accel_slack_mps = 0.3;      ///< added to a_max·Δt (estimate noise)
+  double yaw_accel_slack_rps = 0.05; ///< added to α_max·Δt
+  /// A prior older than this is dropped (no limit check).
+  double max_prior_age_s = 1.0;
+};
+
+/// One motion estimate. Valid (v_mps, yaw_rate_rps, covariance) only when
+/// status == Ok; otherwise they are NaN — never a made-up value.
+struct MotionEstimate {
+  enum class Status {
+    Ok,                ///< estimate valid
+    TooFewDetections,  ///< fewer than min_inliers static inliers, or they leave the
+                       ///< motion unconstrained (std above max_v_std_mps / max_yaw_rate_std_rps)
+    Rejected,          ///< best hypothesis violates the acceleration limits, no consistent one
+  };
+  Status status = Status::TooFewDetections;
+  double time_s = 0.0;  ///< time the estimate refers to (the newest frame's trigger time)
+  double v_mps = 0.0;   ///< forward velocity of the rear-axle centre
+  double yaw_rate_rps = 0.0;
+  /// Covariance of (v_mps, yaw_rate_rps): residual variance factor × (HᵀWH)⁻¹.
+  Eigen::Matrix2d covariance = Eigen::Matrix2d::Zero();
+  int num_inliers = 0;     ///< static detections used in the final fit
+  int num_detections = 0;  ///< detections of all combined frames
+  int num_frames = 0;      ///< sensor frames combined
+  /// True when the best hypothesis violated the acceleration limits and the
+  /// best limit-consistent one was used instead.
+  bool used_consistent_fallback = false;
+  /// True when older frames were corrected with an estimated acceleration.
+  bool time_corrected = false;
+};
+
+const char* to_string(MotionEstimate::Status s);
+
+/// Ego-motion from sequentially triggered Doppler radars. Not thread-safe.
+class EgoMotionEstimator {
+ public:
+  /// mounts: every sensor whose frames will be processed (sensor_id unique).
+  EgoMotionEstimator(std::vector<SensorMount> mounts, EgoMotionConfig cfg = {});
+
+  /// Processes one sensor frame (frames in non-decreasing time order, any
+  /// sensor) and returns the motion estimate at frame.time_s. Throws
+  /// ContractViolation for an unknown sensor_id or a frame older than the last.
+  MotionEstimate process(const SensorFrame& frame);
+
+  /// Detections of the last processed frame judged static (inliers of the
+  /// final fit), same order as frame.detections; all false unless status Ok.
+  [[nodiscard]] const std::vector<bool>& last_static_mask() const { return static_mask_; }
+
+  [[nodiscard]] const EgoMotionConfig& config() const { return cfg_; }
+  [[nodiscard]] const std::vector<SensorMount>& mounts() const { return mounts_; }
+  /// Forgets all history (stored frames, prior, acceleration).
+  void reset();
+
+ private:
+  struct StoredFrame {
+    double time_s = 0.0;
+    std::vector<Detection> detections;
+  };
+  struct Accepted {
+    double time_s;
+    double v_mps;
+    double yaw_rate_rps;
+  };
+  [[nodiscard]] std::optional<Eigen::Vector2d> acceleration(double time_s) const;
+
+  std::vector<SensorMount> mounts_;
+  EgoMotionConfig cfg_;
+  std::vector<std::optional<StoredFrame>> latest_;  // per mount index
+  std::deque<Accepted> accepted_;                    // recent Ok estimates
+  std::vector<bool> static_mask_;
+  std::uint64_t calls_ = 0;
+  double last_time_s_ = -1e300;
+};
+
+}  // namespace polmap::radar

@@ -1,0 +1,446 @@
+#include "polmap/radar/egomotion.hpp"
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <random>
+
+#include "polmap/schema/errors.hpp"
+
+namespace polmap::radar {
+
+const char* to_string(MotionEstimate::Status s) {
+  switch (s) {
+    case MotionEstimate::Status::Ok: return "ok";
+    case MotionEstimate::Status::TooFewDetections: return "too_few_detections";
+    case MotionEstimate::Status::Rejected: return "rejected";
+  }
+  return "unknown";
+}
+
+namespace {
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+/// Axis-aligned box of admissible (v, ω).
+struct MotionBox {
+  double v_lo, v_hi, w_lo, w_hi;
+  [[nodiscard]] bool contains(double v, double w) const {
+    return v >= v_lo && v <= v_hi && w >= w_lo && w <= w_hi;
+  }
+  [[nodiscard]] MotionBox intersect(const MotionBox& o) const {
+    return {std::max(v_lo, o.v_lo), std::min(v_hi, o.v_hi), std::max(w_lo, o.w_lo),
+            std::min(w_hi, o.w_hi)};
+  }
+  [[nodiscard]] bool empty() const { return v_lo > v_hi || w_lo > w_hi; }
+};
+
+/// The combined detections of one estimate: one entry per original detection
+/// (model rows) and the Nyquist-zone augmented copies as flat arrays (SoA) so
+/// the scoring loop is a plain vectorizable pass.
+struct Problem {
+  // per original detection
+  std::vector<double> h0, h1;    // v_r = h0·v + h1·ω
+  std::vector<double> g0, g1;    // ∂v_r/∂θ = g0·v + g1·ω
+  std::vector<double> vr;        // measured (time-corrected) radial velocity
+  std::vector<int> first, count; // its copies in the augmented arrays
+  // augmented copies
+  std::vector<double> a_h0, a_h1, a_g0, a_g1, a_vr;
+  std::vector<int> a_det;
+};
+
+struct Hypothesis {
+  double v = 0.0, w = 0.0;
+  int inliers = -1;
+  double cost = std::numeric_limits<double>::infinity();  // Σ min(r²/thr², 1), tie-break
+};
+
+struct Fit {
+  bool ok = false;
+  double v = 0.0, w = 0.0;
+  Eigen::Matrix2d cov = Eigen::Matrix2d::Zero();
+  int inliers = 0;
+  std::vector<char> inlier;  // per original detection
+};
+
+class Ransac {
+ public:
+  Ransac(const Problem& p, const EgoMotionConfig& cfg) : p_(p), cfg_(cfg) {
+    const double ratio = cfg.vr_sigma_mps > 0 ? cfg.azimuth_sigma_rad / cfg.vr_sigma_mps : 0.0;
+    az2_ = ratio * ratio;
+    thr2_ = cfg.inlier_threshold_mps * cfg.inlier_threshold_mps;
+  }
+
+  /// Scores hypothesis (v, w) over all augmented copies: a copy is an inlier
+  /// when |v_r − h·m| < thr·σ_i/σ_vr. Copies of one detection are 2·v_ua
+  /// apart, so at most one copy per detection can be an inlier.
+  void score(Hypothesis& h) const {
+    const std::size_t n = p_.a_vr.size();
+    const double v = h.v, w = h.w;
+    int inl = 0;
+    double cost = 0.0;
+    for (std::size_t j = 0; j < n; ++j) {
+      const double r = p_.a_vr[j] - (p_.a_h0[j] * v + p_.a_h1[j] * w);
+      const double d = p_.a_g0[j] * v + p_.a_g1[j] * w;
+      const double t2 = thr2_ * (1.0 + az2_ * d * d);
+      const double q = r * r / t2;
+      const bool in = q < 1.0;
+      inl += in ? 1 : 0;
+      cost += in ? q : 0.0;
+    }
+    h.inliers = inl;
+    h.cost = cost - inl;  // = Σ_in (q − 1): lower is better among equal counts
+  }
+
+  static bool better(const Hypothesis& a, const Hypothesis& b) {
+    return a.inliers > b.inliers || (a.inliers == b.inliers && a.cost < b.cost);
+  }
+
+  /// RANSAC drawing minimal samples from `pool` (augmented indices) and
+  /// accepting only hypotheses inside `box`.
+  Hypothesis run(const std::vector<int>& pool, const MotionBox& box, std::mt19937_64& rng) const {
+    Hypothesis best;
+    if (pool.size() < 2 || box.empty()) return best;
+    std::uniform_int_distribution<std::size_t> pick(0, pool.size() - 1);
+    const double log_fail = std::log(1.0 - cfg_.ransac_confidence);
+    int needed = cfg_.max_iterations;
+    // Draw attempts are bounded separately: degenerate or implausible samples
+    // are cheap and do not count as iterations, but must not loop forever.
+    const int max_draws = 20 * cfg_.max_iterations;
+    int iterations = 0;
+    for (int draw = 0; draw < max_draws && iterations < std::max(needed, cfg_.min_iterations) &&
+                       iterations < cfg_.max_iterations;
+         ++draw) {
+      const int ja = pool[pick(rng)];
+      const int jb = pool[pick(rng)];
+      if (p_.a_det[ja] == p_.a_det[jb]) continue;
+      const double a0 = p_.a_h0[ja], a1 = p_.a_h1[ja], b0 = p_.a_h0[jb], b1 = p_.a_h1[jb];
+      const double det = a0 * b1 - a1 * b0;
+      // Rows must not be near-parallel (same direction, same lever arm).
+      if (std::abs(det) < 0.05 * std::hypot(a0, a1) * std::hypot(b0, b1)) continue;
+      Hypothesis h;
+      h.v = (p_.a_vr[ja] * b1 - a1 * p_.a_vr[jb]) / det;
+      h.w = (a0 * p_.a_vr[jb] - b0 * p_.a_vr[ja]) / det;
+      if (!box.contains(h.v, h.w)) continue;
+      ++iterations;
+      score(h);
+      if (better(h, best)) {
+        best = h;
+        const double frac = static_cast<double>(best.inliers) / static_cast<double>(pool.size());
+        const double p_good = std::min(frac * frac, 1.0 - 1e-12);
+        if (p_good > 0.0) {
+          needed = static_cast<int>(std::ceil(log_fail / std::log(1.0 - p_good)));
+        }
+      }
+    }
+    return best;
+  }
+
+  /// Weighted least squares on inliers, starting from (v, w): each round picks
+  /// per detection its best-matching copy, keeps it if within the threshold,
+  /// and re-solves. The covariance is s²·(HᵀWH)⁻¹, s² = Σ w r² / (n − 2).
+  Fit refine(double v, double w) const {
+    Fit fit;
+    const std::size_t n_det = p_.vr.size();
+    std::vector<double> chosen(n_det, 0.0);  // chosen copy's v_r
+    fit.inlier.assign(n_det, 0);
+    const double s_vr2 = cfg_.vr_sigma_mps * cfg_.vr_sigma_mps;
+    auto select = [&](double mv, double mw) {
+      int n = 0;
+      for (std::size_t i = 0; i < n_det; ++i) {
+        const double pred = p_.h0[i] * mv + p_.h1[i] * mw;
+        const double d = p_.g0[i] * mv + p_.g1[i] * mw;
+        const double t2 = thr2_ * (1.0 + az2_ * d * d);
+        double best_r2 = std::numeric_limits<double>::infinity();
+        for (int c = 0; c < p_.count[i]; ++c) {
+          const int j = p_.first[i] + c;
+          const double r = p_.a_vr[j] - pred;
+          if (r * r < best_r2) {
+            best_r2 = r * r;
+            chosen[i] = p_.a_vr[j];
+          }
+        }
+        fit.inlier[i] = best_r2 < t2 ? 1 : 0;
+        n += fit.inlier[i];
+      }
+      return n;
+    };
+    // Normal equations with weights fixed at (mv, mw) (the azimuth term depends on m).
+    auto normal = [&](double mv, double mw, Eigen::Matrix2d& A, Eigen::Vector2d& b) {
+      A.setZero();
+      b.setZero();
+      for (std::size_t i = 0; i < n_det; ++i) {
+        if (!fit.inlier[i]) continue;
+        const double d = p_.g0[i] * mv + p_.g1[i] * mw;
+        const double wgt = 1.0 / (s_vr2 * (1.0 + az2_ * d * d));
+        const Eigen::Vector2d h(p_.h0[i], p_.h1[i]);
+        A += wgt * h * h.transpose();
+        b += wgt * h * chosen[i];
+      }
+    };
+    auto solvable = [](const Eigen::Matrix2d& A) {
+      // Reject near-singular normal matrices (all inliers along one direction).
+      const Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> es(A);
+      return es.eigenvalues()(0) > 1e-9 * std::max(es.eigenvalues()(1), 1e-300);
+    };
+    Eigen::Matrix2d A;
+    Eigen::Vector2d b;
+    for (int round = 0; round < cfg_.refinement_rounds; ++round) {
+      const int n = select(v, w);
+      if (n < 3) return fit;
+      normal(v, w, A, b);
+      if (!solvable(A)) return fit;
+      const Eigen::Vector2d m = A.ldlt().solve(b);
+      const bool converged = std::abs(m(0) - v) < 1e-6 && std::abs(m(1) - w) < 1e-8;
+      v = m(0);
+      w = m(1);
+      if (converged) break;
+    }
+    const int n = select(v, w);
+    if (n < 3) return fit;
+    normal(v, w, A, b);
+    if (!solvable(A)) return fit;
+    const Eigen::Matrix2d A_inv = A.inverse();
+    const Eigen::Vector2d m = A_inv * b;
+    double chi2 = 0.0;
+    for (std::size_t i = 0; i < n_det; ++i) {
+      if (!fit.inlier[i]) continue;
+      const double d = p_.g0[i] * v + p_.g1[i] * w;
+      const double wgt = 1.0 / (s_vr2 * (1.0 + az2_ * d * d));
+      const double r = chosen[i] - (p_.h0[i] * m(0) + p_.h1[i] * m(1));
+      chi2 += wgt * r * r;
+    }
+    fit.ok = true;
+    fit.v = m(0);
+    fit.w = m(1);
+    fit.inliers = n;
+    fit.cov = (chi2 / static_cast<double>(n - 2)) * A_inv;
+    return fit;
+  }
+
+ private:
+  const Problem& p_;
+  const EgoMotionConfig& cfg_;
+  double az2_ = 0.0;
+  double thr2_ = 0.0;
+};
+
+}  // namespace
+
+EgoMotionEstimator::EgoMotionEstimator(std::vector<SensorMount> mounts, EgoMotionConfig cfg)
+    : mounts_(std::move(mounts)), cfg_(cfg), latest_(mounts_.size()) {
+  POLMAP_EXPECT(!mounts_.empty());
+  POLMAP_EXPECT(cfg_.min_inliers >= 3);
+  POLMAP_EXPECT(cfg_.max_speed_mps > cfg_.min_speed_mps);
+  POLMAP_EXPECT(cfg_.inlier_threshold_mps > 0 && cfg_.vr_sigma_mps > 0);
+  POLMAP_EXPECT(cfg_.ransac_confidence > 0 && cfg_.ransac_confidence < 1);
+  for (std::size_t i = 0; i < mounts_.size(); ++i) {
+    for (std::size_t j = i + 1; j < mounts_.size(); ++j) {
+      POLMAP_EXPECT(mounts_[i].sensor_id != mounts_[j].sensor_id);
+    }
+  }
+}
+
+void EgoMotionEstimator::reset() {
+  for (auto& f : latest_) f.reset();
+  accepted_.clear();
+  static_mask_.clear();
+  calls_ = 0;
+  last_time_s_ = -1e300;
+}
+
+std::optional<Eigen::Vector2d> EgoMotionEstimator::acceleration(double time_s) const {
+  // Least-squares slope of v(t) and ω(t) over the recent accepted estimates.
+  int n = 0;
+  double st = 0, sv = 0, sw = 0;
+  double t_min = std::numeric_limits<double>::infinity(), t_max = -t_min;
+  for (const auto& a : accepted_) {
+    if (time_s - a.time_s > cfg_.accel_window_s || a.time_s > time_s) continue;
+    ++n;
+    st += a.time_s;
+    sv += a.v_mps;
+    sw += a.yaw_rate_rps;
+    t_min = std::min(t_min, a.time_s);
+    t_max = std::max(t_max, a.time_s);
+  }
+  if (n < cfg_.accel_min_estimates || t_max - t_min < cfg_.accel_window_s / 3.0) {
+    return std::nullopt;
+  }
+  const double tm = st / n, vm = sv / n, wm = sw / n;
+  double stt = 0, stv = 0, stw = 0;
+  for (const auto& a : accepted_) {
+    if (time_s - a.time_s > cfg_.accel_window_s || a.time_s > time_s) continue;
+    const double dt = a.time_s - tm;
+    stt += dt * dt;
+    stv += dt * (a.v_mps - vm);
+    stw += dt * (a.yaw_rate_rps - wm);
+  }
+  if (stt <= 0) return std::nullopt;
+  return Eigen::Vector2d(std::clamp(stv / stt, -cfg_.max_accel_mps2, cfg_.max_accel_mps2),
+                         std::clamp(stw / stt, -cfg_.max_yaw_accel_rps2, cfg_.max_yaw_accel_rps2));
+}
+
+MotionEstimate EgoMotionEstimator::process(const SensorFrame& frame) {
+  POLMAP_EXPECT(frame.time_s >= last_time_s_);
+  std::size_t new_idx = mounts_.size();
+  for (std::size_t i = 0; i < mounts_.size(); ++i) {
+    if (mounts_[i].sensor_id == frame.sensor_id) new_idx = i;
+  }
+  POLMAP_EXPECT(new_idx < mounts_.size());  // frame of a sensor without mount
+  last_time_s_ = frame.time_s;
+  latest_[new_idx] = StoredFrame{frame.time_s, frame.detections};
+
+  const double t = frame.time_s;
+  std::mt19937_64 rng(cfg_.seed ^ (0x9E3779B97F4A7C15ULL * ++calls_));
+
+  MotionEstimate est;
+  est.time_s = t;
+  est.v_mps = kNaN;
+  est.yaw_rate_rps = kNaN;
+  est.covariance.setConstant(kNaN);
+  static_mask_.assign(frame.detections.size(), false);
+
+  // --- combine the new frame with the latest frames of the other sensors ---
+  const std::optional<Eigen::Vector2d> accel =
+      cfg_.combine_window_s > 0 ? acceleration(t) : std::nullopt;
+  std::vector<std::size_t> order{new_idx};  // new frame first: its detections start at 0
+  for (std::size_t i = 0; i < mounts_.size(); ++i) {
+    if (i == new_idx || !latest_[i]) continue;
+    const double age = t - latest_[i]->time_s;
+    if (age >= 0 && age <= cfg_.combine_window_s) order.push_back(i);
+  }
+
+  // Plausible motion box (global) and the prior's box (acceleration limits).
+  const MotionBox global{cfg_.min_speed_mps, cfg_.max_speed_mps, -cfg_.max_yaw_rate_rps,
+                         cfg_.max_yaw_rate_rps};
+  std::optional<MotionBox> prior_box;
+  if (!accepted_.empty() && t - accepted_.back().time_s <= cfg_.max_prior_age_s) {
+    const auto& p = accepted_.back();
+    const double dt = t - p.time_s;
+    const double dv = cfg_.max_accel_mps2 * dt + cfg_.accel_slack_mps;
+    const double dw = cfg_.max_yaw_accel_rps2 * dt + cfg_.yaw_accel_slack_rps;
+    prior_box = MotionBox{p.v_mps - dv, p.v_mps + dv, p.yaw_rate_rps - dw, p.yaw_rate_rps + dw};
+  }
+
+  Problem prob;
+  const double thr_margin = 3.0 * cfg_.inlier_threshold_mps;
+  for (std::size_t fi = 0; fi < order.size(); ++fi) {
+    const SensorMount& mount = mounts_[order[fi]];
+    const StoredFrame& sf = *latest_[order[fi]];
+    const double xm = mount.T_vehicle_sensor.x_m, ym = mount.T_vehicle_sensor.y_m;
+    const double vua = mount.spec.v_unambiguous_mps;
+    const double age = t - sf.time_s;
+    for (const Detection& d : sf.detections) {
+      const double th = static_cast<double>(d.azimuth_rad) + mount.T_vehicle_sensor.yaw_rad;
+      const double c = std::cos(th), s = std::sin(th);
+      const double h0 = -c, h1 = ym * c - xm * s;
+      const double g0 = s, g1 = -ym * s - xm * c;
+      double vr = d.radial_velocity_mps;
+      if (accel && age > 0) vr += (h0 * (*accel)(0) + h1 * (*accel)(1)) * age;
+      const int i = static_cast<int>(prob.vr.size());
+      prob.h0.push_back(h0);
+      prob.h1.push_back(h1);
+      prob.g0.push_back(g0);
+      prob.g1.push_back(g1);
+      prob.vr.push_back(vr);
+      prob.first.push_back(static_cast<int>(prob.a_vr.size()));
+      // Radial velocities this direction can show for any motion in the global
+      // box (linear in (v, ω): extremes at the corners), plus a noise margin.
+      const double c1 = h0 * global.v_lo + h1 * global.w_lo, c2 = h0 * global.v_lo + h1 * global.w_hi;
+      const double c3 = h0 * global.v_hi + h1 * global.w_lo, c4 = h0 * global.v_hi + h1 * global.w_hi;
+      const double lo = std::min({c1, c2, c3, c4}) - thr_margin;
+      const double hi = std::max({c1, c2, c3, c4}) + thr_margin;
+      int k_lo = 0, k_hi = 0;
+      if (vua > 0) {
+        k_lo = static_cast<int>(std::ceil((lo - vr) / (2.0 * vua)));
+        k_hi = static_cast<int>(std::floor((hi - vr) / (2.0 * vua)));
+      } else if (vr < lo || vr > hi) {
+        k_lo = 1;  // unaliased sensor, physically impossible value: no copy
+      }
+      for (int k = k_lo; k <= k_hi; ++k) {
+        prob.a_h0.push_back(h0);
+        prob.a_h1.push_back(h1);
+        prob.a_g0.push_back(g0);
+        prob.a_g1.push_back(g1);
+        prob.a_vr.push_back(vr + 2.0 * k * vua);
+        prob.a_det.push_back(i);
+      }
+      prob.count.push_back(static_cast<int>(prob.a_vr.size()) - prob.first.back());
+    }
+  }
+  est.num_detections = static_cast<int>(prob.vr.size());
+  est.num_frames = static_cast<int>(order.size());
+  est.time_corrected = accel.has_value() && order.size() > 1;
+  const int n_required = cfg_.min_inliers;
+  if (est.num_detections < n_required) {
+    est.status = MotionEstimate::Status::TooFewDetections;
+    return est;
+  }
+
+  const Ransac ransac(prob, cfg_);
+  std::vector<int> pool(prob.a_vr.size());
+  for (std::size_t j = 0; j < pool.size(); ++j) pool[j] = static_cast<int>(j);
+
+  auto consistent = [&](double v, double w) { return !prior_box || prior_box->contains(v, w); };
+  auto well_constrained = [&](const Fit& f) {
+    return f.ok && f.inliers >= n_required && f.cov(0, 0) <= cfg_.max_v_std_mps * cfg_.max_v_std_mps &&
+           f.cov(1, 1) <= cfg_.max_yaw_rate_std_rps * cfg_.max_yaw_rate_std_rps;
+  };
+
+  // Stage 1: global RANSAC over the whole augmented set.
+  Fit fit;
+  const Hypothesis best = ransac.run(pool, global, rng);
+  if (best.inliers < n_required) {
+    est.status = MotionEstimate::Status::TooFewDetections;
+    return est;
+  }
+  fit = ransac.refine(best.v, best.w);
+  bool accepted = well_constrained(fit) && consistent(fit.v, fit.w);
+
+  // Stage 2: the best hypothesis violates the acceleration limits (or its fit
+  // failed): look for the best limit-consistent hypothesis, sampling only
+  // copies that such a hypothesis could explain.
+  if (!accepted && prior_box) {
+    const MotionBox box = prior_box->intersect(global);
+    const double dv = 0.5 * (box.v_hi - box.v_lo), dw = 0.5 * (box.w_hi - box.w_lo);
+    const double vc = 0.5 * (box.v_hi + box.v_lo), wc = 0.5 * (box.w_hi + box.w_lo);
+    std::vector<int> pool2;
+    for (std::size_t j = 0; j < prob.a_vr.size(); ++j) {
+      const double pred = prob.a_h0[j] * vc + prob.a_h1[j] * wc;
+      const double tol = std::abs(prob.a_h0[j]) * dv + std::abs(prob.a_h1[j]) * dw + thr_margin;
+      if (std::abs(prob.a_vr[j] - pred) <= tol) pool2.push_back(static_cast<int>(j));
+    }
+    const Hypothesis best2 = ransac.run(pool2, box, rng);
+    if (best2.inliers >= n_required) {
+      const Fit fit2 = ransac.refine(best2.v, best2.w);
+      if (well_constrained(fit2) && consistent(fit2.v, fit2.w)) {
+        fit = fit2;
+        accepted = true;
+        est.used_consistent_fallback = true;
+      }
+    }
+    if (!accepted) {
+      est.status = MotionEstimate::Status::Rejected;
+      return est;
+    }
+  }
+  if (!accepted) {
+    est.status = MotionEstimate::Status::TooFewDetections;  // unconstrained or degenerate
+    return est;
+  }
+
+  est.status = MotionEstimate::Status::Ok;
+  est.v_mps = fit.v;
+  est.yaw_rate_rps = fit.w;
+  est.covariance = fit.cov;
+  est.num_inliers = fit.inliers;
+  for (std::size_t i = 0; i < frame.detections.size(); ++i) static_mask_[i] = fit.inlier[i] != 0;
+
+  accepted_.push_back({t, fit.v, fit.w});
+  const double keep_s = std::max(cfg_.accel_window_s, 0.0);
+  while (accepted_.size() > 1 && t - accepted_.front().time_s > keep_s) accepted_.pop_front();
+  return est;
+}
+
+}  // namespace polmap::radar

@@ -1,0 +1,294 @@
+#pragma once
+/// @file store.hpp
+/// The mapping service's storage interface: drives (ingested packages and
+/// their landmark candidates), map versions with their landmarks, and the
+/// tiles served to vehicles. SqliteMapStore (sqlite_store.hpp) is the embedded
+/// default; a PostgreSQL/PostGIS adapter can follow (see the note at the end).
+///
+/// Usage (HTTP server, CLI):
+///   SqliteMapStore store("/var/lib/polmap/map.db");
+///   PutDriveResult r = store.put_drive(pkg, pkg_path, sha256_hex);  // idempotent
+///   if (auto v = store.current_map_version()) {
+///     if (auto tile = store.get_tile(*v, key)) reply(tile->payload, tile->etag);
+///   }
+///   MapBuilder{}.build(store, MapBuildRequest{});   // map_builder.hpp
+///
+/// Identity: a drive is named by its manifest drive_id (unique in a store) and
+/// its content hash (SHA-256 hex of the uploaded bytes, unique). `DriveRecord::row`
+/// is the store's internal key, used for candidates and consensus support.
+///
+/// Threading: every method of an implementation is safe to call concurrently
+/// from any number of threads (the HTTP server is multithreaded). Readers see
+/// committed data only, and only PUBLISHED map versions: a version being built
+/// is invisible to landmark/tile reads until publish_map_version() commits.
+///
+/// Errors: NotFoundError (unknown drive/version, or a version not published),
+/// ConflictError (drive_id already present with different content),
+/// ValidationError (bad arguments), IoError (database or file system).
+#include <cstdint>
+#include <filesystem>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <span>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "polmap/mapping_service/drive_package.hpp"
+#include "polmap/schema/errors.hpp"
+#include "polmap/schema/geo.hpp"
+#include "polmap/schema/landmark.hpp"
+#include "polmap/tiles/tile_key.hpp"
+
+namespace polmap::mapping {
+
+/// The request conflicts with stored state (HTTP 409), e.g. a drive_id that is
+/// already stored with a different content hash.
+class ConflictError : public ValidationError {
+ public:
+  using ValidationError::ValidationError;
+};
+
+/// A geodetic box in degrees (WGS84). Boxes crossing the antimeridian are not
+/// supported (min_lon_deg <= max_lon_deg).
+using GeoBox = tiles::GeoBox;
+
+/// One ingested drive.
+struct DriveRecord {
+  std::int64_t row = 0;          ///< store key (candidates.drive, consensus drive id)
+  std::string drive_id;          ///< manifest drive_id, unique per store
+  std::string content_hash;      ///< SHA-256 hex of the package bytes, unique
+  std::string vehicle_id;
+  double start_time_s = 0.0;
+  double end_time_s = 0.0;
+  GeoBox bbox;                   ///< of trajectory and candidates
+  PolLevel pol_level = PolLevel::Full;
+  double distance_m = 0.0;
+  std::int64_t num_points = 0;   ///< point candidates stored
+  std::int64_t num_lines = 0;    ///< line candidates stored
+  nlohmann::json manifest;       ///< manifest.json as ingested
+  std::filesystem::path package_path;  ///< absolute path of the stored package copy
+  std::string ingested_at;       ///< ISO 8601 UTC, e.g. "2024-05-01T12:00:00Z"
+};
+
+/// Outcome of put_drive. AlreadyPresent: same content hash stored before
+/// (nothing was changed; `drive` is the existing record).
+struct PutDriveResult {
+  enum class Status { Inserted, AlreadyPresent };
+  Status status = Status::Inserted;
+  DriveRecord drive;
+};
+
+/// A stored point candidate: geodetic position plus the drive-frame original.
+struct StoredPointCandidate {
+  std::int64_t id = 0;     ///< candidate id (unique over points and lines)
+  std::int64_t drive = 0;  ///< DriveRecord::row
+  GeoPoint position;       ///< WGS84 (alt_m 0)
+  PointCandidate candidate;  ///< position_m in the drive's frame
+};
+
+/// A stored line candidate.
+struct StoredLineCandidate {
+  std::int64_t id = 0;
+  std::int64_t drive = 0;
+  GeoPoint start;
+  GeoPoint end;
+  LineCandidate candidate;  ///< in the drive's frame
+};
+
+struct CandidateSet {
+  std::vector<StoredPointCandidate> points;
+  std::vector<StoredLineCandidate> lines;
+};
+
+enum class MapVersionStatus { Building, Published, Failed };
+std::string_view to_string(MapVersionStatus s);
+
+/// A map version. Published versions are immutable snapshots.
+struct MapVersionInfo {
+  std::int64_t version = 0;
+  MapVersionStatus status = MapVersionStatus::Building;
+  std::string created_at;     ///< ISO 8601 UTC
+  std::string published_at;   ///< empty unless published
+  nlohmann::json parameters;  ///< build request: region, excluded drives, config, notes
+  nlohmann::json statistics;  ///< build statistics (null until finished)
+  std::string error;          ///< why it failed (status Failed)
+  bool current = false;       ///< the version served by default
+};
+
+/// A consensus point landmark of a map version, geodetic.
+struct StoredPointLandmark {
+  std::int64_t id = 0;   ///< row id (assigned by the store; ignored on write)
+  std::int64_t key = 0;  ///< stable id: hash of the quantized geometry (same
+                         ///< landmark in two versions -> same key); used in tiles
+  GeoPoint position;
+  ScatteringClass scattering = ScatteringClass::Unknown;
+  std::uint32_t support_drives = 0;
+  double spread_m = 0.0;
+  std::vector<std::int64_t> support;  ///< candidate ids
+};
+
+/// A consensus line landmark (polyline, >= 2 vertices), geodetic.
+struct StoredLineLandmark {
+  std::int64_t id = 0;
+  std::int64_t key = 0;
+  std::vector<GeoPoint> polyline;
+  std::uint32_t support_drives = 0;
+  double spread_m = 0.0;
+  std::vector<std::int64_t> support;
+};
+
+struct LandmarkSet {
+  std::vector<StoredPointLandmark> points;
+  std::vector<StoredLineLandmark> lines;
+};
+
+/// Tile layers kept per map version.
+enum class TileLayer {
+  Localization,  ///< localization tiles (tiles/localization_tile.hpp), z = kLocalizationZoom
+  Gridmap,       ///< fleet gridmap amplitude tiles (fleet_gridmap.hpp)
+};
+
+/// A tile to store with a map version. Blobs are content-addressed by etag:
+/// reuse_blob = true stores only the reference to an existing blob with that
+/// etag (an unchanged tile of the previous version; payload may be empty).
+struct TileWrite {
+  tiles::TileKey key;
+  std::string etag;     ///< lower-case SHA-256 hex of payload (content_etag())
+  std::string payload;
+  bool reuse_blob = false;
+  std::int32_t num_points = 0;  ///< informative (listing, stats)
+  std::int32_t num_lines = 0;
+};
+
+/// Tile listing entry (no payload).
+struct TileInfo {
+  tiles::TileKey key;
+  std::string etag;
+  std::int64_t byte_size = 0;
+  std::int32_t num_points = 0;
+  std::int32_t num_lines = 0;
+};
+
+/// A stored tile.
+struct StoredTile {
+  tiles::TileKey key;
+  std::string etag;     ///< strong ETag value (unquoted SHA-256 hex of payload)
+  std::string payload;
+};
+
+/// Figures for /metrics.
+struct StoreStats {
+  std::int64_t drives = 0;
+  std::int64_t point_candidates = 0;
+  std::int64_t line_candidates = 0;
+  std::int64_t map_versions = 0;
+  std::optional<std::int64_t> current_version;
+  std::int64_t current_point_landmarks = 0;
+  std::int64_t current_line_landmarks = 0;
+  std::int64_t current_tiles = 0;
+  std::int64_t tile_blobs = 0;
+  std::int64_t tile_blob_bytes = 0;
+  std::int64_t database_bytes = 0;
+  std::int64_t drive_store_bytes = 0;
+};
+
+/// Strong ETag of a payload: lower-case SHA-256 hex (64 chars).
+std::string content_etag(std::string_view payload);
+
+/// Abstract store. See the file comment for threading and error rules.
+class MapStore {
+ public:
+  virtual ~MapStore() = default;
+
+  // ------------------------------------------------------------ drives
+  /// Ingests a validated package: copies `package_location` (the .tar file or
+  /// the package directory) into the drive store and inserts the drive and
+  /// its candidates in one transaction. All or nothing: a failure at any
+  /// point leaves neither rows nor files behind. Idempotent by content hash.
+  /// `content_hash`: lower-case hex SHA-256 of the package bytes.
+  virtual PutDriveResult put_drive(const DrivePackage& package,
+                                   const std::filesystem::path& package_location,
+                                   const std::string& content_hash) = 0;
+  [[nodiscard]] virtual std::vector<DriveRecord> list_drives() const = 0;
+  [[nodiscard]] virtual std::optional<DriveRecord> get_drive(std::string_view drive_id) const = 0;
+  [[nodiscard]] virtual std::optional<DriveRecord> find_drive_by_hash(
+      std::string_view content_hash) const = 0;
+  /// Drives whose bounding box intersects the box.
+  [[nodiscard]] virtual std::vector<DriveRecord> drives_in(const GeoBox& box) const = 0;
+  /// Removes the drive's rows (candidates, support links of old map versions)
+  /// and files. Published map versions keep their landmarks. False if unknown.
+  virtual bool delete_drive(std::string_view drive_id) = 0;
+
+  // ------------------------------------------------------------ candidates
+  /// Candidates inside `region` (points inside, lines whose bounding box
+  /// intersects; all if nullopt) of all drives except `excluded_drive_ids`
+  /// (manifest drive ids). Ordered by candidate id.
+  [[nodiscard]] virtual CandidateSet candidates_in(
+      const std::optional<GeoBox>& region,
+      std::span<const std::string> excluded_drive_ids = {}) const = 0;
+
+  // ------------------------------------------------------------ map versions
+  /// Creates a version with status Building and returns its number (ascending).
+  virtual std::int64_t begin_map_version(const nlohmann::json& parameters) = 0;
+  /// Adds landmarks to a Building version (may be called repeatedly).
+  virtual void put_landmarks(std::int64_t version, std::span<const StoredPointLandmark> points,
+                             std::span<const StoredLineLandmark> lines) = 0;
+  /// Adds tiles of a layer to a Building version (may be called repeatedly).
+  virtual void put_tiles(std::int64_t version, TileLayer layer,
+                         std::span<const TileWrite> tiles) = 0;
+  /// Building -> Published in one transaction, with statistics; with
+  /// make_current the current pointer moves to this version in the same
+  /// transaction (readers switch atomically from the old to the new map).
+  virtual void publish_map_version(std::int64_t version, const nlohmann::json& statistics,
+                                   bool make_current = true) = 0;
+  /// Building -> Failed; drops the version's landmarks and tiles.
+  virtual void fail_map_version(std::int64_t version, std::string_view error) = 0;
+  /// Moves the current pointer to a published version (rollback).
+  virtual void set_current_map_version(std::int64_t version) = 0;
+  /// Deletes a non-current version with its landmarks and tiles (blobs no
+  /// longer referenced are dropped). False if unknown.
+  virtual bool delete_map_version(std::int64_t version) = 0;
+  [[nodiscard]] virtual std::optional<std::int64_t> current_map_version() const = 0;
+  [[nodiscard]] virtual std::optional<MapVersionInfo> get_map_version(std::int64_t version) const = 0;
+  [[nodiscard]] virtual std::vector<MapVersionInfo> list_map_versions() const = 0;
+
+  // ------------------------------------------------------------ published content
+  /// Landmarks of a published version inside `box` (all if nullopt); points
+  /// inside, lines whose bounding box intersects. Throws NotFoundError if the
+  /// version is unknown or not published.
+  [[nodiscard]] virtual LandmarkSet landmarks_in(std::int64_t version,
+                                                 const std::optional<GeoBox>& box) const = 0;
+  /// A tile of a published version, or nullopt when the version has no tile
+  /// there (empty area). Throws NotFoundError for unknown/unpublished versions.
+  [[nodiscard]] virtual std::optional<StoredTile> get_tile(std::int64_t version, TileLayer layer,
+                                                           const tiles::TileKey& key) const = 0;
+  /// ETag only (cheap conditional requests).
+  [[nodiscard]] virtual std::optional<std::string> get_tile_etag(
+      std::int64_t version, TileLayer layer, const tiles::TileKey& key) const = 0;
+  /// All tiles of a version and layer (also usable on a Building version by
+  /// its builder); ordered by (z, x, y).
+  [[nodiscard]] virtual std::vector<TileInfo> list_tiles(std::int64_t version,
+                                                         TileLayer layer) const = 0;
+
+  [[nodiscard]] virtual StoreStats stats() const = 0;
+};
+
+// PostgreSQL/PostGIS adapter (DESIGN.md §7; not implemented). The same
+// interface maps 1:1 onto the tables of schema/store.sql:
+//  - geometry columns become PostGIS `geometry(Point|LineString, 4326)` with
+//    GiST indexes instead of the SQLite R*Tree side tables (candidates_rtree,
+//    landmarks_rtree, drives_rtree); region queries use `geom && ST_MakeEnvelope(...)`;
+//  - JSON columns become `jsonb`; blobs `bytea`; ISO timestamps `timestamptz`;
+//  - put_drive: package files go to shared storage (object store or NFS) under
+//    the content hash, rows in one transaction; idempotency by the UNIQUE
+//    constraint on content_hash (INSERT ... ON CONFLICT DO NOTHING RETURNING);
+//  - publish_map_version: one transaction `UPDATE map_versions SET status =
+//    'published' ...; UPDATE current_map ...` (READ COMMITTED suffices:
+//    readers read the pointer, then a published, immutable version);
+//  - partitioned builds: a `build_jobs(region, status, claimed_by)` table,
+//    claimed with `SELECT ... FOR UPDATE SKIP LOCKED`; each job writes its
+//    region's tiles into the Building version, the last one publishes;
+//  - connections from a pool (libpq, one per thread), as SqliteMapStore does.
+
+}  // namespace polmap::mapping

@@ -1,0 +1,181 @@
+-- polmap map store schema (SQLite 3.24+ with the R*Tree module; Debian's libsqlite3 has it).
+-- Applied by SqliteMapStore (mapping_service/src/sqlite_store.cpp), which embeds these exact
+-- statements; tests/mapping_service/sqlite_store_test.cpp checks this file against them.
+--
+-- Versioning: every open first runs the bootstrap statement, then, in ONE
+-- transaction, each migration whose number is above MAX(schema_migrations.version),
+-- recording it in schema_migrations. Migrations are append-only: a released migration
+-- is never edited; changes come as a new numbered migration at the end of this file.
+--
+-- Conventions:
+--   * geodetic coordinates: WGS84 degrees (lat_deg, lon_deg) in REAL columns;
+--   * *_rtree: R*Tree side tables (id = row id of the main table) holding 32-bit float
+--     bounding boxes (min_lat, max_lat, min_lon, max_lon) rounded outward; queries use them
+--     as a coarse filter and then test the exact REAL columns. R*Tree tables cannot take
+--     foreign keys, so AFTER DELETE triggers keep them in step (FK cascades fire them);
+--   * times: ISO 8601 UTC text ("2024-05-01T12:00:00Z"), which sorts chronologically;
+--   * JSON: TEXT columns named *_json;
+--   * a drive's package files live in <db>.drives/<content_hash>/ (package_path is
+--     relative to that drive store directory).
+--
+-- Tables:
+--   drives            one row per ingested package; drive_id (manifest) and content_hash
+--                     (SHA-256 hex of the uploaded bytes) are both unique: a second upload
+--                     of the same bytes is a no-op, the same drive_id with other bytes a
+--                     conflict.
+--   candidates        landmark candidates of a drive: kind 0 = point (lat/lon, x/y), kind 1 =
+--                     line (start lat/lon, x/y; end_* columns). x_m/y_m are in the drive's
+--                     LocalFrame (manifest origin). Deleted with their drive (cascade).
+--   map_versions      one row per build: status building -> published | failed. Published
+--                     versions are immutable snapshots. parameters_json holds the build
+--                     request (region, excluded drives, config, notes), statistics_json the
+--                     build statistics.
+--   current_map       single-row pointer (id = 1) to the published version served by default;
+--                     triggers refuse a pointer to a version that is not published. Publishing
+--                     updates map_versions.status and current_map in one transaction, so
+--                     readers see either the old or the new map, never half of one.
+--   landmarks         consensus landmarks of a version: kind 0 = point at (lat_deg, lon_deg),
+--                     kind 1 = line with polyline_json = [[lat, lon], ...] (>= 2 vertices;
+--                     lat/lon = first vertex). key = stable id (hash of the quantized
+--                     geometry), identical for an unchanged landmark in the next version.
+--   landmark_support  landmark -> supporting candidate ids (provenance). Deleting a drive
+--                     removes its links; landmarks of published versions stay.
+--   tile_blobs        content-addressed tile payloads: etag = SHA-256 hex of payload, unique,
+--                     so an unchanged tile shared by many versions is stored once (and keeps
+--                     its ETag, so vehicle caches stay valid across versions). Blobs no
+--                     longer referenced are deleted with their last version.
+--   tiles             localization tiles of a version (z = tiles::kLocalizationZoom, XYZ keys)
+--   gridmap_tiles     fleet gridmap raster tiles of a version (fleet_gridmap.hpp documents
+--                     the payload), same shape as tiles.
+
+-- bootstrap (every open)
+CREATE TABLE IF NOT EXISTS schema_migrations (
+  version    INTEGER PRIMARY KEY,
+  name       TEXT NOT NULL,
+  applied_at TEXT NOT NULL
+);
+
+-- migration 1: initial schema
+CREATE TABLE drives (
+  id            INTEGER PRIMARY KEY,
+  drive_id      TEXT NOT NULL UNIQUE,
+  content_hash  TEXT NOT NULL UNIQUE,
+  vehicle_id    TEXT NOT NULL,
+  start_time_s  REAL NOT NULL,
+  end_time_s    REAL NOT NULL,
+  min_lat_deg   REAL NOT NULL,
+  min_lon_deg   REAL NOT NULL,
+  max_lat_deg   REAL NOT NULL,
+  max_lon_deg   REAL NOT NULL,
+  pol_level     TEXT NOT NULL,
+  distance_m    REAL NOT NULL,
+  num_points    INTEGER NOT NULL,
+  num_lines     INTEGER NOT NULL,
+  manifest_json TEXT NOT NULL,
+  package_path  TEXT NOT NULL,
+  package_bytes INTEGER NOT NULL,
+  ingested_at   TEXT NOT NULL
+);
+CREATE VIRTUAL TABLE drives_rtree USING rtree(id, min_lat, max_lat, min_lon, max_lon);
+CREATE TRIGGER drives_rtree_delete AFTER DELETE ON drives BEGIN
+  DELETE FROM drives_rtree WHERE id = old.id;
+END;
+
+CREATE TABLE candidates (
+  id          INTEGER PRIMARY KEY,
+  drive       INTEGER NOT NULL REFERENCES drives(id) ON DELETE CASCADE,
+  kind        INTEGER NOT NULL CHECK (kind IN (0, 1)),
+  lat_deg     REAL NOT NULL,
+  lon_deg     REAL NOT NULL,
+  x_m         REAL NOT NULL,
+  y_m         REAL NOT NULL,
+  end_lat_deg REAL,
+  end_lon_deg REAL,
+  end_x_m     REAL,
+  end_y_m     REAL,
+  strength    REAL NOT NULL,
+  power_db    REAL,
+  scattering  INTEGER,
+  num_cells   INTEGER
+);
+CREATE INDEX candidates_drive ON candidates(drive);
+CREATE VIRTUAL TABLE candidates_rtree USING rtree(id, min_lat, max_lat, min_lon, max_lon);
+CREATE TRIGGER candidates_rtree_delete AFTER DELETE ON candidates BEGIN
+  DELETE FROM candidates_rtree WHERE id = old.id;
+END;
+
+CREATE TABLE map_versions (
+  version         INTEGER PRIMARY KEY,
+  status          TEXT NOT NULL CHECK (status IN ('building', 'published', 'failed')),
+  created_at      TEXT NOT NULL,
+  published_at    TEXT,
+  parameters_json TEXT NOT NULL,
+  statistics_json TEXT,
+  error           TEXT
+);
+CREATE TABLE current_map (
+  id      INTEGER PRIMARY KEY CHECK (id = 1),
+  version INTEGER NOT NULL REFERENCES map_versions(version)
+);
+CREATE TRIGGER current_map_insert BEFORE INSERT ON current_map
+WHEN (SELECT status FROM map_versions WHERE version = new.version) IS NOT 'published' BEGIN
+  SELECT RAISE(ABORT, 'current map version must be published');
+END;
+CREATE TRIGGER current_map_update BEFORE UPDATE ON current_map
+WHEN (SELECT status FROM map_versions WHERE version = new.version) IS NOT 'published' BEGIN
+  SELECT RAISE(ABORT, 'current map version must be published');
+END;
+
+CREATE TABLE landmarks (
+  id             INTEGER PRIMARY KEY,
+  version        INTEGER NOT NULL REFERENCES map_versions(version) ON DELETE CASCADE,
+  key            INTEGER NOT NULL,
+  kind           INTEGER NOT NULL CHECK (kind IN (0, 1)),
+  lat_deg        REAL NOT NULL,
+  lon_deg        REAL NOT NULL,
+  polyline_json  TEXT,
+  scattering     INTEGER NOT NULL DEFAULT 0,
+  support_drives INTEGER NOT NULL,
+  spread_m       REAL NOT NULL
+);
+CREATE INDEX landmarks_version ON landmarks(version, kind);
+CREATE VIRTUAL TABLE landmarks_rtree USING rtree(id, min_lat, max_lat, min_lon, max_lon);
+CREATE TRIGGER landmarks_rtree_delete AFTER DELETE ON landmarks BEGIN
+  DELETE FROM landmarks_rtree WHERE id = old.id;
+END;
+
+CREATE TABLE landmark_support (
+  landmark  INTEGER NOT NULL REFERENCES landmarks(id) ON DELETE CASCADE,
+  candidate INTEGER NOT NULL REFERENCES candidates(id) ON DELETE CASCADE,
+  PRIMARY KEY (landmark, candidate)
+) WITHOUT ROWID;
+CREATE INDEX landmark_support_candidate ON landmark_support(candidate);
+
+CREATE TABLE tile_blobs (
+  id        INTEGER PRIMARY KEY,
+  etag      TEXT NOT NULL UNIQUE,
+  payload   BLOB NOT NULL,
+  byte_size INTEGER NOT NULL
+);
+CREATE TABLE tiles (
+  version    INTEGER NOT NULL REFERENCES map_versions(version) ON DELETE CASCADE,
+  z          INTEGER NOT NULL,
+  x          INTEGER NOT NULL,
+  y          INTEGER NOT NULL,
+  blob       INTEGER NOT NULL REFERENCES tile_blobs(id),
+  num_points INTEGER NOT NULL DEFAULT 0,
+  num_lines  INTEGER NOT NULL DEFAULT 0,
+  PRIMARY KEY (version, z, x, y)
+) WITHOUT ROWID;
+CREATE INDEX tiles_blob ON tiles(blob);
+CREATE TABLE gridmap_tiles (
+  version    INTEGER NOT NULL REFERENCES map_versions(version) ON DELETE CASCADE,
+  z          INTEGER NOT NULL,
+  x          INTEGER NOT NULL,
+  y          INTEGER NOT NULL,
+  blob       INTEGER NOT NULL REFERENCES tile_blobs(id),
+  num_points INTEGER NOT NULL DEFAULT 0,
+  num_lines  INTEGER NOT NULL DEFAULT 0,
+  PRIMARY KEY (version, z, x, y)
+) WITHOUT ROWID;
+CREATE INDEX gridmap_tiles_blob ON gridmap_tiles(blob);

@@ -1,0 +1,164 @@
+#pragma once
+/// @file map_builder.hpp
+/// Builds a map version from the drives in a MapStore: consensus over the
+/// candidates of all included drives (consensus.hpp), landmarks (WGS84),
+/// localization tiles (tiles/localization_tile.hpp) and fleet gridmap tiles
+/// (fleet_gridmap.hpp), published atomically.
+///
+/// Usage:
+///   SqliteMapStore store(db);
+///   MapBuilder builder;                                  // MapBuilderConfig defaults
+///   MapBuildResult r = builder.build(store, {});          // all drives, becomes current
+///   // leave-one-out (paper §IV-B): a map without drive "d3", not made current
+///   MapBuildRequest loo; loo.excluded_drive_ids = {"d3"}; loo.make_current = false;
+///   builder.build(store, loo);
+///   // HTTP server: answer 202 with the version, build on a worker thread
+///   std::int64_t v = builder.begin(store, req);
+///   std::thread([&, v, req] { builder.run(store, v, req, {&cancel_flag}); });
+///
+/// The build runs in a region frame: tiles::LocalFrame at the centre of the
+/// region (or of the candidates' extent), which keeps scale errors below 2e-6
+/// for regions up to ~10 km (DESIGN.md §7: larger areas are partitioned by
+/// region).
+///
+/// Incremental tiles ("a new drive rebuilds only the tiles it touches"):
+/// consensus is local — a landmark depends only on candidates within
+/// d_p (points) or the projection threshold plus the segment length (lines)
+/// of it — so adding a drive changes only landmarks near its candidates. The
+/// builder recomputes the consensus of the whole region (fast: see
+/// bench/map_build.cpp) but encodes each tile with the map_version stamp of
+/// the previous (current) version's tile first; if the bytes are identical
+/// the new version references the previous blob (same ETag, so vehicle caches
+/// stay valid) and counts it as reused, otherwise the tile is re-encoded with
+/// the new version number and written. For this, landmark geometry is
+/// quantized to 1e-8 degrees (≈ 1.1 mm) and landmark ids in tiles are stable
+/// keys (hash of the quantized geometry), so an unchanged landmark encodes to
+/// identical bytes in every build.
+///
+/// Thread safety: a MapBuilder is immutable; build/begin/run may run
+/// concurrently with any store readers. Run at most one build per store at a
+/// time (two concurrent builds are correct but race for "current").
+#include <atomic>
+#include <cstdint>
+#include <functional>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "polmap/mapping_service/consensus.hpp"
+#include "polmap/mapping_service/fleet_gridmap.hpp"
+#include "polmap/mapping_service/store.hpp"
+#include "polmap/tiles/localization_tile.hpp"
+#include "polmap/tiles/tile_key.hpp"
+
+namespace polmap::mapping {
+
+/// What to build. Recorded in the version's parameters JSON.
+struct MapBuildRequest {
+  /// Restrict the map to a region (landmarks inside; candidates within a
+  /// margin around it take part in the consensus). nullopt = all drives.
+  std::optional<tiles::GeoBox> region;
+  /// Manifest drive ids left out (leave-one-out evaluation, bad drives).
+  std::vector<std::string> excluded_drive_ids;
+  std::string notes;
+  /// Move the current pointer to the new version when it is published.
+  bool make_current = true;
+  /// Reuse byte-identical tiles of the current version (see file comment).
+  bool incremental = true;
+  /// Build the fleet gridmap layer (reads every included drive's gridmap.tif).
+  bool build_gridmap = true;
+  PointConsensusConfig points;
+  LineConsensusConfig lines;
+};
+
+/// Build controls that are not part of the map's description.
+struct BuildControl {
+  /// Checked between stages and tile batches; when set the build fails with
+  /// error "cancelled" and status Cancelled.
+  const std::atomic<bool>* cancel = nullptr;
+  /// Progress: stage name ("load", "consensus", "landmarks", "tiles",
+  /// "gridmap", "publish") and fraction of the whole build in [0, 1].
+  std::function<void(std::string_view stage, double fraction)> progress;
+};
+
+/// Builder settings. Defaults are what `polmap build-map` and the server use.
+struct MapBuilderConfig {
+  /// Zoom of the localization tiles.
+  int tile_zoom = tiles::kLocalizationZoom;
+  tiles::TileEncodeOptions encode;
+  FleetGridmapConfig gridmap;
+  /// Landmarks (and tiles) are written in batches of this many items, one
+  /// transaction each (bounded memory in the store; cancellation points).
+  std::size_t write_batch = 5000;
+  /// Line landmarks are assigned to every tile they cross, found by sampling
+  /// the polyline this densely.
+  double line_tile_sample_m = 1.0;
+};
+
+/// Figures of one build (also stored as the version's statistics JSON).
+struct MapBuildStats {
+  std::int64_t drives_used = 0;
+  std::int64_t point_candidates = 0;
+  std::int64_t line_candidates = 0;
+  std::int64_t point_landmarks = 0;
+  std::int64_t line_landmarks = 0;
+  std::int64_t tiles_total = 0;    ///< localization tiles of the new version
+  std::int64_t tiles_written = 0;  ///< newly encoded (content changed or new)
+  std::int64_t tiles_reused = 0;   ///< byte-identical to the previous version's tile
+  std::int64_t tiles_removed = 0;  ///< tiles of the previous version now empty
+  std::int64_t tile_bytes = 0;     ///< total payload bytes of the version's tiles
+  std::int64_t gridmap_tiles = 0;
+  std::int64_t gridmap_drives = 0;  ///< drives whose gridmap was accumulated
+  std::optional<std::int64_t> previous_version;
+  PointConsensusResult::Stats point_consensus;
+  LineConsensusResult::Stats line_consensus;
+  double seconds_load = 0.0;
+  double seconds_consensus = 0.0;
+  double seconds_landmarks = 0.0;  ///< geodetic conversion and writing landmarks
+  double seconds_tiles = 0.0;
+  double seconds_gridmap = 0.0;
+  double seconds_total = 0.0;
+};
+nlohmann::json to_json(const MapBuildStats& s);
+
+struct MapBuildResult {
+  enum class Status { Published, Failed, Cancelled };
+  Status status = Status::Failed;
+  std::int64_t version = 0;
+  std::string error;  ///< empty when published
+  MapBuildStats stats;
+};
+std::string_view to_string(MapBuildResult::Status s);
+
+class MapBuilder {
+ public:
+  explicit MapBuilder(MapBuilderConfig cfg = {});
+
+  /// Creates the Building version (validates the request: excluded drives
+  /// must exist -> NotFoundError) and returns its number.
+  std::int64_t begin(MapStore& store, const MapBuildRequest& request) const;
+  /// Builds into `version` (from begin) and publishes it, or marks it failed.
+  /// Never throws for build failures: they come back as status + error.
+  MapBuildResult run(MapStore& store, std::int64_t version, const MapBuildRequest& request,
+                     const BuildControl& control = {}) const;
+  /// begin + run.
+  MapBuildResult build(MapStore& store, const MapBuildRequest& request,
+                       const BuildControl& control = {}) const;
+
+  [[nodiscard]] const MapBuilderConfig& config() const { return cfg_; }
+
+ private:
+  MapBuilderConfig cfg_;
+};
+
+/// Stable key of a landmark: 63-bit hash of its kind and its vertices'
+/// coordinates quantized to 1e-8 degrees (the builder quantizes geometry to
+/// the same grid first). Equal geometry -> equal key in every build.
+std::int64_t landmark_key(bool is_line, std::span<const GeoPoint> vertices);
+
+/// Rounds a coordinate to the builder's 1e-8 degree grid.
+double quantize_deg(double deg);
+
+}  // namespace polmap::mapping

@@ -1,0 +1,176 @@
+// Fleet gridmap amplitude tiles (format in fleet_gridmap.hpp).
+#include "polmap/mapping_service/fleet_gridmap.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+
+#include "polmap/schema/errors.hpp"
+
+namespace polmap::mapping {
+namespace {
+constexpr int kPx = kGridmapTilePixels;
+constexpr int kAffineBlock = 64;  // cells per affine fit (6.4 m at 0.1 m cells)
+}  // namespace
+
+FleetGridmapAccumulator::FleetGridmapAccumulator(FleetGridmapConfig cfg) : cfg_(cfg) {
+  POLMAP_EXPECT(cfg_.min_zoom >= 0 && cfg_.min_zoom <= cfg_.base_zoom &&
+                cfg_.base_zoom <= tiles::kMaxZoom);
+  POLMAP_EXPECT(cfg_.db_max > cfg_.db_min);
+}
+
+void FleetGridmapAccumulator::add(const GridmapRaster& r, const tiles::LocalFrame& frame) {
+  if (r.width <= 0 || r.height <= 0) return;
+  POLMAP_EXPECT(r.count.size() == static_cast<std::size_t>(r.width) * r.height);
+  POLMAP_EXPECT(static_cast<int>(r.layers.size()) == r.q * (r.q + 1) / 2);
+  std::vector<int> diag;
+  for (int i = 0; i < r.q; ++i) diag.push_back(i * r.q - i * (i - 1) / 2);
+  const int z = cfg_.base_zoom;
+  // Global pixel coordinates (Web-Mercator, base zoom) of a cell centre.
+  auto pixel_of = [&](double col, double row) {
+    const Eigen::Vector2d xy(r.origin_x_m + (col + 0.5) * r.cell_size_m,
+                             r.origin_y_m - (row + 0.5) * r.cell_size_m);
+    const GeoPoint g = frame.to_geo(xy);
+    const auto m = tiles::to_mercator_tiles(g.lat_deg, g.lon_deg, z);
+    return Eigen::Vector2d(m.x * kPx, m.y * kPx);
+  };
+  const std::int64_t world_px = tiles::tiles_per_side(z) * kPx;
+  Acc* acc = nullptr;
+  tiles::TileKey acc_key{-1, -1, -1};
+  for (int r0 = 0; r0 < r.height; r0 += kAffineBlock) {
+    for (int c0 = 0; c0 < r.width; c0 += kAffineBlock) {
+      const int c1 = std::min(r.width, c0 + kAffineBlock);
+      const int rr1 = std::min(r.height, r0 + kAffineBlock);
+      bool any = false;
+      for (int row = r0; row < rr1 && !any; ++row) {
+        for (int col = c0; col < c1; ++col) {
+          if (r.count[static_cast<std::size_t>(row) * r.width + col] > 0) {
+            any = true;
+            break;
+          }
+        }
+      }
+      if (!any) continue;
+      const Eigen::Vector2d p0 = pixel_of(c0, r0);
+      const Eigen::Vector2d dc = (pixel_of(c0 + kAffineBlock, r0) - p0) / kAffineBlock;
+      const Eigen::Vector2d dr = (pixel_of(c0, r0 + kAffineBlock) - p0) / kAffineBlock;
+      for (int row = r0; row < rr1; ++row) {
+        for (int col = c0; col < c1; ++col) {
+          const std::size_t i = static_cast<std::size_t>(row) * r.width + col;
+          const std::uint32_t n = r.count[i];
+          if (n == 0) continue;
+          double trace = 0.0;
+          for (int d : diag) trace += r.layers[static_cast<std::size_t>(d)][i].real();
+          const Eigen::Vector2d p = p0 + (col - c0) * dc + (row - r0) * dr;
+          auto gx = static_cast<std::int64_t>(std::floor(p.x()));
+          const auto gy = static_cast<std::int64_t>(std::floor(p.y()));
+          if (gy < 0 || gy >= world_px) continue;
+          gx = ((gx % world_px) + world_px) % world_px;
+          const tiles::TileKey key{z, static_cast<int>(gx / kPx), static_cast<int>(gy / kPx)};
+          if (key != acc_key) {
+            auto [it, inserted] = base_.try_emplace(key);
+            if (inserted) {
+              it->second.power.assign(kPx * kPx, 0.0F);
+              it->second.count.assign(kPx * kPx, 0.0F);
+            }
+            acc = &it->second;
+            acc_key = key;
+          }
+          const std::size_t pi = static_cast<std::size_t>(gy % kPx) * kPx + (gx % kPx);
+          acc->power[pi] += static_cast<float>(n * std::max(0.0, trace));
+          acc->count[pi] += static_cast<float>(n);
+        }
+      }
+    }
+  }
+}
+
+std::optional<double> FleetGridmapAccumulator::mean_power(const tiles::TileKey& key, int px,
+                                                          int py) const {
+  const auto it = base_.find(key);
+  if (it == base_.end()) return std::nullopt;
+  const std::size_t i = static_cast<std::size_t>(py) * kPx + px;
+  if (it->second.count[i] <= 0.0F) return std::nullopt;
+  return static_cast<double>(it->second.power[i]) / it->second.count[i];
+}
+
+double FleetGridmapAccumulator::count(const tiles::TileKey& key, int px, int py) const {
+  const auto it = base_.find(key);
+  return it == base_.end() ? 0.0 : it->second.count[static_cast<std::size_t>(py) * kPx + px];
+}
+
+std::uint8_t gridmap_gray(double mean_power, const FleetGridmapConfig& cfg) {
+  const double db = mean_power > 0.0 ? 10.0 * std::log10(mean_power) : cfg.db_min;
+  const double g = 1.0 + std::round(254.0 * (db - cfg.db_min) / (cfg.db_max - cfg.db_min));
+  return static_cast<std::uint8_t>(std::clamp(g, 1.0, 255.0));
+}
+
+std::vector<std::pair<tiles::TileKey, std::string>> FleetGridmapAccumulator::encode_png_tiles()
+    const {
+  std::vector<std::pair<tiles::TileKey, std::string>> out;
+  auto encode = [&](const tiles::TileKey& key, const Acc& a) {
+    cv::Mat img(kPx, kPx, CV_8UC4, cv::Scalar(0, 0, 0, 0));
+    for (int y = 0; y < kPx; ++y) {
+      auto* row = img.ptr<cv::Vec4b>(y);
+      for (int x = 0; x < kPx; ++x) {
+        const std::size_t i = static_cast<std::size_t>(y) * kPx + x;
+        if (a.count[i] <= 0.0F) continue;
+        const std::uint8_t g = gridmap_gray(static_cast<double>(a.power[i]) / a.count[i], cfg_);
+        row[x] = cv::Vec4b(g, g, g, 255);
+      }
+    }
+    std::vector<unsigned char> buf;
+    if (!cv::imencode(".png", img, buf)) throw Error("PNG encoding of gridmap tile failed");
+    out.emplace_back(key, std::string(buf.begin(), buf.end()));
+  };
+  std::map<tiles::TileKey, Acc> level = base_;
+  for (int z = cfg_.base_zoom;; --z) {
+    for (const auto& [key, a] : level) encode(key, a);
+    if (z == cfg_.min_zoom) break;
+    std::map<tiles::TileKey, Acc> up;
+    for (const auto& [key, a] : level) {
+      const tiles::TileKey pk = tiles::parent(key);
+      auto [it, inserted] = up.try_emplace(pk);
+      if (inserted) {
+        it->second.power.assign(kPx * kPx, 0.0F);
+        it->second.count.assign(kPx * kPx, 0.0F);
+      }
+      const int ox = (key.x % 2) * (kPx / 2), oy = (key.y % 2) * (kPx / 2);
+      for (int y = 0; y < kPx; ++y) {
+        for (int x = 0; x < kPx; ++x) {
+          const std::size_t i = static_cast<std::size_t>(y) * kPx + x;
+          const std::size_t j = static_cast<std::size_t>(oy + y / 2) * kPx + (ox + x / 2);
+          it->second.power[j] += a.power[i];
+          it->second.count[j] += a.count[i];
+        }
+      }
+    }
+    level = std::move(up);
+  }
+  std::sort(out.begin(), out.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+  return out;
+}
+
+std::vector<float> decode_gridmap_png_db(std::string_view png, const FleetGridmapConfig& cfg) {
+  const cv::Mat buf(1, static_cast<int>(png.size()), CV_8UC1,
+                    const_cast<char*>(png.data()));  // imdecode only reads
+  const cv::Mat img = cv::imdecode(buf, cv::IMREAD_UNCHANGED);
+  if (img.empty() || img.rows != kPx || img.cols != kPx || img.type() != CV_8UC4) {
+    throw FormatError("gridmap tile: not a 256x256 RGBA PNG");
+  }
+  std::vector<float> out(static_cast<std::size_t>(kPx) * kPx,
+                         std::numeric_limits<float>::quiet_NaN());
+  for (int y = 0; y < kPx; ++y) {
+    const auto* row = img.ptr<cv::Vec4b>(y);
+    for (int x = 0; x < kPx; ++x) {
+      if (row[x][3] == 0) continue;
+      out[static_cast<std::size_t>(y) * kPx + x] = static_cast<float>(
+          cfg.db_min + (row[x][0] - 1) / 254.0 * (cfg.db_max - cfg.db_min));
+    }
+  }
+  return out;
+}
+
+}  // namespace polmap::mapping

@@ -1,0 +1,481 @@
+// MapBuilder: store -> consensus -> landmarks, localization tiles, fleet
+// gridmap tiles -> atomic publish (see map_builder.hpp).
+#include "polmap/mapping_service/map_builder.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <map>
+#include <set>
+#include <unordered_map>
+
+#include "polmap/mapping_service/drive_package_io.hpp"
+#include "polmap/schema/json.hpp"
+#include "polmap/tiles/local_frame.hpp"
+
+namespace polmap::mapping {
+namespace {
+
+struct Cancelled {};
+
+class Clock {
+ public:
+  double lap() {
+    const auto now = std::chrono::steady_clock::now();
+    const double s = std::chrono::duration<double>(now - last_).count();
+    last_ = now;
+    return s;
+  }
+  [[nodiscard]] double total() const {
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
+  }
+
+ private:
+  std::chrono::steady_clock::time_point start_ = std::chrono::steady_clock::now();
+  std::chrono::steady_clock::time_point last_ = start_;
+};
+
+constexpr double kMetresPerDegLat = 111320.0;
+
+tiles::GeoBox grow_box(const tiles::GeoBox& b, double margin_m) {
+  const double mid_lat = 0.5 * (b.min_lat_deg + b.max_lat_deg);
+  const double dlat = margin_m / kMetresPerDegLat;
+  const double dlon = margin_m / (kMetresPerDegLat * std::max(0.01, std::cos(mid_lat * M_PI / 180)));
+  return {std::max(-90.0, b.min_lat_deg - dlat), b.min_lon_deg - dlon,
+          std::min(90.0, b.max_lat_deg + dlat), b.max_lon_deg + dlon};
+}
+
+nlohmann::json box_json(const tiles::GeoBox& b) {
+  return {{"min_lat_deg", b.min_lat_deg},
+          {"min_lon_deg", b.min_lon_deg},
+          {"max_lat_deg", b.max_lat_deg},
+          {"max_lon_deg", b.max_lon_deg}};
+}
+
+nlohmann::json request_json(const MapBuildRequest& r, const MapBuilderConfig& c) {
+  nlohmann::json j;
+  j["region"] = r.region ? box_json(*r.region) : nlohmann::json();
+  j["excluded_drive_ids"] = r.excluded_drive_ids;
+  j["notes"] = r.notes;
+  j["make_current"] = r.make_current;
+  j["incremental"] = r.incremental;
+  j["build_gridmap"] = r.build_gridmap;
+  j["points"] = {{"max_pair_distance_m", r.points.max_pair_distance_m},
+                 {"min_drives", r.points.min_drives}};
+  j["lines"] = {{"max_hull_distance_m", r.lines.max_hull_distance_m},
+                {"max_projection_distance_m", r.lines.max_projection_distance_m},
+                {"min_drives", r.lines.min_drives},
+                {"polyline_max_error_m", r.lines.polyline_max_error_m},
+                {"snap_max_gap_m", r.lines.snap_max_gap_m}};
+  j["tile_zoom"] = c.tile_zoom;
+  j["tile_quantum_m"] = c.encode.quantum_m;
+  return j;
+}
+
+/// Tiles a geodetic polyline crosses, sampled every step_m along each edge.
+std::set<tiles::TileKey> tiles_of_polyline(const std::vector<GeoPoint>& pl,
+                                           const std::vector<Eigen::Vector2d>& pl_m, int z,
+                                           double step_m) {
+  std::set<tiles::TileKey> out;
+  for (std::size_t i = 0; i + 1 < pl.size(); ++i) {
+    const double len = (pl_m[i + 1] - pl_m[i]).norm();
+    const int n = std::max(1, static_cast<int>(std::ceil(len / step_m)));
+    for (int k = 0; k <= n; ++k) {
+      const double t = static_cast<double>(k) / n;
+      out.insert(tiles::tile_at(pl[i].lat_deg + t * (pl[i + 1].lat_deg - pl[i].lat_deg),
+                                pl[i].lon_deg + t * (pl[i + 1].lon_deg - pl[i].lon_deg), z));
+    }
+  }
+  return out;
+}
+
+}  // namespace
+
+double quantize_deg(double deg) { return std::round(deg * 1e8) / 1e8; }
+
+std::int64_t landmark_key(bool is_line, std::span<const GeoPoint> vertices) {
+  std::uint64_t h = 1469598103934665603ULL;  // FNV-1a 64
+  auto mix = [&](std::uint64_t v) {
+    for (int b = 0; b < 8; ++b) {
+      h ^= (v >> (8 * b)) & 0xffU;
+      h *= 1099511628211ULL;
+    }
+  };
+  mix(is_line ? 1 : 0);
+  for (const auto& g : vertices) {
+    mix(static_cast<std::uint64_t>(std::llround(g.lat_deg * 1e8)));
+    mix(static_cast<std::uint64_t>(std::llround(g.lon_deg * 1e8)));
+  }
+  // Final avalanche (splitmix64) and 63 bits: positive in SQLite, JSON and tiles.
+  h ^= h >> 30;
+  h *= 0xbf58476d1ce4e5b9ULL;
+  h ^= h >> 27;
+  h *= 0x94d049bb133111ebULL;
+  h ^= h >> 31;
+  return static_cast<std::int64_t>(h & 0x7fffffffffffffffULL);
+}
+
+std::string_view to_string(MapBuildResult::Status s) {
+  switch (s) {
+    case MapBuildResult::Status::Published: return "published";
+    case MapBuildResult::Status::Cancelled: return "cancelled";
+    default: return "failed";
+  }
+}
+
+nlohmann::json to_json(const MapBuildStats& s) {
+  nlohmann::json j;
+  j["drives_used"] = s.drives_used;
+  j["point_candidates"] = s.point_candidates;
+  j["line_candidates"] = s.line_candidates;
+  j["point_landmarks"] = s.point_landmarks;
+  j["line_landmarks"] = s.line_landmarks;
+  j["tiles_total"] = s.tiles_total;
+  j["tiles_written"] = s.tiles_written;
+  j["tiles_reused"] = s.tiles_reused;
+  j["tiles_removed"] = s.tiles_removed;
+  j["tile_bytes"] = s.tile_bytes;
+  j["gridmap_tiles"] = s.gridmap_tiles;
+  j["gridmap_drives"] = s.gridmap_drives;
+  j["previous_version"] = s.previous_version ? nlohmann::json(*s.previous_version) : nlohmann::json();
+  j["point_consensus"] = {{"candidates", s.point_consensus.candidates},
+                         {"pairs", s.point_consensus.pairs},
+                         {"groups", s.point_consensus.groups},
+                         {"rejected_groups", s.point_consensus.rejected_groups},
+                         {"largest_group", s.point_consensus.largest_group}};
+  j["line_consensus"] = {{"candidates", s.line_consensus.candidates},
+                        {"pairs", s.line_consensus.pairs},
+                        {"groups", s.line_consensus.groups},
+                        {"rejected_groups", s.line_consensus.rejected_groups},
+                        {"polylines", s.line_consensus.polylines},
+                        {"snapped_ends", s.line_consensus.snapped_ends}};
+  j["seconds"] = {{"load", s.seconds_load},           {"consensus", s.seconds_consensus},
+                  {"landmarks", s.seconds_landmarks}, {"tiles", s.seconds_tiles},
+                  {"gridmap", s.seconds_gridmap},     {"total", s.seconds_total}};
+  return j;
+}
+
+MapBuilder::MapBuilder(MapBuilderConfig cfg) : cfg_(std::move(cfg)) {
+  POLMAP_EXPECT(cfg_.tile_zoom >= 0 && cfg_.tile_zoom <= tiles::kMaxZoom);
+  POLMAP_EXPECT(cfg_.write_batch > 0 && cfg_.line_tile_sample_m > 0.0);
+}
+
+std::int64_t MapBuilder::begin(MapStore& store, const MapBuildRequest& request) const {
+  for (const auto& id : request.excluded_drive_ids) {
+    if (!store.get_drive(id)) throw NotFoundError("excluded drive '" + id + "' is not in the store");
+  }
+  if (request.region && (request.region->min_lat_deg > request.region->max_lat_deg)) {
+    throw ValidationError("region: min_lat_deg > max_lat_deg");
+  }
+  return store.begin_map_version(request_json(request, cfg_));
+}
+
+MapBuildResult MapBuilder::build(MapStore& store, const MapBuildRequest& request,
+                                 const BuildControl& control) const {
+  const std::int64_t v = begin(store, request);
+  return run(store, v, request, control);
+}
+
+MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version,
+                               const MapBuildRequest& req, const BuildControl& ctl) const {
+  MapBuildResult result;
+  result.version = version;
+  MapBuildStats& st = result.stats;
+  Clock clock;
+  auto stage = [&](std::string_view name, double fraction) {
+    if (ctl.cancel && ctl.cancel->load()) throw Cancelled{};
+    if (ctl.progress) ctl.progress(name, fraction);
+  };
+  try {
+    // ---------------------------------------------------------------- load
+    stage("load", 0.0);
+    const double margin_m =
+        2.0 * std::max(req.points.max_pair_distance_m,
+                       req.lines.max_projection_distance_m + req.lines.max_hull_distance_m);
+    std::optional<tiles::GeoBox> query;
+    if (req.region) query = grow_box(*req.region, margin_m);
+    const CandidateSet cands = store.candidates_in(query, req.excluded_drive_ids);
+    st.point_candidates = static_cast<std::int64_t>(cands.points.size());
+    st.line_candidates = static_cast<std::int64_t>(cands.lines.size());
+    {
+      std::set<std::int64_t> drives;
+      for (const auto& p : cands.points) drives.insert(p.drive);
+      for (const auto& l : cands.lines) drives.insert(l.drive);
+      st.drives_used = static_cast<std::int64_t>(drives.size());
+    }
+    // Region frame: centre of the region, or of the candidates' extent.
+    GeoPoint centre{};
+    if (req.region) {
+      centre = {0.5 * (req.region->min_lat_deg + req.region->max_lat_deg),
+                0.5 * (req.region->min_lon_deg + req.region->max_lon_deg), 0.0};
+    } else if (!cands.points.empty() || !cands.lines.empty()) {
+      double la0 = 90, la1 = -90, lo0 = 180, lo1 = -180;
+      auto grow = [&](const GeoPoint& g) {
+        la0 = std::min(la0, g.lat_deg);
+        la1 = std::max(la1, g.lat_deg);
+        lo0 = std::min(lo0, g.lon_deg);
+        lo1 = std::max(lo1, g.lon_deg);
+      };
+      for (const auto& p : cands.points) grow(p.position);
+      for (const auto& l : cands.lines) grow(l.start), grow(l.end);
+      centre = {0.5 * (la0 + la1), 0.5 * (lo0 + lo1), 0.0};
+    }
+    const tiles::LocalFrame frame(centre);
+    std::vector<TaggedPointCandidate> tp;
+    tp.reserve(cands.points.size());
+    for (const auto& p : cands.points) {
+      TaggedPointCandidate t;
+      t.candidate_id = p.id;
+      t.drive = p.drive;
+      t.candidate = p.candidate;
+      t.candidate.position_m = frame.to_local(p.position);
+      tp.push_back(t);
+    }
+    std::vector<TaggedLineCandidate> tl;
+    tl.reserve(cands.lines.size());
+    for (const auto& l : cands.lines) {
+      TaggedLineCandidate t;
+      t.candidate_id = l.id;
+      t.drive = l.drive;
+      t.candidate = l.candidate;
+      t.candidate.start_m = frame.to_local(l.start);
+      t.candidate.end_m = frame.to_local(l.end);
+      tl.push_back(t);
+    }
+    st.seconds_load = clock.lap();
+
+    // ---------------------------------------------------------------- consensus
+    stage("consensus", 0.1);
+    const PointConsensusResult pc = consensus_points(tp, req.points);
+    const LineConsensusResult lc = consensus_lines(tl, req.lines);
+    st.point_consensus = pc.stats;
+    st.line_consensus = lc.stats;
+    st.seconds_consensus = clock.lap();
+
+    // ---------------------------------------------------------------- landmarks
+    stage("landmarks", 0.4);
+    auto to_geo_q = [&](const Eigen::Vector2d& xy) {
+      GeoPoint g = frame.to_geo(xy);
+      return GeoPoint{quantize_deg(g.lat_deg), quantize_deg(g.lon_deg), 0.0};
+    };
+    std::vector<StoredPointLandmark> points;
+    for (std::size_t i = 0; i < pc.landmarks.size(); ++i) {
+      const auto& lm = pc.landmarks[i];
+      StoredPointLandmark s;
+      s.position = to_geo_q(lm.position_m);
+      if (req.region && !req.region->contains(s.position.lat_deg, s.position.lon_deg)) continue;
+      s.key = landmark_key(false, std::span<const GeoPoint>(&s.position, 1));
+      s.scattering = lm.scattering;
+      s.support_drives = lm.support_drives;
+      s.spread_m = lm.spread_m;
+      s.support = pc.support[i];
+      points.push_back(std::move(s));
+    }
+    std::vector<StoredLineLandmark> lines;
+    for (std::size_t i = 0; i < lc.landmarks.size(); ++i) {
+      const auto& lm = lc.landmarks[i];
+      StoredLineLandmark s;
+      for (const auto& v : lm.polyline_m) s.polyline.push_back(to_geo_q(v));
+      if (req.region) {
+        bool inside = false;
+        for (const auto& g : s.polyline) inside = inside || req.region->contains(g.lat_deg, g.lon_deg);
+        if (!inside) continue;
+      }
+      s.key = landmark_key(true, s.polyline);
+      s.support_drives = lm.support_drives;
+      s.spread_m = lm.spread_m;
+      s.support = lc.support[i];
+      lines.push_back(std::move(s));
+    }
+    st.point_landmarks = static_cast<std::int64_t>(points.size());
+    st.line_landmarks = static_cast<std::int64_t>(lines.size());
+    for (std::size_t b = 0; b < points.size(); b += cfg_.write_batch) {
+      stage("landmarks", 0.4);
+      const std::size_t e = std::min(points.size(), b + cfg_.write_batch);
+      store.put_landmarks(version, std::span(points).subspan(b, e - b), {});
+    }
+    for (std::size_t b = 0; b < lines.size(); b += cfg_.write_batch) {
+      stage("landmarks", 0.45);
+      const std::size_t e = std::min(lines.size(), b + cfg_.write_batch);
+      store.put_landmarks(version, {}, std::span(lines).subspan(b, e - b));
+    }
+    st.seconds_landmarks = clock.lap();
+
+    // ---------------------------------------------------------------- tiles
+    stage("tiles", 0.5);
+    const int z = cfg_.tile_zoom;
+    std::map<tiles::TileKey, tiles::LocalizationTile> content;
+    std::map<tiles::TileKey, tiles::LocalFrame> frames;
+    auto tile = [&](const tiles::TileKey& k) -> std::pair<tiles::LocalizationTile&, const tiles::LocalFrame&> {
+      auto it = content.find(k);
+      if (it == content.end()) {
+        it = content.emplace(k, tiles::LocalizationTile{}).first;
+        it->second.key = k;
+        frames.emplace(k, tiles::LocalFrame(tiles::tile_center(k)));
+      }
+      return {it->second, frames.at(k)};
+    };
+    for (const auto& p : points) {
+      auto [t, f] = tile(tiles::tile_at(p.position.lat_deg, p.position.lon_deg, z));
+      PointLandmark lm;
+      lm.id = p.key;
+      lm.position_m = f.to_local(p.position);
+      lm.scattering = p.scattering;
+      lm.support_drives = p.support_drives;
+      lm.spread_m = p.spread_m;
+      t.points.push_back(lm);
+    }
+    for (const auto& l : lines) {
+      std::vector<Eigen::Vector2d> pl_m;
+      for (const auto& g : l.polyline) pl_m.push_back(frame.to_local(g));
+      for (const auto& k : tiles_of_polyline(l.polyline, pl_m, z, cfg_.line_tile_sample_m)) {
+        auto [t, f] = tile(k);
+        LineLandmark lm;
+        lm.id = l.key;
+        for (const auto& g : l.polyline) lm.polyline_m.push_back(f.to_local(g));
+        lm.support_drives = l.support_drives;
+        lm.spread_m = l.spread_m;
+        t.lines.push_back(std::move(lm));
+      }
+    }
+    std::map<tiles::TileKey, std::string> prev_etags;
+    if (req.incremental) {
+      st.previous_version = store.current_map_version();
+      if (st.previous_version) {
+        for (const auto& t : store.list_tiles(*st.previous_version, TileLayer::Localization)) {
+          prev_etags.emplace(t.key, t.etag);
+        }
+      }
+    }
+    std::vector<TileWrite> batch;
+    std::size_t batch_bytes = 0;
+    auto flush = [&](TileLayer layer) {
+      if (batch.empty()) return;
+      store.put_tiles(version, layer, batch);
+      batch.clear();
+      batch_bytes = 0;
+    };
+    std::size_t done = 0;
+    for (auto& [key, t] : content) {
+      if (++done % 64 == 0) stage("tiles", 0.5 + 0.3 * static_cast<double>(done) / content.size());
+      TileWrite w;
+      w.key = key;
+      w.num_points = static_cast<std::int32_t>(t.points.size());
+      w.num_lines = static_cast<std::int32_t>(t.lines.size());
+      bool reused = false;
+      if (auto it = prev_etags.find(key); it != prev_etags.end()) {
+        // Encode with the previous tile's version stamp: identical bytes mean
+        // identical content, and the previous blob (and ETag) is kept.
+        const auto prev = store.get_tile(*st.previous_version, TileLayer::Localization, key);
+        if (prev) {
+          t.map_version = tiles::decode_localization_tile(prev->payload).map_version;
+          const std::string bytes = tiles::encode_localization_tile(t, cfg_.encode);
+          if (content_etag(bytes) == it->second) {
+            w.etag = it->second;
+            w.reuse_blob = true;
+            reused = true;
+            st.tile_bytes += static_cast<std::int64_t>(bytes.size());
+          }
+        }
+      }
+      if (!reused) {
+        t.map_version = static_cast<std::uint64_t>(version);
+        w.payload = tiles::encode_localization_tile(t, cfg_.encode);
+        w.etag = content_etag(w.payload);
+        st.tile_bytes += static_cast<std::int64_t>(w.payload.size());
+      }
+      (reused ? st.tiles_reused : st.tiles_written) += 1;
+      batch_bytes += w.payload.size();
+      batch.push_back(std::move(w));
+      if (batch.size() >= cfg_.write_batch || batch_bytes > (16U << 20)) flush(TileLayer::Localization);
+    }
+    flush(TileLayer::Localization);
+    st.tiles_total = static_cast<std::int64_t>(content.size());
+    for (const auto& [key, etag] : prev_etags) {
+      if (!content.contains(key)) ++st.tiles_removed;
+    }
+    st.seconds_tiles = clock.lap();
+
+    // ---------------------------------------------------------------- fleet gridmap
+    nlohmann::json gridmap_info;
+    if (req.build_gridmap) {
+      stage("gridmap", 0.8);
+      FleetGridmapAccumulator acc(cfg_.gridmap);
+      std::vector<std::string> errors;
+      const std::set<std::string> excluded(req.excluded_drive_ids.begin(),
+                                           req.excluded_drive_ids.end());
+      const auto drives = req.region ? store.drives_in(*req.region) : store.list_drives();
+      for (const auto& d : drives) {
+        if (excluded.contains(d.drive_id)) continue;
+        stage("gridmap", 0.8);
+        try {
+          DrivePackage pkg;
+          pkg.location = d.package_path;
+          pkg.manifest.origin = d.manifest.at("origin").get<GeoPoint>();
+          const tiles::LocalFrame drive_frame(pkg.manifest.origin);
+          for_each_gridmap_block(pkg, [&](const GridmapRaster& block) { acc.add(block, drive_frame); });
+          ++st.gridmap_drives;
+        } catch (const std::exception& e) {
+          // A drive without a readable gridmap still contributes its candidates.
+          errors.push_back(d.drive_id + ": " + e.what());
+        }
+      }
+      std::map<tiles::TileKey, std::string> prev_grid;
+      if (st.previous_version) {
+        for (const auto& t : store.list_tiles(*st.previous_version, TileLayer::Gridmap)) {
+          prev_grid.emplace(t.key, t.etag);
+        }
+      }
+      for (auto& [key, png] : acc.encode_png_tiles()) {
+        TileWrite w;
+        w.key = key;
+        w.etag = content_etag(png);
+        if (auto it = prev_grid.find(key); it != prev_grid.end() && it->second == w.etag) {
+          w.reuse_blob = true;
+        } else {
+          w.payload = std::move(png);
+        }
+        batch_bytes += w.payload.size();
+        batch.push_back(std::move(w));
+        ++st.gridmap_tiles;
+        if (batch.size() >= cfg_.write_batch || batch_bytes > (16U << 20)) {
+          flush(TileLayer::Gridmap);
+          stage("gridmap", 0.9);
+        }
+      }
+      flush(TileLayer::Gridmap);
+      gridmap_info = {{"base_zoom", cfg_.gridmap.base_zoom},
+                      {"min_zoom", cfg_.gridmap.min_zoom},
+                      {"db_min", cfg_.gridmap.db_min},
+                      {"db_max", cfg_.gridmap.db_max},
+                      {"errors", errors}};
+      st.seconds_gridmap = clock.lap();
+    }
+
+    // ---------------------------------------------------------------- publish
+    stage("publish", 0.95);
+    st.seconds_total = clock.total();
+    nlohmann::json stats = to_json(st);
+    stats["gridmap"] = gridmap_info;
+    store.publish_map_version(version, stats, req.make_current);
+    if (ctl.progress) ctl.progress("publish", 1.0);
+    result.status = MapBuildResult::Status::Published;
+  } catch (const Cancelled&) {
+    result.status = MapBuildResult::Status::Cancelled;
+    result.error = "cancelled";
+  } catch (const std::exception& e) {
+    result.status = MapBuildResult::Status::Failed;
+    result.error = e.what();
+  }
+  if (result.status != MapBuildResult::Status::Published) {
+    try {
+      store.fail_map_version(version, result.error);
+    } catch (const std::exception& e) {
+      result.error += std::string(" (and marking the version failed failed: ") + e.what() + ")";
+    }
+  }
+  st.seconds_total = clock.total();
+  return result;
+}
+
+}  // namespace polmap::mapping

@@ -1,0 +1,350 @@
+// MapBuilder against a real SqliteMapStore: consensus over synthetic drives,
+// landmarks and localization tiles, incremental tile reuse, leave-one-out,
+// region builds, cancellation; fleet gridmap accumulation and PNG tiles.
+#include "polmap/mapping_service/map_builder.hpp"
+
+#include <gtest/gtest.h>
+
+#include <fstream>
+#include <random>
+#include <set>
+
+#include "polmap/mapping_service/sqlite_store.hpp"
+#include "polmap/tiles/local_frame.hpp"
+
+namespace polmap::mapping {
+namespace {
+namespace fs = std::filesystem;
+
+class TempDir {
+ public:
+  TempDir() {
+    path_ = fs::temp_directory_path() /
+            ("polmap_builder_test_" + std::to_string(std::random_device{}()));
+    fs::create_directories(path_);
+  }
+  ~TempDir() {
+    std::error_code ec;
+    fs::remove_all(path_, ec);
+  }
+  [[nodiscard]] const fs::path& path() const { return path_; }
+
+ private:
+  fs::path path_;
+};
+
+const GeoPoint kWorldOrigin{48.7758, 9.1829, 0.0};
+
+/// A synthetic world in the frame of kWorldOrigin: permanent point objects
+/// and walls (metres).
+struct World {
+  std::vector<Eigen::Vector2d> objects;
+  std::vector<std::pair<Eigen::Vector2d, Eigen::Vector2d>> walls;
+};
+
+World make_world(unsigned seed, int n_objects, double extent_m) {
+  World w;
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(-extent_m / 2, extent_m / 2);
+  for (int i = 0; i < n_objects; ++i) w.objects.emplace_back(u(rng), u(rng));
+  for (int i = 0; i < n_objects / 10; ++i) {
+    const Eigen::Vector2d a(u(rng), u(rng));
+    w.walls.emplace_back(a, a + Eigen::Vector2d(12.0, 3.0));
+  }
+  return w;
+}
+
+/// A drive observing the objects inside `seen` (a box in world metres) with 3 cm noise,
+/// plus `temporaries` single-drive objects. Its frame origin is offset from the world's.
+DrivePackage observe(const World& w, const std::string& id, unsigned seed, Eigen::Vector2d lo,
+                     Eigen::Vector2d hi, int temporaries = 20) {
+  const tiles::LocalFrame world(kWorldOrigin);
+  const GeoPoint origin = world.to_geo(Eigen::Vector2d(37.0 * (seed % 5), -23.0 * (seed % 3)));
+  const tiles::LocalFrame drive(origin);
+  auto to_drive = [&](const Eigen::Vector2d& p) { return drive.to_local(world.to_geo(p)); };
+  auto inside = [&](const Eigen::Vector2d& p) {
+    return p.x() >= lo.x() && p.x() <= hi.x() && p.y() >= lo.y() && p.y() <= hi.y();
+  };
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> n(0.0, 0.03);
+  DrivePackage pkg;
+  pkg.manifest.drive_id = id;
+  pkg.manifest.vehicle_id = "veh";
+  pkg.manifest.origin = origin;
+  for (const auto& o : w.objects) {
+    if (!inside(o)) continue;
+    PointCandidate c;
+    c.position_m = to_drive(o + Eigen::Vector2d(n(rng), n(rng)));
+    c.scattering = ScatteringClass::Odd;
+    pkg.points.push_back(c);
+  }
+  std::uniform_real_distribution<double> ux(lo.x(), hi.x()), uy(lo.y(), hi.y());
+  for (int i = 0; i < temporaries; ++i) {
+    PointCandidate c;
+    c.position_m = to_drive(Eigen::Vector2d(ux(rng), uy(rng)));
+    pkg.points.push_back(c);
+  }
+  for (const auto& [a, b] : w.walls) {
+    if (!inside(a) || !inside(b)) continue;
+    LineCandidate l;
+    l.start_m = to_drive(a + Eigen::Vector2d(n(rng), n(rng)));
+    l.end_m = to_drive(b + Eigen::Vector2d(n(rng), n(rng)));
+    pkg.lines.push_back(l);
+  }
+  return pkg;
+}
+
+void put(SqliteMapStore& store, const fs::path& dir, const DrivePackage& pkg) {
+  const fs::path tar = dir / (pkg.manifest.drive_id + ".tar");
+  std::ofstream(tar) << "fake package " << pkg.manifest.drive_id;
+  (void)store.put_drive(pkg, tar, content_etag("fake package " + pkg.manifest.drive_id));
+}
+
+MapBuildRequest no_gridmap() {
+  MapBuildRequest r;
+  r.build_gridmap = false;  // the fake packages have no gridmap.tif
+  return r;
+}
+
+constexpr double kExtent = 600.0;  // spans several z16 tiles
+
+TEST(MapBuilder, BuildsLandmarksAndTilesFromAllDrives) {
+  TempDir tmp;
+  SqliteMapStore store(tmp.path() / "map.db");
+  const World w = make_world(1, 400, kExtent);
+  const Eigen::Vector2d lo(-kExtent, -kExtent), hi(kExtent, kExtent);
+  for (int d = 0; d < 3; ++d) put(store, tmp.path(), observe(w, "d" + std::to_string(d), 10 + d, lo, hi));
+
+  std::vector<std::string> stages;
+  BuildControl ctl;
+  ctl.progress = [&](std::string_view s, double) {
+    if (stages.empty() || stages.back() != s) stages.emplace_back(s);
+  };
+  const MapBuildResult r = MapBuilder{}.build(store, no_gridmap(), ctl);
+  ASSERT_EQ(r.status, MapBuildResult::Status::Published) << r.error;
+  EXPECT_EQ(store.current_map_version(), r.version);
+  EXPECT_EQ(r.stats.drives_used, 3);
+  EXPECT_EQ(r.stats.point_landmarks, 400);  // temporaries (one drive each) rejected
+  EXPECT_EQ(r.stats.line_landmarks, static_cast<std::int64_t>(w.walls.size()));
+  EXPECT_EQ(stages.front(), "load");
+  EXPECT_EQ(stages.back(), "publish");
+
+  const tiles::LocalFrame world(kWorldOrigin);
+  const auto lm = store.landmarks_in(r.version, std::nullopt);
+  ASSERT_EQ(lm.points.size(), 400U);
+  std::set<std::int64_t> keys;
+  for (const auto& p : lm.points) {
+    keys.insert(p.key);
+    EXPECT_EQ(p.support_drives, 3U);
+    EXPECT_EQ(p.support.size(), 3U);
+    const Eigen::Vector2d xy = world.to_local(p.position);
+    double best = 1e9;
+    for (const auto& o : w.objects) best = std::min(best, (o - xy).norm());
+    EXPECT_LT(best, 0.1);  // mean of three 3 cm observations
+  }
+  EXPECT_EQ(keys.size(), 400U);
+
+  // Tiles: every point landmark in exactly one tile, at its geodetic position.
+  const auto infos = store.list_tiles(r.version, TileLayer::Localization);
+  EXPECT_EQ(static_cast<std::int64_t>(infos.size()), r.stats.tiles_total);
+  EXPECT_GT(infos.size(), 2U);
+  EXPECT_EQ(r.stats.tiles_written, r.stats.tiles_total);
+  std::map<std::int64_t, GeoPoint> by_key;
+  for (const auto& p : lm.points) by_key[p.key] = p.position;
+  std::size_t tile_points = 0;
+  std::set<std::int64_t> tile_line_ids;
+  for (const auto& info : infos) {
+    const auto t = store.get_tile(r.version, TileLayer::Localization, info.key);
+    ASSERT_TRUE(t);
+    const auto decoded = tiles::decode_localization_tile(t->payload);
+    EXPECT_EQ(decoded.map_version, static_cast<std::uint64_t>(r.version));
+    const tiles::LocalFrame tf(tiles::tile_center(info.key));
+    for (const auto& p : decoded.points) {
+      ++tile_points;
+      ASSERT_TRUE(by_key.contains(p.id));
+      EXPECT_EQ(tiles::tile_at(by_key[p.id].lat_deg, by_key[p.id].lon_deg, info.key.z), info.key);
+      EXPECT_LT((tf.to_local(by_key[p.id]) - p.position_m).norm(), 0.004);
+    }
+    for (const auto& l : decoded.lines) tile_line_ids.insert(l.id);
+  }
+  EXPECT_EQ(tile_points, 400U);
+  EXPECT_EQ(tile_line_ids.size(), w.walls.size());
+  const auto info = store.get_map_version(r.version);
+  EXPECT_EQ(info->statistics.at("point_landmarks"), 400);
+  EXPECT_EQ(info->parameters.at("tile_zoom"), tiles::kLocalizationZoom);
+}
+
+TEST(MapBuilder, ANewDriveRewritesOnlyTheTilesItTouches) {
+  TempDir tmp;
+  SqliteMapStore store(tmp.path() / "map.db");
+  const World w = make_world(2, 600, kExtent);
+  const Eigen::Vector2d lo(-kExtent, -kExtent), hi(kExtent, kExtent);
+  for (int d = 0; d < 2; ++d) put(store, tmp.path(), observe(w, "d" + std::to_string(d), 20 + d, lo, hi, 0));
+  const MapBuilder builder;
+  const auto v1 = builder.build(store, no_gridmap());
+  ASSERT_EQ(v1.status, MapBuildResult::Status::Published) << v1.error;
+
+  // Unchanged input: every tile reused, nothing written.
+  const auto same = builder.build(store, no_gridmap());
+  ASSERT_EQ(same.status, MapBuildResult::Status::Published) << same.error;
+  EXPECT_EQ(same.stats.tiles_written, 0);
+  EXPECT_EQ(same.stats.tiles_reused, v1.stats.tiles_total);
+
+  // A third drive through a 40 m square only changes the support (and spread)
+  // of the landmarks there: only their tiles are rewritten.
+  put(store, tmp.path(), observe(w, "d2", 22, {10, 10}, {50, 50}, 0));
+  const auto v3 = builder.build(store, no_gridmap());
+  ASSERT_EQ(v3.status, MapBuildResult::Status::Published) << v3.error;
+  EXPECT_EQ(v3.stats.tiles_total, v1.stats.tiles_total);
+  EXPECT_GE(v3.stats.tiles_written, 1);
+  EXPECT_LE(v3.stats.tiles_written, 4);  // the square may straddle tile borders
+  EXPECT_EQ(v3.stats.tiles_reused + v3.stats.tiles_written, v3.stats.tiles_total);
+  const auto t1 = store.list_tiles(v1.version, TileLayer::Localization);
+  const auto t3 = store.list_tiles(v3.version, TileLayer::Localization);
+  ASSERT_EQ(t1.size(), t3.size());
+  int same_etag = 0;
+  for (std::size_t i = 0; i < t1.size(); ++i) {
+    ASSERT_EQ(t1[i].key, t3[i].key);
+    if (t1[i].etag == t3[i].etag) {
+      ++same_etag;
+      const auto d = tiles::decode_localization_tile(
+          store.get_tile(v3.version, TileLayer::Localization, t3[i].key)->payload);
+      EXPECT_EQ(d.map_version, static_cast<std::uint64_t>(v1.version));  // content stamp kept
+    }
+  }
+  EXPECT_EQ(same_etag, v3.stats.tiles_reused);
+  // The changed tiles carry the new support counts.
+  const auto lm = store.landmarks_in(v3.version, std::nullopt);
+  int three = 0;
+  for (const auto& p : lm.points) three += p.support_drives == 3 ? 1 : 0;
+  EXPECT_GT(three, 0);
+}
+
+TEST(MapBuilder, LeaveOneOutRegionAndCancellation) {
+  TempDir tmp;
+  SqliteMapStore store(tmp.path() / "map.db");
+  const World w = make_world(3, 300, 300.0);
+  const Eigen::Vector2d lo(-200, -200), hi(200, 200);
+  for (int d = 0; d < 3; ++d) put(store, tmp.path(), observe(w, "d" + std::to_string(d), 30 + d, lo, hi));
+  const MapBuilder builder;
+  const auto full = builder.build(store, no_gridmap());
+  ASSERT_EQ(full.status, MapBuildResult::Status::Published);
+
+  // Leave-one-out: the map without d0 is built from d1, d2 only and is not current.
+  MapBuildRequest loo = no_gridmap();
+  loo.excluded_drive_ids = {"d0"};
+  loo.make_current = false;
+  const auto r = builder.build(store, loo);
+  ASSERT_EQ(r.status, MapBuildResult::Status::Published) << r.error;
+  EXPECT_EQ(store.current_map_version(), full.version);
+  EXPECT_EQ(r.stats.drives_used, 2);
+  std::set<std::int64_t> d0_candidates;
+  const auto d0 = store.get_drive("d0")->row;
+  for (const auto& p : store.candidates_in(std::nullopt).points) {
+    if (p.drive == d0) d0_candidates.insert(p.id);
+  }
+  const auto lm = store.landmarks_in(r.version, std::nullopt);
+  EXPECT_EQ(lm.points.size(), 300U);
+  for (const auto& p : lm.points) {
+    EXPECT_EQ(p.support_drives, 2U);
+    for (auto c : p.support) EXPECT_FALSE(d0_candidates.contains(c));
+  }
+  MapBuildRequest bad = no_gridmap();
+  bad.excluded_drive_ids = {"nope"};
+  EXPECT_THROW((void)builder.build(store, bad), NotFoundError);
+
+  // Region: only landmarks inside it.
+  const tiles::LocalFrame world(kWorldOrigin);
+  const GeoPoint a = world.to_geo(Eigen::Vector2d(-50, -50)), b = world.to_geo(Eigen::Vector2d(50, 50));
+  MapBuildRequest region = no_gridmap();
+  region.region = tiles::GeoBox{a.lat_deg, a.lon_deg, b.lat_deg, b.lon_deg};
+  region.make_current = false;
+  const auto rr = builder.build(store, region);
+  ASSERT_EQ(rr.status, MapBuildResult::Status::Published) << rr.error;
+  std::size_t expect = 0;
+  for (const auto& o : w.objects) expect += (std::abs(o.x()) < 49.9 && std::abs(o.y()) < 49.9) ? 1 : 0;
+  const auto rl = store.landmarks_in(rr.version, std::nullopt);
+  EXPECT_NEAR(static_cast<double>(rl.points.size()), static_cast<double>(expect), 2.0);
+  for (const auto& p : rl.points) EXPECT_TRUE(region.region->contains(p.position.lat_deg, p.position.lon_deg));
+
+  // Cancellation: the version fails, current is untouched.
+  std::atomic<bool> cancel{true};
+  BuildControl ctl;
+  ctl.cancel = &cancel;
+  const auto c = builder.build(store, no_gridmap(), ctl);
+  EXPECT_EQ(c.status, MapBuildResult::Status::Cancelled);
+  EXPECT_EQ(store.get_map_version(c.version)->status, MapVersionStatus::Failed);
+  EXPECT_EQ(store.current_map_version(), full.version);
+
+  // Fake packages have no gridmap: the build still publishes and reports why.
+  MapBuildRequest with_grid;
+  with_grid.make_current = false;
+  const auto g = builder.build(store, with_grid);
+  ASSERT_EQ(g.status, MapBuildResult::Status::Published) << g.error;
+  EXPECT_EQ(g.stats.gridmap_drives, 0);
+  EXPECT_EQ(store.get_map_version(g.version)->statistics.at("gridmap").at("errors").size(), 3U);
+}
+
+TEST(FleetGridmap, AccumulatesPowerAndCountsIntoWebMercatorPixels) {
+  const tiles::LocalFrame frame(kWorldOrigin);
+  GridmapRaster r;
+  r.q = 2;
+  r.cell_size_m = 0.1;
+  r.width = 300;
+  r.height = 200;
+  r.origin_x_m = -15.0;
+  r.origin_y_m = 10.0;
+  r.count.assign(static_cast<std::size_t>(r.width) * r.height, 0);
+  r.layers.assign(3, std::vector<cdouble>(r.count.size(), cdouble(0, 0)));
+  double n_total = 0;
+  for (int row = 0; row < r.height; ++row) {
+    for (int col = 0; col < r.width; ++col) {
+      if ((row / 20 + col / 20) % 2) continue;  // a checkerboard of observed blocks
+      const std::size_t i = static_cast<std::size_t>(row) * r.width + col;
+      r.count[i] = 4;
+      r.layers[0][i] = 30.0;               // C_00
+      r.layers[1][i] = cdouble(1.0, 2.0);  // C_01 (off-diagonal: not in the trace)
+      r.layers[2][i] = 70.0;               // C_11
+      n_total += 4;
+    }
+  }
+  FleetGridmapConfig cfg;
+  FleetGridmapAccumulator acc(cfg);
+  acc.add(r, frame);
+  acc.add(r, frame);  // a second drive on the same cells doubles N, keeps the mean
+  ASSERT_GT(acc.num_base_tiles(), 0U);
+  const auto png_tiles = acc.encode_png_tiles();
+  double counted = 0;
+  std::set<int> zooms;
+  for (const auto& [key, png] : png_tiles) {
+    zooms.insert(key.z);
+    if (key.z != cfg.base_zoom) continue;
+    const auto db = decode_gridmap_png_db(png, cfg);
+    for (int py = 0; py < kGridmapTilePixels; ++py) {
+      for (int px = 0; px < kGridmapTilePixels; ++px) {
+        const auto p = acc.mean_power(key, px, py);
+        counted += acc.count(key, px, py);
+        const float v = db[static_cast<std::size_t>(py) * kGridmapTilePixels + px];
+        if (!p) {
+          EXPECT_TRUE(std::isnan(v));
+          continue;
+        }
+        EXPECT_NEAR(*p, 100.0, 1e-3);  // tr(C) = 30 + 70
+        EXPECT_NEAR(v, 20.0, 0.11);    // 10 log10(100), gray step 0.2 dB
+      }
+    }
+  }
+  EXPECT_DOUBLE_EQ(counted, 2 * n_total);
+  EXPECT_EQ(zooms, (std::set<int>{14, 15, 16, 17, 18}));
+  // The observed area is where the raster is: centre of the first observed block.
+  const GeoPoint g = frame.to_geo(Eigen::Vector2d(-15.0 + 1.0, 10.0 - 1.0));
+  const auto m = tiles::to_mercator_tiles(g.lat_deg, g.lon_deg, cfg.base_zoom);
+  const tiles::TileKey key{cfg.base_zoom, static_cast<int>(m.x), static_cast<int>(m.y)};
+  const int px = static_cast<int>((m.x - key.x) * kGridmapTilePixels);
+  const int py = static_cast<int>((m.y - key.y) * kGridmapTilePixels);
+  EXPECT_TRUE(acc.mean_power(key, px, py).has_value());
+  EXPECT_THROW((void)decode_gridmap_png_db("not a png", cfg), FormatError);
+}
+
+}  // namespace
+}  // namespace polmap::mapping

@@ -1,0 +1,100 @@
+#pragma once
+/// @file drive.hpp
+/// One pass over a world's route: the exact trajectory (speed profile with
+/// acceleration limits, curve speeds, stops at red lights, lane wander), the
+/// drive's moving traffic and temporary objects, and the GNSS/IMU error model.
+#include <Eigen/Core>
+#include <cstdint>
+#include <vector>
+
+#include "polmap/schema/recording.hpp"
+#include "polmap/sim/config.hpp"
+#include "polmap/sim/path.hpp"
+#include "polmap/sim/random.hpp"
+#include "polmap/sim/world.hpp"
+
+namespace polmap::sim {
+
+/// Exact vehicle state (rear-axle centre, world frame).
+struct ExactState {
+  double time_s = 0.0;
+  double s_m = 0.0;  ///< station along the drive path
+  double x_m = 0.0;
+  double y_m = 0.0;
+  double yaw_rad = 0.0;  ///< world-frame yaw
+  double v_mps = 0.0;
+  double yaw_rate_rps = 0.0;
+  double accel_mps2 = 0.0;
+};
+
+/// A vehicle of the moving traffic, driving along the world route.
+struct Mover {
+  double s0_m = 0.0;       ///< station at t = 0
+  double speed_mps = 0.0;  ///< along its direction
+  int direction = -1;      ///< +1 with the ego, -1 oncoming
+  double lateral_m = 0.0;  ///< lane offset from the route (left positive)
+  double length_m = 4.5;
+  double width_m = 1.8;
+  /// Scattering centres; pos_m in the car frame (x forward, y left).
+  std::vector<PointScatterer> centres;
+  [[nodiscard]] double station(double t) const { return s0_m + direction * speed_mps * t; }
+};
+
+class DrivePlan {
+ public:
+  DrivePlan(const World& world, const SimConfig& cfg, int drive_index);
+
+  [[nodiscard]] int drive_index() const { return drive_; }
+  [[nodiscard]] double duration_s() const { return duration_; }
+  [[nodiscard]] double distance_m() const;
+  [[nodiscard]] const Path& path() const { return path_; }
+  [[nodiscard]] double cruise_speed_mps() const { return cruise_; }
+  /// Exact state at time t in [0, duration].
+  [[nodiscard]] ExactState state(double t) const;
+  [[nodiscard]] const std::vector<Mover>& movers() const { return movers_; }
+  /// Temporary-object presence in this drive (permanent ones: true).
+  [[nodiscard]] bool present(std::uint32_t object_id) const { return present_[object_id] != 0; }
+  /// Red lights of this drive: (stop station, dwell seconds).
+  [[nodiscard]] const std::vector<std::pair<double, double>>& stops() const { return stops_; }
+
+ private:
+  const World& world_;
+  int drive_;
+  Path path_;
+  double cruise_ = 0.0;
+  double ds_ = 0.5;
+  std::vector<double> v_;           ///< speed at grid stations i * ds
+  std::vector<double> t_arrive_, t_depart_;
+  double duration_ = 0.0;
+  std::vector<std::pair<double, double>> stops_;
+  std::vector<Mover> movers_;
+  std::vector<std::uint8_t> present_;
+};
+
+/// GNSS/IMU errors: first-order Gauss-Markov position (sigma by fix state) and heading
+/// errors, planned stretches without carrier-phase fix, white speed / yaw-rate noise.
+class GnssErrorModel {
+ public:
+  GnssErrorModel(const GnssSimConfig& cfg, double duration_s, std::uint64_t seed);
+  /// Next sample (call with strictly increasing times).
+  TrajectorySample sample(const ExactState& truth, const tiles::LocalFrame& frame);
+  [[nodiscard]] bool fixed_at(double t) const;
+  [[nodiscard]] const std::vector<std::pair<double, double>>& no_fix_stretches() const {
+    return stretches_;
+  }
+
+ private:
+  GnssSimConfig cfg_;
+  Rng rng_;
+  std::vector<std::pair<double, double>> stretches_;
+  double last_t_ = -1.0;
+  double ex_ = 0.0, ey_ = 0.0, eh_ = 0.0;  ///< unit-variance GM states
+};
+
+/// Exact pose converted to geodetic (truth CSV, tests).
+struct GeoTruth {
+  double lat_deg, lon_deg, yaw_enu_rad;
+};
+GeoTruth to_geo_truth(const ExactState& s, const tiles::LocalFrame& frame);
+
+}  // namespace polmap::sim

@@ -1,0 +1,413 @@
+#include "polmap/sim/drive_simulator.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <numbers>
+#include <numeric>
+
+#include "polmap/schema/errors.hpp"
+#include "polmap/sim/scattering.hpp"
+
+namespace polmap::sim {
+
+namespace {
+constexpr double kPi = std::numbers::pi;
+constexpr double kDeg = kPi / 180.0;
+constexpr double kFovMarginRad = 6.0 * kDeg;  // echoes just outside the FoV leak into edge beams
+
+inline double cross(const Eigen::Vector2d& a, const Eigen::Vector2d& b) {
+  return a.x() * b.y() - a.y() * b.x();
+}
+
+/// Range along the ray at azimuth az to segment (a, b); +inf if it misses.
+inline double ray_hit(const Eigen::Vector2d& a, const Eigen::Vector2d& b, double az) {
+  const Eigen::Vector2d d(std::cos(az), std::sin(az));
+  const Eigen::Vector2d e = b - a;
+  const double den = cross(d, e);
+  if (std::abs(den) < 1e-12) return std::numeric_limits<double>::infinity();
+  const double rho = cross(a, e) / den;
+  const double t = cross(a, d) / den;
+  if (t < -1e-6 || t > 1.0 + 1e-6 || rho <= 0) return std::numeric_limits<double>::infinity();
+  return rho;
+}
+
+const ScatteringVector& odd_ref() {
+  static const ScatteringVector o = odd_bounce();
+  return o;
+}
+}  // namespace
+
+FrameRenderer::FrameRenderer(std::shared_ptr<const World> world, const SimConfig& cfg)
+    : world_(std::move(world)),
+      cfg_(cfg),
+      synth_(cfg.radar, cfg.sensors.empty() ? RadarSpec{} : cfg.sensors.front().spec) {
+  occ_step_rad_ = cfg.radar.occlusion_bin_deg * kDeg;
+  occ_lo_rad_ = -(cfg.radar.fov_half_deg * kDeg + kFovMarginRad + occ_step_rad_);
+  const int n = static_cast<int>(std::ceil(-2.0 * occ_lo_rad_ / occ_step_rad_)) + 1;
+  occ_opaque_.assign(n, -1);
+  occ_veg_.assign(n, -1);
+  occ_opaque_r_.assign(n, std::numeric_limits<float>::infinity());
+  occ_veg_r_.assign(n, std::numeric_limits<float>::infinity());
+}
+
+int FrameRenderer::occ_bin(double az) const {
+  const int b = static_cast<int>(std::floor((az - occ_lo_rad_) / occ_step_rad_));
+  return std::clamp(b, 0, static_cast<int>(occ_opaque_.size()) - 1);
+}
+
+void FrameRenderer::add_occluder(const Eigen::Vector2d& a0, const Eigen::Vector2d& b0, bool veg) {
+  // Clip to the half plane in front of the sensor.
+  constexpr double kXmin = 0.05;
+  Eigen::Vector2d a = a0, b = b0;
+  if (a.x() < kXmin && b.x() < kXmin) return;
+  if (a.x() < kXmin) a = a + (b - a) * ((kXmin - a.x()) / (b.x() - a.x()));
+  if (b.x() < kXmin) b = b + (a - b) * ((kXmin - b.x()) / (a.x() - b.x()));
+  if (std::min(a.norm(), b.norm()) > cfg_.radar.max_range_m + 1.0) return;
+  const double pa = std::atan2(a.y(), a.x()), pb = std::atan2(b.y(), b.x());
+  const int lo = occ_bin(std::min(pa, pb)), hi = occ_bin(std::max(pa, pb));
+  const int idx = static_cast<int>(segs_.size());
+  segs_.push_back({a, b});
+  auto& ids = veg ? occ_veg_ : occ_opaque_;
+  auto& rs = veg ? occ_veg_r_ : occ_opaque_r_;
+  for (int k = lo; k <= hi; ++k) {
+    const double az = occ_lo_rad_ + (k + 0.5) * occ_step_rad_;
+    double r = ray_hit(a, b, az);
+    if (!std::isfinite(r)) {
+      if (lo != hi) continue;
+      r = std::min(a.norm(), b.norm());  // sub-bin segment: still occludes its bin
+    }
+    if (r < rs[k]) {
+      rs[k] = static_cast<float>(r);
+      ids[k] = idx;
+    }
+  }
+}
+
+double FrameRenderer::occlusion_loss(double r, double az) const {
+  const int k = occ_bin(az);
+  const double margin = cfg_.radar.occlusion_margin_m;
+  if (occ_opaque_[k] >= 0) {
+    const OccSeg& s = segs_[occ_opaque_[k]];
+    double h = ray_hit(s.a, s.b, az);
+    if (!std::isfinite(h)) h = occ_opaque_r_[k];
+    if (r > h + margin) return 0.0;
+  }
+  if (occ_veg_[k] >= 0) {
+    const OccSeg& s = segs_[occ_veg_[k]];
+    double h = ray_hit(s.a, s.b, az);
+    if (!std::isfinite(h)) h = occ_veg_r_[k];
+    if (r > h + margin) return std::pow(10.0, -cfg_.radar.vegetation_loss_db / 10.0);
+  }
+  return 1.0;
+}
+
+SensorFrame FrameRenderer::render(const SensorMount& mount, const ExactState& st,
+                                  const DrivePlan* plan, std::uint32_t cycle, bool with_cube,
+                                  std::uint64_t frame_seed, const std::vector<Mover>* extra) {
+  const World& w = *world_;
+  const RadarSimConfig& rc = cfg_.radar;
+  Rng rng(frame_seed);
+  // Sensor pose in the world and its velocity (SIMULATION.md: v_s = (v - w y_m, w x_m)).
+  const double cy = std::cos(st.yaw_rad), sy = std::sin(st.yaw_rad);
+  const Pose2& m = mount.T_vehicle_sensor;
+  const Eigen::Vector2d ps(st.x_m + cy * m.x_m - sy * m.y_m, st.y_m + sy * m.x_m + cy * m.y_m);
+  const double psi = st.yaw_rad + m.yaw_rad;
+  const double cps = std::cos(psi), sps = std::sin(psi);
+  const Eigen::Vector2d v_veh(st.v_mps - st.yaw_rate_rps * m.y_m, st.yaw_rate_rps * m.x_m);
+  const double cm = std::cos(m.yaw_rad), sm = std::sin(m.yaw_rad);
+  const Eigen::Vector2d v_sens(cm * v_veh.x() + sm * v_veh.y(), -sm * v_veh.x() + cm * v_veh.y());
+  const Eigen::Vector2d v_world(cy * v_veh.x() - sy * v_veh.y(), sy * v_veh.x() + cy * v_veh.y());
+  auto to_sensor = [&](const Eigen::Vector2d& p) {
+    const Eigen::Vector2d d = p - ps;
+    return Eigen::Vector2d(cps * d.x() + sps * d.y(), -sps * d.x() + cps * d.y());
+  };
+  auto is_present = [&](std::uint32_t id) { return plan == nullptr || plan->present(id); };
+
+  synth_.begin(v_sens, with_cube);
+  const double fov = rc.fov_half_deg * kDeg + kFovMarginRad;
+  const double rmax = rc.max_range_m + 0.5;
+
+  // 1. Occlusion buffer: opaque surfaces, vegetation, car bodies (static and moving).
+  std::fill(occ_opaque_.begin(), occ_opaque_.end(), -1);
+  std::fill(occ_veg_.begin(), occ_veg_.end(), -1);
+  std::fill(occ_opaque_r_.begin(), occ_opaque_r_.end(), std::numeric_limits<float>::infinity());
+  std::fill(occ_veg_r_.begin(), occ_veg_r_.end(), std::numeric_limits<float>::infinity());
+  segs_.clear();
+  w.query(ps, rmax, q_points_, q_lines_, q_occ_);
+  for (std::uint32_t i : q_lines_) {
+    const LineScatterer& l = w.lines[i];
+    if ((l.opaque || l.vegetation) && is_present(l.object)) {
+      add_occluder(to_sensor(l.p0_m), to_sensor(l.p1_m), l.vegetation && !l.opaque);
+    }
+  }
+  for (std::uint32_t i : q_occ_) {
+    const OccluderSegment& o = w.occluders[i];
+    if (is_present(o.object)) add_occluder(to_sensor(o.p0_m), to_sensor(o.p1_m), o.vegetation);
+  }
+  struct MoverNow {
+    const Mover* m;
+    Eigen::Vector2d centre, ex, ey, vel;
+  };
+  std::vector<MoverNow> movers;
+  std::vector<const Mover*> all_movers;
+  if (plan != nullptr) {
+    for (const Mover& mv : plan->movers()) all_movers.push_back(&mv);
+  }
+  if (extra != nullptr) {
+    for (const Mover& mv : *extra) all_movers.push_back(&mv);
+  }
+  {
+    const double len = w.route.length_m();
+    for (const Mover* mvp : all_movers) {
+      const Mover& mv = *mvp;
+      const double s = mv.station(st.time_s);
+      if (s < 0 || s > len) continue;
+      const PathPoint p = w.route.at(s);
+      const Eigen::Vector2d c = w.route.offset_point(s, mv.lateral_m);
+      if ((c - ps).squaredNorm() > (rmax + 5) * (rmax + 5)) continue;
+      const double yaw = p.yaw_rad + (mv.direction < 0 ? kPi : 0.0);
+      const Eigen::Vector2d ex(std::cos(yaw), std::sin(yaw)), ey(-ex.y(), ex.x());
+      movers.push_back({&mv, c, ex, ey, mv.speed_mps * ex});
+      const double hl = 0.5 * mv.length_m, hw = 0.5 * mv.width_m;
+      const Eigen::Vector2d k[4] = {c + hl * ex + hw * ey, c - hl * ex + hw * ey,
+                                    c - hl * ex - hw * ey, c + hl * ex - hw * ey};
+      for (int j = 0; j < 4; ++j) add_occluder(to_sensor(k[j]), to_sensor(k[(j + 1) % 4]), false);
+    }
+  }
+
+  const double lambda = synth_.wavelength_m();
+  const double k4pi = 4.0 * kPi / lambda;
+  const double noise = rc.noise_sigma;
+  const DistributedModel volume = DistributedModel::volume();
+
+  // 2. Point scatterers.
+  for (std::uint32_t i : q_points_) {
+    const PointScatterer& p = w.points[i];
+    if (!is_present(p.object)) continue;
+    const Eigen::Vector2d q = to_sensor(p.pos_m);
+    const double r = q.norm();
+    if (r < rc.min_range_m || r > rmax) continue;
+    const double az = std::atan2(q.y(), q.x());
+    if (std::abs(az) > fov) continue;
+    double gain = occlusion_loss(r, az);
+    if (gain <= 0) continue;
+    if (p.aspect != Aspect::Isotropic) {
+      const double beta = std::atan2(ps.y() - p.pos_m.y(), ps.x() - p.pos_m.x());
+      double a = std::abs(wrap_angle_rad(beta - p.normal_rad));
+      const double back = std::pow(10.0, p.back_gain_db / 10.0);
+      if (p.aspect == Aspect::Specular) {
+        if (p.two_sided) a = std::min(a, kPi - a);
+        gain *= std::max(std::exp(-0.5 * a * a / (p.lobe_rad * p.lobe_rad)), back);
+      } else {
+        gain *= a <= p.lobe_rad ? 1.0 : back;
+      }
+    }
+    const double amp = noise * std::sqrt(synth_.snr_linear(p.rcs_dbsm, r) * gain);
+    const double ph = -k4pi * r + p.phase_rad;
+    const cdouble z = amp * cdouble(std::cos(ph), std::sin(ph));
+    Echo e;
+    e.range_m = r;
+    e.azimuth_rad = az;
+    e.radial_velocity_mps = synth_.static_velocity(az);
+    if (p.diffuse_fraction > 0) {
+      const ScatteringVector vs = volume.sample(rng);
+      const double a = std::sqrt(1.0 - p.diffuse_fraction), b = std::sqrt(p.diffuse_fraction);
+      for (int c = 0; c < 4; ++c) e.amplitude[c] = z * a * p.omega[c] + amp * b * vs[c];
+    } else {
+      for (int c = 0; c < 4; ++c) e.amplitude[c] = z * p.omega[c];
+    }
+    synth_.add_echo(e);
+  }
+
+  // 3. Extended objects: walk the sub-scatterer chain, aggregate per resolution cell into one
+  //    complex Gaussian sample with the summed power (statistically equivalent speckle).
+  const double step = rc.extended_step_m;
+  const double dr = rc.range_bin_m;
+  for (std::uint32_t li : q_lines_) {
+    const LineScatterer& l = w.lines[li];
+    if (!is_present(l.object)) continue;
+    const Eigen::Vector2d a = to_sensor(l.p0_m), b = to_sensor(l.p1_m);
+    const Eigen::Vector2d e = b - a;
+    const double len = e.norm();
+    if (len < 1e-6) continue;
+    // Distance from the sensor to the segment: skip pieces beyond range.
+    const double t0 = std::clamp(-a.dot(e) / (len * len), 0.0, 1.0);
+    if ((a + t0 * e).norm() > rmax) continue;
+    if (a.x() < 0 && b.x() < 0) continue;
+    const Eigen::Vector2d nrm(-e.y() / len, e.x() / len);
+    const int n = std::max(1, static_cast<int>(std::ceil(len / step)));
+    const double sl = len / n;
+    const double sig = std::pow(10.0, l.rcs_per_m_dbsm / 10.0) * sl;
+    const double gspec = l.specular_gain_db > -50 ? std::pow(10.0, l.specular_gain_db / 10.0) : 0.0;
+    const double w2 = 2.0 * l.specular_width_rad * l.specular_width_rad;
+    ScatteringVector even{};
+    if (l.model == ExtendedModel::EvenDihedral) even = dihedral(l.theta_rad);
+    const DistributedModel model = l.model == ExtendedModel::Volume ? DistributedModel::volume()
+                                   : l.model == ExtendedModel::MixedRandom
+                                       ? DistributedModel::mixed()
+                                       : DistributedModel::surface();
+    int run_r = -1, run_b = -1;
+    double pd = 0, psp = 0;
+    auto flush = [&]() {
+      if (run_r >= 0 && (pd > 0 || psp > 0)) {
+        ScatteringVector s{};
+        if (pd > 0) {
+          if (l.model == ExtendedModel::EvenDihedral) {
+            const cdouble z = rng.cnormal(pd);
+            for (int c = 0; c < 4; ++c) s[c] = z * even[c];
+          } else {
+            s = model.sample(rng);
+            const double k = std::sqrt(pd);
+            for (auto& c : s) c *= k;
+          }
+        }
+        if (psp > 0) {
+          const cdouble z = rng.cnormal(psp);
+          for (int c = 0; c < 4; ++c) s[c] += z * odd_ref()[c];
+        }
+        synth_.add_cell(run_r, run_b, s);
+      }
+      run_r = -1;
+      pd = psp = 0;
+    };
+    for (int k = 0; k < n; ++k) {
+      const Eigen::Vector2d q = a + ((k + 0.5) / n) * e;
+      const double r = q.norm();
+      if (r < rc.min_range_m || r > rmax) {
+        flush();
+        continue;
+      }
+      const double az = std::atan2(q.y(), q.x());
+      if (std::abs(az) > fov) {
+        flush();
+        continue;
+      }
+      const double occ = occlusion_loss(r, az);
+      if (occ <= 0) {
+        flush();
+        continue;
+      }
+      const double cos_a = std::min(1.0, std::abs(nrm.dot(q)) / r);
+      const double snr = synth_.snr_linear_sigma(sig, r) * occ * noise * noise;
+      const double diff = snr * std::pow(cos_a, l.grazing_exponent);
+      double spec = 0;
+      if (gspec > 0 && cos_a > 0.9) {
+        const double al = std::acos(cos_a);
+        spec = snr * gspec * std::exp(-al * al / w2);
+      }
+      const int rb = static_cast<int>(std::lround(r / dr));
+      const int bb = synth_.nearest_beam(az);
+      if (rb != run_r || bb != run_b) {
+        flush();
+        run_r = rb;
+        run_b = bb;
+      }
+      pd += diff;
+      psp += spec;
+    }
+    flush();
+  }
+
+  // 4. Moving traffic: echoes with their own Doppler (vanish from the static spectrum unless
+  //    their aliased Doppler coincides with the static one of the beam).
+  for (const MoverNow& mn : movers) {
+    for (const PointScatterer& c : mn.m->centres) {
+      const Eigen::Vector2d pw = mn.centre + c.pos_m.x() * mn.ex + c.pos_m.y() * mn.ey;
+      const Eigen::Vector2d q = to_sensor(pw);
+      const double r = q.norm();
+      if (r < rc.min_range_m || r > rmax) continue;
+      const double az = std::atan2(q.y(), q.x());
+      if (std::abs(az) > fov) continue;
+      const double gain = occlusion_loss(r, az);
+      if (gain <= 0) continue;
+      const Eigen::Vector2d u = (pw - ps) / r;  // world frame, sensor -> target
+      const double amp = noise * std::sqrt(synth_.snr_linear(c.rcs_dbsm, r) * gain);
+      const double ph = -k4pi * r + c.phase_rad;
+      const cdouble z = amp * cdouble(std::cos(ph), std::sin(ph));
+      Echo e;
+      e.range_m = r;
+      e.azimuth_rad = az;
+      e.radial_velocity_mps = (mn.vel - v_world).dot(u);
+      for (int ch = 0; ch < 4; ++ch) e.amplitude[ch] = z * c.omega[ch];
+      synth_.add_echo(e);
+    }
+  }
+
+  if (with_cube) synth_.add_explicit_ground(rng, rc.cube_max_range_m + 3 * dr);
+
+  SensorFrame frame;
+  frame.cycle_index = cycle;
+  frame.sensor_id = mount.sensor_id;
+  frame.time_s = st.time_s;
+  synth_.finish(rng, frame);
+  return frame;
+}
+
+// ---------------------------------------------------------------------------
+
+DriveSimulator::DriveSimulator(std::shared_ptr<const World> world, const SimConfig& cfg,
+                               int drive_index)
+    : world_(std::move(world)),
+      cfg_(cfg),
+      drive_(drive_index),
+      plan_(*world_, cfg, drive_index),
+      gnss_(cfg.gnss, plan_.duration_s(),
+            seed_of(cfg.seed, 0x676e7373ULL, static_cast<std::uint64_t>(drive_index))),
+      renderer_(world_, cfg) {
+  if (cfg.sensors.empty()) throw ValidationError("simulation needs at least one sensor mount");
+  if (!(cfg.gnss.rate_hz >= 1.0)) throw ValidationError("GNSS rate must be >= 1 Hz");
+  header_.drive_id = "drive_" + std::to_string(drive_index);
+  header_.vehicle_id = "sim";
+  header_.world = world_->name;
+  header_.origin = world_->origin();
+  header_.sensors = cfg.sensors;
+  header_.start_time_s = 0.0;
+  header_.has_cube = cfg.cube;
+  header_.producer = "polmap simulate 0.1.0 seed=" + std::to_string(cfg.seed) +
+                     " drive=" + std::to_string(drive_index);
+  sensor_order_.resize(cfg.sensors.size());
+  std::iota(sensor_order_.begin(), sensor_order_.end(), 0);
+  std::stable_sort(sensor_order_.begin(), sensor_order_.end(), [&](std::size_t a, std::size_t b) {
+    return cfg.sensors[a].trigger_offset_s < cfg.sensors[b].trigger_offset_s;
+  });
+  frame_period_s_ = 1.0 / cfg.sensors.front().spec.frame_rate_hz;
+}
+
+std::optional<RecordingRecord> DriveSimulator::next() {
+  const double dur = plan_.duration_s();
+  const double t_traj = static_cast<double>(next_traj_) / cfg_.gnss.rate_hz;
+  const SensorMount& mount = cfg_.sensors[sensor_order_[next_sensor_]];
+  const double t_frame = next_cycle_ * frame_period_s_ + mount.trigger_offset_s;
+  const bool traj_ok = t_traj <= dur + 1e-9;
+  const bool frame_ok = t_frame <= dur + 1e-9;
+  if (!traj_ok && !frame_ok) return std::nullopt;
+  if (traj_ok && (!frame_ok || t_traj <= t_frame)) {
+    ++next_traj_;
+    last_time_ = t_traj;
+    return RecordingRecord{gnss_.sample(plan_.state(t_traj), world_->frame)};
+  }
+  const std::uint32_t cycle = next_cycle_;
+  if (++next_sensor_ >= sensor_order_.size()) {
+    next_sensor_ = 0;
+    ++next_cycle_;
+  }
+  last_time_ = t_frame;
+  const bool cube = cfg_.cube && t_frame < cfg_.cube_seconds;
+  const std::uint64_t seed =
+      seed_of(cfg_.seed, 0x6672616d65ULL, static_cast<std::uint64_t>(drive_), cycle, mount.sensor_id);
+  return RecordingRecord{renderer_.render(mount, plan_.state(t_frame), &plan_, cycle, cube, seed)};
+}
+
+std::vector<ExactState> DriveSimulator::exact_trajectory() const {
+  std::vector<ExactState> out;
+  const double dur = plan_.duration_s();
+  for (std::uint64_t k = 0;; ++k) {
+    const double t = static_cast<double>(k) / cfg_.gnss.rate_hz;
+    if (t > dur + 1e-9) break;
+    out.push_back(plan_.state(t));
+  }
+  return out;
+}
+
+}  // namespace polmap::sim

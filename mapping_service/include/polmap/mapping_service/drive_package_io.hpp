@@ -1,0 +1,175 @@
+#pragma once
+/// @file drive_package_io.hpp
+/// Writing, packing, unpacking and validating drive packages (schema/drive_package.md).
+/// Adapter code: files and GDAL. Value types: drive_package.hpp.
+///
+/// Errors. Every failure names the package file and, where there is one, the field:
+///   "manifest.json: field 'pol_level': unknown level 'xx'"
+///   "candidates.gpkg: layer 'points' feature 3: field 'x_m': not finite"
+/// PackageFormatError (a FormatError) means the bytes cannot be parsed as the expected
+/// container (truncated archive, not JSON, not a GeoTIFF/GeoPackage, wrong JSON type):
+/// HTTP 400. PackageValidationError (a ValidationError) means the files parse but
+/// violate the package schema (missing field, unknown enum, hash mismatch, band count,
+/// non-finite or implausible coordinates, ...): HTTP 422.
+#include <cstdint>
+#include <expected>
+#include <filesystem>
+#include <functional>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "polmap/mapping_service/drive_package.hpp"
+#include "polmap/schema/errors.hpp"
+
+namespace polmap::radar {
+struct DriveProcessingResult;
+}
+
+namespace polmap::mapping {
+
+/// Options of write_drive_package. Defaults are what `polmap process` uses.
+struct PackageWriteOptions {
+  /// Overrides manifest.producer when non-empty.
+  std::string producer;
+  /// Replace an existing package directory. When false, an existing non-empty `dir` is an error.
+  bool overwrite = false;
+  /// zlib level of the GeoTIFF's DEFLATE tiles (1 fastest .. 9 smallest).
+  int deflate_level = 6;
+  /// Re-read and fully validate the written package before it replaces `dir`, so a writer
+  /// bug can never produce a package the server would reject.
+  bool validate_after_write = true;
+};
+
+/// Plausibility limits of read_and_validate_package. Defaults accept any real drive of
+/// up to ~100 km extent and reject garbage.
+struct PackageValidationConfig {
+  double max_abs_coordinate_m = 100'000.0;  ///< |x|, |y| of anything in the drive frame
+  double max_speed_mps = 100.0;             ///< |speed| of trajectory samples
+  std::uint64_t max_points = 2'000'000;     ///< also never more than observed (N > 0) cells
+  std::uint64_t max_lines = 500'000;
+  std::uint64_t max_trajectory_samples = 10'000'000;
+  std::int64_t max_raster_cells = 4'000'000'000;  ///< width * height
+  /// Candidates may lie this far outside the gridmap extent (extraction smoothing).
+  double extent_margin_m = 2.0;
+  /// Slack between the manifest time span and the trajectory's first/last sample.
+  double time_span_tolerance_s = 1.0;
+  /// Scan every gridmap block: N integral and >= 0, layers finite, zero where N = 0,
+  /// non-negative diagonal. Off only for quick header-level checks.
+  bool check_gridmap_values = true;
+};
+
+/// A failed read/validation as a value (for the HTTP server).
+struct PackageError {
+  std::string file;     ///< package member, "archive" for the ustar container, or the path
+  std::string field;    ///< offending field/band/layer (may be empty)
+  std::string message;  ///< what is wrong
+  int http_status = 422;  ///< 400: unparsable container/format, 422: schema/semantic violation
+  /// "FILE: field 'FIELD': MESSAGE" (or "FILE: MESSAGE" without a field).
+  [[nodiscard]] std::string what() const;
+};
+
+/// Thrown for unparsable package files (HTTP 400).
+class PackageFormatError : public FormatError {
+ public:
+  PackageFormatError(std::string file, std::string field, std::string message);
+  [[nodiscard]] const PackageError& error() const { return error_; }
+
+ private:
+  PackageError error_;
+};
+
+/// Thrown for package files that parse but violate the schema (HTTP 422).
+class PackageValidationError : public ValidationError {
+ public:
+  PackageValidationError(std::string file, std::string field, std::string message);
+  [[nodiscard]] const PackageError& error() const { return error_; }
+
+ private:
+  PackageError error_;
+};
+
+/// Band descriptions of gridmap.tif for a level: "N", then per upper-triangle layer
+/// "C_A_A" (diagonal) or "C_A_B.re", "C_A_B.im" (off-diagonal), A/B the level's
+/// components (full: LL, LR, RR; ll-lr: LL, LR; hh-vv: HH, VV; lr; rr; hh).
+[[nodiscard]] std::vector<std::string> gridmap_band_names(PolLevel level);
+/// Component names of a level's scattering vector, e.g. {"LL", "LR", "RR"} for full.
+[[nodiscard]] std::vector<std::string> pol_component_names(PolLevel level);
+
+/// Writes a package directory from plain values. `pkg.manifest` supplies the metadata
+/// (drive_id, vehicle_id, times, origin, sensors, pol_level, distance); crs_proj may be
+/// empty (filled from LocalFrame(origin)) and must otherwise name the same CRS;
+/// cell_size_m and q must match `raster`; gridmap/counts/files are filled in.
+/// Candidate positions are in the drive frame. The directory is written beside `dir`
+/// and renamed into place, so a failure never leaves a half-written package.
+/// Throws ValidationError for inconsistent inputs, IoError for file system failures.
+/// Returns the manifest as written.
+DriveManifest write_drive_package(const DrivePackage& pkg, const GridmapRaster& raster,
+                                  const std::filesystem::path& dir,
+                                  const PackageWriteOptions& options = {});
+
+/// Writes a package from a processed drive (radar::process_drive): the gridmap is
+/// streamed tile by tile (never densified), candidates and trajectory as in the plain
+/// overload. Defined once radar/drive_processor.hpp exists.
+DriveManifest write_drive_package(const radar::DriveProcessingResult& result,
+                                  const std::filesystem::path& dir,
+                                  const PackageWriteOptions& options = {});
+
+/// The package directory's files as one deterministic ustar archive (members
+/// manifest.json, gridmap.tif, candidates.gpkg in that order, mtime 0). The same
+/// package always gives the same bytes. Throws IoError if a file is missing.
+[[nodiscard]] std::string pack_drive_package(const std::filesystem::path& dir);
+/// pack_drive_package(dir) written to `tar_path` (atomically, via a temporary file).
+void write_drive_package_archive(const std::filesystem::path& dir,
+                                 const std::filesystem::path& tar_path);
+
+/// Extracts an archive's members into `dir` (created; must not exist or be empty).
+/// Checks the ustar structure and the member set, not the contents (validate after).
+void unpack_drive_package(std::string_view tar_bytes, const std::filesystem::path& dir);
+/// Extracts into a new unique directory under the system temp dir and returns it
+/// (the caller removes it).
+[[nodiscard]] std::filesystem::path unpack_drive_package_to_temp(std::string_view tar_bytes);
+
+/// SHA-256 of bytes, lower-case hex.
+[[nodiscard]] std::string sha256_hex(std::string_view bytes);
+/// The content hash of a package archive: sha256_hex(tar_bytes).
+[[nodiscard]] inline std::string package_content_hash(std::string_view tar_bytes) {
+  return sha256_hex(tar_bytes);
+}
+
+/// Reads and validates a whole package — a directory or a ustar archive file — before
+/// anyone commits it: manifest schema (required fields, types, version, enums), file
+/// presence, size and SHA-256 of every file, gridmap.tif (GeoTIFF, band count/type/names,
+/// CRS same as the manifest's and the LocalFrame of its origin, geotransform, values),
+/// candidates.gpkg (layers, fields, geometry types, SRS, counts, finite and plausible
+/// coordinates, geometry consistent with x/y), trajectory times strictly increasing.
+/// Throws PackageFormatError / PackageValidationError; IoError if `dir_or_tar` is unreadable.
+[[nodiscard]] DrivePackage read_and_validate_package(const std::filesystem::path& dir_or_tar,
+                                                     const PackageValidationConfig& cfg = {});
+/// Same for an archive held in memory (an HTTP upload); location stays empty.
+[[nodiscard]] DrivePackage validate_package_bytes(std::string_view tar_bytes,
+                                                  const PackageValidationConfig& cfg = {});
+
+/// Non-throwing variants for the server (IoError maps to a PackageError with status 400).
+[[nodiscard]] std::expected<DrivePackage, PackageError> try_read_and_validate_package(
+    const std::filesystem::path& dir_or_tar, const PackageValidationConfig& cfg = {});
+[[nodiscard]] std::expected<DrivePackage, PackageError> try_validate_package_bytes(
+    std::string_view tar_bytes, const PackageValidationConfig& cfg = {});
+
+/// The dense gridmap of a package read from `pkg.location` (directory or archive).
+/// Memory: width * height * (4 + 16 q(q+1)/2) bytes; for large drives prefer
+/// for_each_gridmap_block. Throws PackageFormatError if the GeoTIFF cannot be read.
+[[nodiscard]] GridmapRaster read_gridmap(const DrivePackage& pkg);
+/// Same from a gridmap GeoTIFF path (any GDAL path, e.g. "/vsitar/x.tar/gridmap.tif").
+[[nodiscard]] GridmapRaster read_gridmap(const std::string& gdal_path);
+/// Calls fn for every non-empty 256x256 block of the package's gridmap (row-major block
+/// order), each as a small raster with its own origin; blocks without any N > 0 cell
+/// are skipped. Memory: one block.
+void for_each_gridmap_block(const DrivePackage& pkg,
+                            const std::function<void(const GridmapRaster& block)>& fn);
+
+/// GDAL path of a package member: DIR/NAME for a directory, /vsitar/TAR/NAME for an archive.
+[[nodiscard]] std::string package_member_gdal_path(const std::filesystem::path& location,
+                                                   const std::string& name);
+
+}  // namespace polmap::mapping

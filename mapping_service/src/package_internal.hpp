@@ -1,0 +1,139 @@
+#pragma once
+// Internal helpers of the drive package, export and gridmap GeoTIFF code (GDAL adapters).
+// Not installed; included by mapping_service/src/{drive_package_io,package_validation,
+// gridmap_tiff,export}.cpp only.
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "polmap/mapping_service/drive_package.hpp"
+#include "polmap/mapping_service/drive_package_io.hpp"
+#include "polmap/tiles/local_frame.hpp"
+
+class GDALDataset;
+
+namespace polmap::mapping::detail {
+
+/// GDALAllRegister() once per process.
+void ensure_gdal();
+
+/// While alive, GDAL errors of this thread are captured (not printed); last_message()
+/// returns the most recent one.
+class GdalErrorCapture {
+ public:
+  GdalErrorCapture();
+  ~GdalErrorCapture();
+  GdalErrorCapture(const GdalErrorCapture&) = delete;
+  GdalErrorCapture& operator=(const GdalErrorCapture&) = delete;
+  [[nodiscard]] std::string last_message() const;
+
+ private:
+  std::string message_;
+  static void handler(int eclass, int code, const char* msg);
+};
+
+/// Sets a GDAL config option for this thread for the scope's lifetime.
+class ScopedGdalConfig {
+ public:
+  ScopedGdalConfig(const char* key, const char* value);
+  ~ScopedGdalConfig();
+  ScopedGdalConfig(const ScopedGdalConfig&) = delete;
+  ScopedGdalConfig& operator=(const ScopedGdalConfig&) = delete;
+
+ private:
+  std::string key_;
+  std::string old_;
+  bool had_old_ = false;
+};
+
+/// True if two PROJ/WKT CRS definitions describe the same CRS (OSRIsSame).
+bool same_crs(const std::string& a, const std::string& b);
+
+// ---------------------------------------------------------------- gridmap GeoTIFF
+inline constexpr int kGridmapBlockSize = 256;
+/// N saturates here: the largest integer a Float32 band holds exactly.
+inline constexpr std::uint32_t kMaxExactCount = 16'777'216;
+
+struct GridmapTiffSpec {
+  int width = 0;
+  int height = 0;
+  double origin_x_m = 0.0;  ///< western edge
+  double origin_y_m = 0.0;  ///< northern edge
+  double cell_size_m = 0.1;
+  PolLevel level = PolLevel::Full;
+  std::string crs_proj;
+  int deflate_level = 6;
+  /// Dataset metadata items (domain ""), e.g. POLMAP_DRIVE_ID.
+  std::vector<std::pair<std::string, std::string>> metadata;
+};
+
+/// One 256x256 block of all bands, band-major: data[(band * 256 + row) * 256 + col].
+struct GridmapBlockBuffer {
+  int num_bands = 0;
+  std::vector<float> data;
+  explicit GridmapBlockBuffer(int bands)
+      : num_bands(bands),
+        data(static_cast<std::size_t>(bands) * kGridmapBlockSize * kGridmapBlockSize, 0.0F) {}
+  float* band(int b) {
+    return data.data() + static_cast<std::size_t>(b) * kGridmapBlockSize * kGridmapBlockSize;
+  }
+  void clear() { std::fill(data.begin(), data.end(), 0.0F); }
+};
+
+/// Writes a gridmap GeoTIFF block by block (tiled 256x256, DEFLATE + floating-point
+/// predictor, band-interleaved, SPARSE_OK so empty blocks take no bytes). Blocks must be
+/// written in a fixed order for byte-identical output; each block is written exactly once
+/// and directly (no GDAL block cache), so the file layout does not depend on cache size.
+class GridmapTiffWriter {
+ public:
+  GridmapTiffWriter(const std::string& path, const GridmapTiffSpec& spec);
+  ~GridmapTiffWriter();
+  GridmapTiffWriter(const GridmapTiffWriter&) = delete;
+  GridmapTiffWriter& operator=(const GridmapTiffWriter&) = delete;
+  [[nodiscard]] int num_bands() const { return num_bands_; }
+  [[nodiscard]] int blocks_x() const;
+  [[nodiscard]] int blocks_y() const;
+  /// Writes block (bx, by); an all-zero N band skips the block (sparse).
+  void write_block(int bx, int by, GridmapBlockBuffer& block);
+  /// Flushes and closes; throws IoError on failure.
+  void close();
+
+ private:
+  std::string path_;
+  GridmapTiffSpec spec_;
+  int num_bands_ = 0;
+  GDALDataset* ds_ = nullptr;
+};
+
+/// Fills block (bx, by) of `block` from a dense raster (cells outside -> 0).
+void fill_block_from_raster(const GridmapRaster& raster, int bx, int by, GridmapBlockBuffer& block);
+
+/// Writes a dense raster as a gridmap GeoTIFF.
+void write_gridmap_tiff(const GridmapRaster& raster, const GridmapTiffSpec& spec,
+                        const std::string& path);
+
+// ---------------------------------------------------------------- candidates GeoPackage
+/// Writes candidates.gpkg (layers points, lines, trajectory in EPSG:4326) deterministically.
+void write_candidates_gpkg(const std::string& path, const tiles::LocalFrame& frame,
+                           const std::vector<PointCandidate>& points,
+                           const std::vector<LineCandidate>& lines,
+                           const std::vector<TrajectorySample>& trajectory);
+
+// ---------------------------------------------------------------- manifest
+nlohmann::json manifest_to_json(const DriveManifest& m);
+/// Strict parse; throws PackageFormatError / PackageValidationError naming manifest.json.
+DriveManifest manifest_from_json(const nlohmann::json& j);
+
+// ---------------------------------------------------------------- files
+std::string read_file_bytes(const std::filesystem::path& path);
+/// Writes bytes to path (truncating). Throws IoError.
+void write_file_bytes(const std::filesystem::path& path, std::string_view bytes);
+/// A unique new directory next to `near` (or in the temp dir when `near` is empty).
+std::filesystem::path make_unique_dir(const std::filesystem::path& parent, const std::string& stem);
+
+}  // namespace polmap::mapping::detail

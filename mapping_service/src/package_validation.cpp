@@ -1,0 +1,785 @@
+// Reading and whole-package validation of drive packages (directory, archive file, bytes).
+#include <cpl_vsi.h>
+#include <gdal_priv.h>
+#include <ogr_spatialref.h>
+#include <ogrsf_frmts.h>
+
+#include <atomic>
+#include <cmath>
+#include <map>
+#include <optional>
+
+#include "package_internal.hpp"
+#include "polmap/mapping_service/drive_package_io.hpp"
+#include "polmap/mapping_service/ustar.hpp"
+#include "polmap/schema/json.hpp"
+
+namespace polmap::mapping {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+namespace detail {
+std::vector<TarMember> read_package_members(std::string_view tar_bytes);
+}
+
+namespace {
+
+constexpr const char* kGpkg = "candidates.gpkg";
+constexpr const char* kTif = "gridmap.tif";
+
+// ------------------------------------------------------------------------ sources
+
+/// The files of a package, wherever they are.
+class PackageSource {
+ public:
+  virtual ~PackageSource() = default;
+  [[nodiscard]] virtual bool has(const std::string& name) const = 0;
+  [[nodiscard]] virtual std::string bytes(const std::string& name) const = 0;
+  [[nodiscard]] virtual std::string gdal_path(const std::string& name) const = 0;
+};
+
+class DirSource final : public PackageSource {
+ public:
+  explicit DirSource(fs::path dir) : dir_(std::move(dir)) {}
+  [[nodiscard]] bool has(const std::string& name) const override {
+    std::error_code ec;
+    return fs::is_regular_file(dir_ / name, ec);
+  }
+  [[nodiscard]] std::string bytes(const std::string& name) const override {
+    return detail::read_file_bytes(dir_ / name);
+  }
+  [[nodiscard]] std::string gdal_path(const std::string& name) const override {
+    return (dir_ / name).string();
+  }
+
+ private:
+  fs::path dir_;
+};
+
+/// Archive members exposed to GDAL through /vsimem/ (no copies, no disk).
+class MemSource final : public PackageSource {
+ public:
+  explicit MemSource(std::vector<TarMember> members) : members_(std::move(members)) {
+    detail::ensure_gdal();
+    static std::atomic<std::uint64_t> counter{0};
+    prefix_ = "/vsimem/polmap_pkg_" + std::to_string(counter++) + "/";
+    for (auto& m : members_) {
+      VSILFILE* f = VSIFileFromMemBuffer((prefix_ + m.name).c_str(),
+                                         reinterpret_cast<GByte*>(m.data.data()),
+                                         static_cast<vsi_l_offset>(m.data.size()), FALSE);
+      if (f != nullptr) VSIFCloseL(f);
+    }
+  }
+  ~MemSource() override {
+    for (const auto& m : members_) VSIUnlink((prefix_ + m.name).c_str());
+  }
+  MemSource(const MemSource&) = delete;
+  MemSource& operator=(const MemSource&) = delete;
+
+  [[nodiscard]] bool has(const std::string& name) const override { return find(name) != nullptr; }
+  [[nodiscard]] std::string bytes(const std::string& name) const override {
+    const TarMember* m = find(name);
+    return m == nullptr ? std::string() : m->data;
+  }
+  [[nodiscard]] std::string gdal_path(const std::string& name) const override {
+    return prefix_ + name;
+  }
+  [[nodiscard]] const std::vector<TarMember>& members() const { return members_; }
+
+ private:
+  [[nodiscard]] const TarMember* find(const std::string& name) const {
+    for (const auto& m : members_) {
+      if (m.name == name) return &m;
+    }
+    return nullptr;
+  }
+  std::vector<TarMember> members_;
+  std::string prefix_;
+};
+
+[[noreturn]] void invalid(const std::string& file, const std::string& field,
+                          const std::string& message) {
+  throw PackageValidationError(file, field, message);
+}
+
+std::string fmt(double v) {
+  char buf[64];
+  std::snprintf(buf, sizeof(buf), "%.9g", v);
+  return buf;
+}
+
+// ------------------------------------------------------------------------ GeoTIFF
+
+struct GridmapScan {
+  std::uint64_t observed_cells = 0;
+};
+
+GDALDatasetUniquePtr open_raster(const std::string& path, const std::string& file) {
+  detail::GdalErrorCapture capture;
+  detail::ScopedGdalConfig no_pam("GDAL_PAM_ENABLED", "NO");
+  const char* drivers[] = {"GTiff", nullptr};
+  GDALDatasetUniquePtr ds(GDALDataset::FromHandle(
+      GDALOpenEx(path.c_str(), GDAL_OF_RASTER | GDAL_OF_READONLY, drivers, nullptr, nullptr)));
+  if (!ds) {
+    throw PackageFormatError(file, "", "not a readable GeoTIFF (" + capture.last_message() + ")");
+  }
+  return ds;
+}
+
+GridmapScan validate_gridmap(const std::string& path, const DriveManifest& m,
+                             const PackageValidationConfig& cfg) {
+  auto ds = open_raster(path, kTif);
+  const GridmapInfo& g = m.gridmap;
+  if (ds->GetRasterXSize() != g.width) {
+    invalid(kTif, "width", std::to_string(ds->GetRasterXSize()) + " columns, manifest.json says " +
+                               std::to_string(g.width));
+  }
+  if (ds->GetRasterYSize() != g.height) {
+    invalid(kTif, "height", std::to_string(ds->GetRasterYSize()) + " rows, manifest.json says " +
+                                std::to_string(g.height));
+  }
+  if (static_cast<std::int64_t>(g.width) * g.height > cfg.max_raster_cells) {
+    invalid(kTif, "width", "raster of " + std::to_string(g.width) + " x " +
+                               std::to_string(g.height) + " cells exceeds the limit");
+  }
+  const auto names = gridmap_band_names(m.pol_level);
+  if (ds->GetRasterCount() != static_cast<int>(names.size())) {
+    invalid(kTif, "bands", "has " + std::to_string(ds->GetRasterCount()) + " bands, pol_level '" +
+                               std::string(to_string(m.pol_level)) + "' needs " +
+                               std::to_string(names.size()));
+  }
+  for (int b = 0; b < ds->GetRasterCount(); ++b) {
+    GDALRasterBand* band = ds->GetRasterBand(b + 1);
+    const std::string bname = "band " + std::to_string(b + 1);
+    if (band->GetRasterDataType() != GDT_Float32) {
+      invalid(kTif, bname, std::string("data type ") +
+                               GDALGetDataTypeName(band->GetRasterDataType()) + ", expected Float32");
+    }
+    if (names[b] != band->GetDescription()) {
+      invalid(kTif, bname, std::string("description '") + band->GetDescription() +
+                               "', expected '" + names[b] + "'");
+    }
+    int bx = 0, by = 0;
+    band->GetBlockSize(&bx, &by);
+    if (bx != detail::kGridmapBlockSize || by != detail::kGridmapBlockSize) {
+      invalid(kTif, bname, "block size " + std::to_string(bx) + "x" + std::to_string(by) +
+                               ", expected 256x256 tiles");
+    }
+  }
+  double gt[6];
+  if (ds->GetGeoTransform(gt) != CE_None) invalid(kTif, "geotransform", "missing");
+  const double cs = m.cell_size_m;
+  const double tol = 1e-6;
+  if (std::abs(gt[1] - cs) > tol || std::abs(gt[5] + cs) > tol || gt[2] != 0.0 || gt[4] != 0.0) {
+    invalid(kTif, "geotransform",
+            "pixel size (" + fmt(gt[1]) + ", " + fmt(gt[5]) + ") rotation (" + fmt(gt[2]) + ", " +
+                fmt(gt[4]) + "), expected north-up (" + fmt(cs) + ", " + fmt(-cs) + ")");
+  }
+  if (std::abs(gt[0] - g.origin_x_m) > tol || std::abs(gt[3] - g.origin_y_m) > tol) {
+    invalid(kTif, "geotransform",
+            "origin (" + fmt(gt[0]) + ", " + fmt(gt[3]) + "), manifest.json gridmap says (" +
+                fmt(g.origin_x_m) + ", " + fmt(g.origin_y_m) + ")");
+  }
+  if (std::abs(g.origin_x_m) > cfg.max_abs_coordinate_m ||
+      std::abs(g.origin_y_m) > cfg.max_abs_coordinate_m ||
+      std::abs(g.origin_x_m + g.width * cs) > cfg.max_abs_coordinate_m ||
+      std::abs(g.origin_y_m - g.height * cs) > cfg.max_abs_coordinate_m) {
+    invalid(kTif, "geotransform", "extent reaches beyond " + fmt(cfg.max_abs_coordinate_m) +
+                                      " m from the drive origin");
+  }
+  const OGRSpatialReference* srs = ds->GetSpatialRef();
+  if (srs == nullptr) invalid(kTif, "crs", "missing");
+  {
+    OGRSpatialReference expected;
+    expected.SetFromUserInput(m.crs_proj.c_str());
+    if (!srs->IsSame(&expected)) {
+      char* proj = nullptr;
+      srs->exportToProj4(&proj);
+      const std::string got = proj != nullptr ? proj : "?";
+      CPLFree(proj);
+      invalid(kTif, "crs", "'" + got + "' is not manifest.json crs_proj '" + m.crs_proj + "'");
+    }
+  }
+
+  GridmapScan scan;
+  if (!cfg.check_gridmap_values) return scan;
+  const int q = pol_dimension(m.pol_level);
+  const int nb = ds->GetRasterCount();
+  detail::GridmapBlockBuffer block(nb);
+  const int bs = detail::kGridmapBlockSize;
+  const int nbx = (g.width + bs - 1) / bs;
+  const int nby = (g.height + bs - 1) / bs;
+  detail::GdalErrorCapture capture;
+  // Band index of diagonal element i and of the (re, im) pair of (i, j).
+  std::vector<int> diag(q);
+  std::vector<std::vector<int>> off(q, std::vector<int>(q, -1));
+  {
+    int band = 1;
+    for (int i = 0; i < q; ++i) {
+      for (int j = i; j < q; ++j) {
+        if (i == j) {
+          diag[i] = band++;
+        } else {
+          off[i][j] = band;
+          band += 2;
+        }
+      }
+    }
+  }
+  for (int by = 0; by < nby; ++by) {
+    for (int bx = 0; bx < nbx; ++bx) {
+      for (int b = 0; b < nb; ++b) {
+        if (ds->GetRasterBand(b + 1)->ReadBlock(bx, by, block.band(b)) != CE_None) {
+          throw PackageFormatError(kTif, names[b],
+                                   "cannot read block (" + std::to_string(bx) + ", " +
+                                       std::to_string(by) + "): " + capture.last_message());
+        }
+      }
+      const int cols = std::min(bs, g.width - bx * bs);
+      const int rows = std::min(bs, g.height - by * bs);
+      for (int r = 0; r < rows; ++r) {
+        for (int c = 0; c < cols; ++c) {
+          const std::size_t k = static_cast<std::size_t>(r) * bs + c;
+          const auto where = [&] {
+            return "at column " + std::to_string(bx * bs + c) + " row " +
+                   std::to_string(by * bs + r);
+          };
+          const float n = block.band(0)[k];
+          if (!std::isfinite(n) || n < 0.0F || n != std::floor(n)) {
+            invalid(kTif, "N", "count " + fmt(n) + " " + where() + " is not a non-negative integer");
+          }
+          for (int b = 1; b < nb; ++b) {
+            const float v = block.band(b)[k];
+            if (!std::isfinite(v)) invalid(kTif, names[b], "non-finite value " + where());
+            if (n == 0.0F && v != 0.0F) {
+              invalid(kTif, names[b], "value " + fmt(v) + " " + where() + " where N = 0");
+            }
+          }
+          if (n == 0.0F) continue;
+          ++scan.observed_cells;
+          for (int i = 0; i < q; ++i) {
+            const float cii = block.band(diag[i])[k];
+            if (cii < 0.0F) {
+              invalid(kTif, names[diag[i]], "negative power " + fmt(cii) + " " + where());
+            }
+            for (int j = i + 1; j < q; ++j) {
+              // A covariance matrix obeys |C_ij|^2 <= C_ii C_jj (float rounding allowed).
+              const double re = block.band(off[i][j])[k];
+              const double im = block.band(off[i][j] + 1)[k];
+              const double bound = static_cast<double>(cii) * block.band(diag[j])[k];
+              if (re * re + im * im > bound * (1.0 + 1e-3) + 1e-30) {
+                invalid(kTif, names[off[i][j]],
+                        "|C_ij|^2 exceeds C_ii C_jj " + where() + " (not a covariance)");
+              }
+            }
+          }
+        }
+      }
+    }
+  }
+  return scan;
+}
+
+// ------------------------------------------------------------------------ GeoPackage
+
+struct FieldSpec {
+  const char* name;
+  OGRFieldType type;
+};
+
+OGRLayer* require_layer(GDALDataset& ds, const char* name, OGRwkbGeometryType geom,
+                        const std::vector<FieldSpec>& fields) {
+  OGRLayer* layer = ds.GetLayerByName(name);
+  if (layer == nullptr) invalid(kGpkg, name, "layer missing");
+  if (wkbFlatten(layer->GetGeomType()) != geom) {
+    invalid(kGpkg, name, std::string("geometry type ") +
+                             OGRGeometryTypeToName(layer->GetGeomType()) + ", expected " +
+                             OGRGeometryTypeToName(geom));
+  }
+  const OGRSpatialReference* srs = layer->GetSpatialRef();
+  OGRSpatialReference wgs84;
+  wgs84.importFromEPSG(4326);
+  const char* const ignore_axis[] = {"IGNORE_DATA_AXIS_TO_SRS_AXIS_MAPPING=YES", nullptr};
+  if (srs == nullptr || !srs->IsSame(&wgs84, ignore_axis)) {
+    invalid(kGpkg, name, "SRS is not WGS84 (EPSG:4326)");
+  }
+  OGRFeatureDefn* defn = layer->GetLayerDefn();
+  for (const auto& f : fields) {
+    const int idx = defn->GetFieldIndex(f.name);
+    if (idx < 0) invalid(kGpkg, std::string(name) + "." + f.name, "field missing");
+    const OGRFieldType t = defn->GetFieldDefn(idx)->GetType();
+    const bool ok = t == f.type || (f.type == OFTInteger64 && t == OFTInteger);
+    if (!ok) {
+      invalid(kGpkg, std::string(name) + "." + f.name,
+              std::string("type ") + OGRFieldDefn::GetFieldTypeName(t) + ", expected " +
+                  OGRFieldDefn::GetFieldTypeName(f.type));
+    }
+  }
+  return layer;
+}
+
+/// Reads one feature's fields with per-field error messages.
+class FeatureReader {
+ public:
+  FeatureReader(const char* layer, const OGRFeature& f, std::uint64_t index)
+      : layer_(layer), f_(f), index_(index) {}
+  [[nodiscard]] std::string field_path(const char* name) const {
+    return std::string(layer_) + "." + name;
+  }
+  [[nodiscard]] std::string where() const { return "feature " + std::to_string(index_); }
+  [[nodiscard]] double real(const char* name) const {
+    const int idx = f_.GetFieldIndex(name);
+    if (!f_.IsFieldSetAndNotNull(idx)) invalid(kGpkg, field_path(name), where() + ": null");
+    const double v = f_.GetFieldAsDouble(idx);
+    if (!std::isfinite(v)) invalid(kGpkg, field_path(name), where() + ": not finite");
+    return v;
+  }
+  [[nodiscard]] double coordinate(const char* name, double limit) const {
+    const double v = real(name);
+    if (std::abs(v) > limit) {
+      invalid(kGpkg, field_path(name), where() + ": " + fmt(v) + " m is more than " + fmt(limit) +
+                                           " m from the drive origin");
+    }
+    return v;
+  }
+  [[nodiscard]] std::int64_t integer(const char* name) const {
+    const int idx = f_.GetFieldIndex(name);
+    if (!f_.IsFieldSetAndNotNull(idx)) invalid(kGpkg, field_path(name), where() + ": null");
+    return f_.GetFieldAsInteger64(idx);
+  }
+  [[nodiscard]] std::string string(const char* name) const {
+    const int idx = f_.GetFieldIndex(name);
+    if (!f_.IsFieldSetAndNotNull(idx)) invalid(kGpkg, field_path(name), where() + ": null");
+    return f_.GetFieldAsString(idx);
+  }
+  /// Checks a WGS84 vertex: finite, in range, and at the drive-frame position (x, y).
+  void check_vertex(double lon, double lat, const Eigen::Vector2d& xy,
+                    const tiles::LocalFrame& frame, const char* xfield) const {
+    const std::string geom = std::string(layer_) + ".geom";
+    if (!std::isfinite(lon) || !std::isfinite(lat)) {
+      invalid(kGpkg, geom, where() + ": non-finite coordinate");
+    }
+    if (std::abs(lat) > 90.0 || std::abs(lon) > 180.0) {
+      invalid(kGpkg, geom, where() + ": (" + fmt(lon) + ", " + fmt(lat) + ") outside WGS84 range");
+    }
+    const Eigen::Vector2d p = frame.to_local(lat, lon);
+    if ((p - xy).norm() > 0.05) {
+      invalid(kGpkg, field_path(xfield),
+              where() + ": geometry lies " + fmt((p - xy).norm()) +
+                  " m from the drive-frame position (x, y)");
+    }
+  }
+
+ private:
+  const char* layer_;
+  const OGRFeature& f_;
+  std::uint64_t index_;
+};
+
+std::optional<ScatteringClass> parse_scattering(const std::string& s) {
+  for (auto c : {ScatteringClass::Unknown, ScatteringClass::Odd, ScatteringClass::Even,
+                 ScatteringClass::Mixed}) {
+    if (to_string(c) == s) return c;
+  }
+  return std::nullopt;
+}
+
+std::optional<GnssSolution> parse_solution(const std::string& s) {
+  for (auto c : {GnssSolution::CarrierPhaseFixed, GnssSolution::CarrierPhaseFloat,
+                 GnssSolution::Standalone}) {
+    if (to_string(c) == s) return c;
+  }
+  return std::nullopt;
+}
+
+void check_count(const char* layer, OGRLayer* l, std::uint64_t expected, std::uint64_t limit) {
+  const GIntBig n = l->GetFeatureCount(TRUE);
+  if (n < 0 || static_cast<std::uint64_t>(n) != expected) {
+    invalid(kGpkg, layer, std::to_string(n) + " features, manifest.json counts say " +
+                              std::to_string(expected));
+  }
+  if (static_cast<std::uint64_t>(n) > limit) {
+    invalid(kGpkg, layer, std::to_string(n) + " features exceed the plausible maximum " +
+                              std::to_string(limit));
+  }
+}
+
+void read_candidates(const std::string& path, const DriveManifest& m,
+                     const PackageValidationConfig& cfg, const GridmapScan& scan,
+                     DrivePackage& out) {
+  detail::GdalErrorCapture capture;
+  const char* drivers[] = {"GPKG", nullptr};
+  GDALDatasetUniquePtr ds(GDALDataset::FromHandle(
+      GDALOpenEx(path.c_str(), GDAL_OF_VECTOR | GDAL_OF_READONLY, drivers, nullptr, nullptr)));
+  if (!ds) {
+    throw PackageFormatError(kGpkg, "", "not a readable GeoPackage (" + capture.last_message() + ")");
+  }
+  const tiles::LocalFrame frame(m.origin);
+  const double lim = cfg.max_abs_coordinate_m;
+  const GridmapInfo& g = m.gridmap;
+  const double margin = cfg.extent_margin_m;
+  const auto inside_gridmap = [&](const Eigen::Vector2d& p) {
+    return p.x() >= g.origin_x_m - margin && p.x() <= g.origin_x_m + g.width * m.cell_size_m + margin &&
+           p.y() <= g.origin_y_m + margin && p.y() >= g.origin_y_m - g.height * m.cell_size_m - margin;
+  };
+
+  OGRLayer* lp = require_layer(*ds, "points", wkbPoint,
+                               {{"strength", OFTReal},
+                                {"power_db", OFTReal},
+                                {"scattering", OFTString},
+                                {"num_cells", OFTInteger64},
+                                {"x_m", OFTReal},
+                                {"y_m", OFTReal}});
+  OGRLayer* ll = require_layer(*ds, "lines", wkbLineString,
+                               {{"strength", OFTReal},
+                                {"x0_m", OFTReal},
+                                {"y0_m", OFTReal},
+                                {"x1_m", OFTReal},
+                                {"y1_m", OFTReal}});
+  OGRLayer* lt = require_layer(*ds, "trajectory", wkbPoint,
+                               {{"time_s", OFTReal},
+                                {"yaw_enu_rad", OFTReal},
+                                {"speed_mps", OFTReal},
+                                {"yaw_rate_rps", OFTReal},
+                                {"std_east_m", OFTReal},
+                                {"std_north_m", OFTReal},
+                                {"std_yaw_rad", OFTReal},
+                                {"solution", OFTString},
+                                {"x_m", OFTReal},
+                                {"y_m", OFTReal}});
+  std::uint64_t max_points = cfg.max_points;
+  if (cfg.check_gridmap_values) max_points = std::min(max_points, scan.observed_cells);
+  check_count("points", lp, m.counts.points, max_points);
+  check_count("lines", ll, m.counts.lines, cfg.max_lines);
+  check_count("trajectory", lt, m.counts.trajectory_samples, cfg.max_trajectory_samples);
+  if (m.counts.trajectory_samples < 2) {
+    invalid(kGpkg, "trajectory", "fewer than 2 samples");
+  }
+
+  std::uint64_t i = 0;
+  lp->ResetReading();
+  for (auto& feat : *lp) {
+    const FeatureReader r("points", *feat, i++);
+    PointCandidate p;
+    p.position_m = {r.coordinate("x_m", lim), r.coordinate("y_m", lim)};
+    p.strength = r.real("strength");
+    p.power_db = r.real("power_db");
+    const auto sc = parse_scattering(r.string("scattering"));
+    if (!sc) {
+      invalid(kGpkg, "points.scattering", r.where() + ": unknown class '" + r.string("scattering") +
+                                              "' (expected unknown, odd, even, mixed)");
+    }
+    p.scattering = *sc;
+    const std::int64_t nc = r.integer("num_cells");
+    if (nc < 0 || nc > 100'000'000) {
+      invalid(kGpkg, "points.num_cells", r.where() + ": " + std::to_string(nc) + " out of range");
+    }
+    p.num_cells = static_cast<std::uint32_t>(nc);
+    const OGRGeometry* geom = feat->GetGeometryRef();
+    if (geom == nullptr || wkbFlatten(geom->getGeometryType()) != wkbPoint) {
+      invalid(kGpkg, "points.geom", r.where() + ": missing or not a point");
+    }
+    const auto* pt = geom->toPoint();
+    r.check_vertex(pt->getX(), pt->getY(), p.position_m, frame, "x_m");
+    if (!inside_gridmap(p.position_m)) {
+      invalid(kGpkg, "points.x_m", r.where() + ": (" + fmt(p.position_m.x()) + ", " +
+                                       fmt(p.position_m.y()) + ") outside the gridmap extent");
+    }
+    out.points.push_back(p);
+  }
+  i = 0;
+  ll->ResetReading();
+  for (auto& feat : *ll) {
+    const FeatureReader r("lines", *feat, i++);
+    LineCandidate l;
+    l.start_m = {r.coordinate("x0_m", lim), r.coordinate("y0_m", lim)};
+    l.end_m = {r.coordinate("x1_m", lim), r.coordinate("y1_m", lim)};
+    l.strength = r.real("strength");
+    const OGRGeometry* geom = feat->GetGeometryRef();
+    if (geom == nullptr || wkbFlatten(geom->getGeometryType()) != wkbLineString ||
+        geom->toLineString()->getNumPoints() != 2) {
+      invalid(kGpkg, "lines.geom", r.where() + ": missing or not a 2-point line string");
+    }
+    const auto* ls = geom->toLineString();
+    r.check_vertex(ls->getX(0), ls->getY(0), l.start_m, frame, "x0_m");
+    r.check_vertex(ls->getX(1), ls->getY(1), l.end_m, frame, "x1_m");
+    if (!inside_gridmap(l.start_m) || !inside_gridmap(l.end_m)) {
+      invalid(kGpkg, "lines.x0_m", r.where() + ": end point outside the gridmap extent");
+    }
+    out.lines.push_back(l);
+  }
+  i = 0;
+  lt->ResetReading();
+  for (auto& feat : *lt) {
+    const FeatureReader r("trajectory", *feat, i++);
+    TrajectorySample s;
+    s.time_s = r.real("time_s");
+    s.yaw_enu_rad = r.real("yaw_enu_rad");
+    s.speed_mps = r.real("speed_mps");
+    s.yaw_rate_rps = r.real("yaw_rate_rps");
+    s.std_east_m = static_cast<float>(r.real("std_east_m"));
+    s.std_north_m = static_cast<float>(r.real("std_north_m"));
+    s.std_yaw_rad = static_cast<float>(r.real("std_yaw_rad"));
+    if (std::abs(s.speed_mps) > cfg.max_speed_mps) {
+      invalid(kGpkg, "trajectory.speed_mps", r.where() + ": " + fmt(s.speed_mps) + " m/s implausible");
+    }
+    if (s.std_east_m < 0 || s.std_north_m < 0 || s.std_yaw_rad < 0) {
+      invalid(kGpkg, "trajectory.std_east_m", r.where() + ": negative standard deviation");
+    }
+    const auto sol = parse_solution(r.string("solution"));
+    if (!sol) {
+      invalid(kGpkg, "trajectory.solution", r.where() + ": unknown solution '" +
+                                                r.string("solution") + "'");
+    }
+    s.solution = *sol;
+    const Eigen::Vector2d xy{r.coordinate("x_m", lim), r.coordinate("y_m", lim)};
+    const OGRGeometry* geom = feat->GetGeometryRef();
+    if (geom == nullptr || wkbFlatten(geom->getGeometryType()) != wkbPoint) {
+      invalid(kGpkg, "trajectory.geom", r.where() + ": missing or not a point");
+    }
+    const auto* pt = geom->toPoint();
+    r.check_vertex(pt->getX(), pt->getY(), xy, frame, "x_m");
+    s.lon_deg = pt->getX();
+    s.lat_deg = pt->getY();
+    if (!out.trajectory.empty() && !(s.time_s > out.trajectory.back().time_s)) {
+      invalid(kGpkg, "trajectory.time_s",
+              r.where() + ": time " + fmt(s.time_s) + " s not after the previous sample (" +
+                  fmt(out.trajectory.back().time_s) + " s)");
+    }
+    if (s.time_s < m.start_time_s - cfg.time_span_tolerance_s ||
+        s.time_s > m.end_time_s + cfg.time_span_tolerance_s) {
+      invalid(kGpkg, "trajectory.time_s", r.where() + ": time " + fmt(s.time_s) +
+                                              " s outside the manifest time span");
+    }
+    out.trajectory.push_back(s);
+  }
+}
+
+// ------------------------------------------------------------------------ whole package
+
+DrivePackage validate(const PackageSource& src, const PackageValidationConfig& cfg,
+                      std::vector<TarMember>* collected) {
+  if (!src.has(kManifestFileName)) invalid(kManifestFileName, "", "missing");
+  const std::string manifest_bytes = src.bytes(kManifestFileName);
+  json j;
+  try {
+    j = json::parse(manifest_bytes);
+  } catch (const json::parse_error& e) {
+    throw PackageFormatError(kManifestFileName, "",
+                             "not valid JSON (byte " + std::to_string(e.byte) + ")");
+  }
+  DrivePackage pkg;
+  pkg.manifest = detail::manifest_from_json(j);
+  const DriveManifest& m = pkg.manifest;
+  if (collected != nullptr) collected->push_back({kManifestFileName, manifest_bytes});
+  for (std::size_t i = 0; i < m.files.size(); ++i) {
+    const auto& f = m.files[i];
+    if (!src.has(f.name)) invalid(f.name, "", "missing (listed in manifest.json files)");
+    std::string data = src.bytes(f.name);
+    if (data.size() != f.size_bytes) {
+      invalid(f.name, "size_bytes",
+              std::to_string(data.size()) + " bytes, manifest.json files[" + std::to_string(i) +
+                  "].size_bytes says " + std::to_string(f.size_bytes));
+    }
+    const std::string actual = sha256_hex(data);
+    if (actual != f.sha256) {
+      invalid(f.name, "sha256", actual + " does not match manifest.json files[" +
+                                    std::to_string(i) + "].sha256 " + f.sha256);
+    }
+    if (collected != nullptr) collected->push_back({f.name, std::move(data)});
+  }
+  const GridmapScan scan = validate_gridmap(src.gdal_path(kTif), m, cfg);
+  read_candidates(src.gdal_path(kGpkg), m, cfg, scan, pkg);
+  return pkg;
+}
+
+PackageError to_package_error(const std::exception& e) {
+  if (const auto* pf = dynamic_cast<const PackageFormatError*>(&e)) return pf->error();
+  if (const auto* pv = dynamic_cast<const PackageValidationError*>(&e)) return pv->error();
+  if (dynamic_cast<const ValidationError*>(&e) != nullptr) return {"", "", e.what(), 422};
+  return {"", "", e.what(), 400};
+}
+
+}  // namespace
+
+DrivePackage read_and_validate_package(const fs::path& dir_or_tar,
+                                       const PackageValidationConfig& cfg) {
+  detail::ensure_gdal();
+  std::error_code ec;
+  if (fs::is_directory(dir_or_tar, ec)) {
+    std::vector<TarMember> files;
+    DrivePackage pkg = validate(DirSource(dir_or_tar), cfg, &files);
+    pkg.location = dir_or_tar;
+    pkg.content_sha256 = sha256_hex(write_ustar(files));
+    return pkg;
+  }
+  if (!fs::is_regular_file(dir_or_tar, ec)) {
+    throw IoError(dir_or_tar.string() + ": no such package (neither a directory nor a file)");
+  }
+  DrivePackage pkg = validate_package_bytes(detail::read_file_bytes(dir_or_tar), cfg);
+  pkg.location = dir_or_tar;
+  return pkg;
+}
+
+DrivePackage validate_package_bytes(std::string_view tar_bytes, const PackageValidationConfig& cfg) {
+  const MemSource src(detail::read_package_members(tar_bytes));
+  DrivePackage pkg = validate(src, cfg, nullptr);
+  pkg.content_sha256 = sha256_hex(tar_bytes);
+  return pkg;
+}
+
+std::expected<DrivePackage, PackageError> try_read_and_validate_package(
+    const fs::path& dir_or_tar, const PackageValidationConfig& cfg) {
+  try {
+    return read_and_validate_package(dir_or_tar, cfg);
+  } catch (const Error& e) {
+    PackageError err = to_package_error(e);
+    if (err.file.empty()) err.file = dir_or_tar.filename().string();
+    return std::unexpected(std::move(err));
+  }
+}
+
+std::expected<DrivePackage, PackageError> try_validate_package_bytes(
+    std::string_view tar_bytes, const PackageValidationConfig& cfg) {
+  try {
+    return validate_package_bytes(tar_bytes, cfg);
+  } catch (const Error& e) {
+    PackageError err = to_package_error(e);
+    if (err.file.empty()) err.file = "archive";
+    return std::unexpected(std::move(err));
+  }
+}
+
+// ------------------------------------------------------------------------ gridmap reading
+
+namespace {
+
+struct RasterLayout {
+  int q = 0;
+  double gt[6] = {0, 1, 0, 0, 0, -1};
+};
+
+RasterLayout raster_layout(GDALDataset& ds, const std::string& file) {
+  RasterLayout l;
+  const int nb = ds.GetRasterCount();
+  const int q = static_cast<int>(std::lround(std::sqrt(std::max(nb - 1, 0))));
+  if (q < 1 || 1 + q * q != nb) {
+    invalid(file, "bands", std::to_string(nb) + " bands is not 1 + q^2 for q in 1..4");
+  }
+  l.q = q;
+  if (ds.GetGeoTransform(l.gt) != CE_None) invalid(file, "geotransform", "missing");
+  return l;
+}
+
+void block_to_raster(detail::GridmapBlockBuffer& block, int q, int cols, int rows,
+                     GridmapRaster& out, int col0, int row0) {
+  const int bs = detail::kGridmapBlockSize;
+  for (int r = 0; r < rows; ++r) {
+    for (int c = 0; c < cols; ++c) {
+      const std::size_t k = static_cast<std::size_t>(r) * bs + c;
+      const std::size_t dst = static_cast<std::size_t>(row0 + r) * out.width + (col0 + c);
+      out.count[dst] = static_cast<std::uint32_t>(std::max(0.0F, block.band(0)[k]));
+      int band = 1;
+      for (int i = 0; i < q; ++i) {
+        for (int j = i; j < q; ++j) {
+          auto& layer = out.layers[GridmapRaster::layer_index(q, i, j)];
+          if (i == j) {
+            layer[dst] = {block.band(band++)[k], 0.0};
+          } else {
+            layer[dst] = {block.band(band)[k], block.band(band + 1)[k]};
+            band += 2;
+          }
+        }
+      }
+    }
+  }
+}
+
+/// Reads all bands of block (bx, by); returns false if the N band is all zero.
+bool read_block(GDALDataset& ds, int bx, int by, detail::GridmapBlockBuffer& block,
+                const std::string& file) {
+  detail::GdalErrorCapture capture;
+  if (ds.GetRasterBand(1)->ReadBlock(bx, by, block.band(0)) != CE_None) {
+    throw PackageFormatError(file, "N", "cannot read block: " + capture.last_message());
+  }
+  const float* n = block.band(0);
+  if (std::all_of(n, n + detail::kGridmapBlockSize * detail::kGridmapBlockSize,
+                  [](float v) { return v == 0.0F; })) {
+    return false;
+  }
+  for (int b = 1; b < ds.GetRasterCount(); ++b) {
+    if (ds.GetRasterBand(b + 1)->ReadBlock(bx, by, block.band(b)) != CE_None) {
+      throw PackageFormatError(file, "band " + std::to_string(b + 1),
+                               "cannot read block: " + capture.last_message());
+    }
+  }
+  return true;
+}
+
+GridmapRaster empty_raster(int q, int w, int h, double x0, double y0, double cs) {
+  GridmapRaster r;
+  r.q = q;
+  r.width = w;
+  r.height = h;
+  r.origin_x_m = x0;
+  r.origin_y_m = y0;
+  r.cell_size_m = cs;
+  const std::size_t cells = static_cast<std::size_t>(w) * h;
+  r.count.assign(cells, 0);
+  r.layers.assign(static_cast<std::size_t>(q * (q + 1) / 2), std::vector<cdouble>(cells));
+  return r;
+}
+
+}  // namespace
+
+GridmapRaster read_gridmap(const std::string& gdal_path) {
+  auto ds = open_raster(gdal_path, kTif);
+  const RasterLayout l = raster_layout(*ds, kTif);
+  GridmapRaster out = empty_raster(l.q, ds->GetRasterXSize(), ds->GetRasterYSize(), l.gt[0],
+                                   l.gt[3], l.gt[1]);
+  const int bs = detail::kGridmapBlockSize;
+  detail::GridmapBlockBuffer block(ds->GetRasterCount());
+  for (int by = 0; by * bs < out.height; ++by) {
+    for (int bx = 0; bx * bs < out.width; ++bx) {
+      if (!read_block(*ds, bx, by, block, kTif)) continue;
+      block_to_raster(block, l.q, std::min(bs, out.width - bx * bs),
+                      std::min(bs, out.height - by * bs), out, bx * bs, by * bs);
+    }
+  }
+  return out;
+}
+
+GridmapRaster read_gridmap(const DrivePackage& pkg) {
+  if (pkg.location.empty()) {
+    throw NotFoundError("read_gridmap: the package has no location (validated from bytes)");
+  }
+  return read_gridmap(package_member_gdal_path(pkg.location, kTif));
+}
+
+void for_each_gridmap_block(const DrivePackage& pkg,
+                            const std::function<void(const GridmapRaster& block)>& fn) {
+  if (pkg.location.empty()) {
+    throw NotFoundError("for_each_gridmap_block: the package has no location");
+  }
+  auto ds = open_raster(package_member_gdal_path(pkg.location, kTif), kTif);
+  const RasterLayout l = raster_layout(*ds, kTif);
+  const int w = ds->GetRasterXSize();
+  const int h = ds->GetRasterYSize();
+  const int bs = detail::kGridmapBlockSize;
+  const double cs = l.gt[1];
+  detail::GridmapBlockBuffer block(ds->GetRasterCount());
+  for (int by = 0; by * bs < h; ++by) {
+    for (int bx = 0; bx * bs < w; ++bx) {
+      if (!read_block(*ds, bx, by, block, kTif)) continue;
+      const int cols = std::min(bs, w - bx * bs);
+      const int rows = std::min(bs, h - by * bs);
+      GridmapRaster r = empty_raster(l.q, cols, rows, l.gt[0] + bx * bs * cs,
+                                     l.gt[3] - by * bs * cs, cs);
+      block_to_raster(block, l.q, cols, rows, r, 0, 0);
+      fn(r);
+    }
+  }
+}
+
+}  // namespace polmap::mapping

@@ -1,0 +1,169 @@
+#include "polmap/mapping_service/ustar.hpp"
+
+#include <algorithm>
+#include <array>
+#include <cstring>
+#include <set>
+
+#include "polmap/schema/errors.hpp"
+
+namespace polmap::mapping {
+namespace {
+
+constexpr std::size_t kBlock = 512;
+
+// Header field offsets/lengths (POSIX ustar).
+constexpr std::size_t kNameOff = 0, kNameLen = 100;
+constexpr std::size_t kModeOff = 100, kUidOff = 108, kGidOff = 116;
+constexpr std::size_t kSizeOff = 124, kSizeLen = 12;
+constexpr std::size_t kMtimeOff = 136;
+constexpr std::size_t kChksumOff = 148, kChksumLen = 8;
+constexpr std::size_t kTypeOff = 156;
+constexpr std::size_t kMagicOff = 257;
+constexpr std::size_t kVersionOff = 263;
+constexpr std::size_t kPrefixOff = 345, kPrefixLen = 155;
+
+void put_octal(char* field, std::size_t len, std::uint64_t value) {
+  // len-1 zero-padded octal digits followed by NUL.
+  for (std::size_t i = len - 1; i-- > 0;) {
+    field[i] = static_cast<char>('0' + (value & 7U));
+    value >>= 3U;
+  }
+  field[len - 1] = '\0';
+}
+
+std::uint32_t header_checksum(const unsigned char* h) {
+  std::uint32_t sum = 0;
+  for (std::size_t i = 0; i < kBlock; ++i) {
+    sum += (i >= kChksumOff && i < kChksumOff + kChksumLen) ? ' ' : h[i];
+  }
+  return sum;
+}
+
+void check_name(const std::string& name) {
+  if (name.empty() || name.size() > kNameLen || name.find('/') != std::string::npos ||
+      name == "." || name == ".." || name.find('\0') != std::string::npos) {
+    throw ContractViolation("ustar: invalid member name '" + name + "'");
+  }
+}
+
+/// Parses an octal numeric field (NUL/space terminated, leading spaces allowed).
+bool parse_octal(const char* field, std::size_t len, std::uint64_t& out) {
+  std::size_t i = 0;
+  while (i < len && field[i] == ' ') ++i;
+  if (i < len && (static_cast<unsigned char>(field[i]) & 0x80U)) return false;  // base-256
+  std::uint64_t v = 0;
+  bool any = false;
+  for (; i < len; ++i) {
+    const char c = field[i];
+    if (c == '\0' || c == ' ') break;
+    if (c < '0' || c > '7') return false;
+    if (v > (UINT64_MAX >> 3U)) return false;
+    v = (v << 3U) | static_cast<std::uint64_t>(c - '0');
+    any = true;
+  }
+  out = v;
+  return any;
+}
+
+std::string c_string(const char* field, std::size_t len) {
+  return {field, strnlen(field, len)};
+}
+
+}  // namespace
+
+std::string write_ustar(const std::vector<TarMember>& members) {
+  std::size_t total = 2 * kBlock;
+  for (const auto& m : members) total += kBlock + (m.data.size() + kBlock - 1) / kBlock * kBlock;
+  std::string out;
+  out.reserve(total);
+  std::set<std::string> seen;
+  for (const auto& m : members) {
+    check_name(m.name);
+    if (!seen.insert(m.name).second) throw ContractViolation("ustar: duplicate member " + m.name);
+    std::array<char, kBlock> h{};
+    std::memcpy(h.data() + kNameOff, m.name.data(), m.name.size());
+    put_octal(h.data() + kModeOff, 8, 0644);
+    put_octal(h.data() + kUidOff, 8, 0);
+    put_octal(h.data() + kGidOff, 8, 0);
+    if (m.data.size() >= (std::uint64_t{1} << 33U)) {
+      throw ContractViolation("ustar: member " + m.name + " exceeds 8 GiB");
+    }
+    put_octal(h.data() + kSizeOff, kSizeLen, m.data.size());
+    put_octal(h.data() + kMtimeOff, 12, 0);
+    h[kTypeOff] = '0';
+    std::memcpy(h.data() + kMagicOff, "ustar", 6);  // "ustar\0"
+    std::memcpy(h.data() + kVersionOff, "00", 2);
+    const std::uint32_t sum = header_checksum(reinterpret_cast<const unsigned char*>(h.data()));
+    put_octal(h.data() + kChksumOff, 7, sum);  // 6 digits + NUL
+    h[kChksumOff + 7] = ' ';
+    out.append(h.data(), kBlock);
+    out.append(m.data);
+    out.append((kBlock - m.data.size() % kBlock) % kBlock, '\0');
+  }
+  out.append(2 * kBlock, '\0');
+  return out;
+}
+
+std::vector<TarMember> read_ustar(std::string_view bytes, const std::string& source) {
+  std::vector<TarMember> members;
+  std::set<std::string> seen;
+  std::size_t off = 0;
+  const auto fail = [&](std::size_t at, const std::string& what) -> FormatError {
+    return FormatError(source, at, what);
+  };
+  while (true) {
+    if (off + kBlock > bytes.size()) {
+      throw fail(off, bytes.size() == off ? "truncated archive: missing end-of-archive marker"
+                                          : "truncated archive: incomplete header block");
+    }
+    const auto* h = reinterpret_cast<const unsigned char*>(bytes.data() + off);
+    if (std::all_of(h, h + kBlock, [](unsigned char c) { return c == 0; })) {
+      // End of archive: two zero blocks (tolerate a lone one at the very end, as GNU tar does).
+      break;
+    }
+    const char* hc = bytes.data() + off;
+    std::uint64_t stored_sum = 0;
+    if (!parse_octal(hc + kChksumOff, kChksumLen, stored_sum)) {
+      throw fail(off + kChksumOff, "not a tar header (unreadable checksum field)");
+    }
+    if (stored_sum != header_checksum(h)) {
+      throw fail(off + kChksumOff, "tar header checksum mismatch");
+    }
+    if (std::memcmp(hc + kMagicOff, "ustar", 5) != 0) {
+      throw fail(off + kMagicOff, "not a ustar header (magic)");
+    }
+    const char type = hc[kTypeOff];
+    std::string name = c_string(hc + kNameOff, kNameLen);
+    const std::string prefix = c_string(hc + kPrefixOff, kPrefixLen);
+    if (!prefix.empty()) name = prefix + "/" + name;
+    if (type != '0' && type != '\0') {
+      throw fail(off + kTypeOff, std::string("member '") + name + "': unsupported tar entry type '" +
+                                     (type >= 32 && type < 127 ? std::string(1, type) : "?") +
+                                     "' (only regular files)");
+    }
+    if (name.empty() || name.find('/') != std::string::npos || name == "." || name == "..") {
+      throw fail(off + kNameOff, "member name '" + name + "' is not a flat file name");
+    }
+    std::uint64_t size = 0;
+    if (!parse_octal(hc + kSizeOff, kSizeLen, size)) {
+      throw fail(off + kSizeOff, "member '" + name + "': unreadable size field");
+    }
+    const std::size_t data_off = off + kBlock;
+    if (size > bytes.size() - data_off) {
+      throw fail(data_off, "truncated archive: member '" + name + "' declares " +
+                               std::to_string(size) + " bytes, " +
+                               std::to_string(bytes.size() - data_off) + " present");
+    }
+    if (!seen.insert(name).second) throw fail(off, "duplicate member '" + name + "'");
+    members.push_back({name, std::string(bytes.substr(data_off, size))});
+    const std::uint64_t padded = (size + kBlock - 1) / kBlock * kBlock;
+    if (padded > bytes.size() - data_off) {
+      throw fail(bytes.size(), "truncated archive: padding of member '" + name + "' missing");
+    }
+    off = data_off + padded;
+  }
+  return members;
+}
+
+}  // namespace polmap::mapping

@@ -18,7 +18,12 @@ namespace {
 constexpr int kT = kTileSizeCells;        // cells per tile side
 constexpr int kB = 8;                     // cells per block side
 constexpr int kBlocksPerSide = kT / kB;   // blocks per tile side
-constexpr int kCellsPerBlock = kB * kB;
+constexpr int kCellsPerBlock = kB * kB;  // coverage blocks (one 64-bit mask)
+/// Covariance sums are allocated per data block of kD × kD cells: small, because
+/// isolated far-range bins (2 m arcs) would otherwise allocate mostly empty blocks.
+constexpr int kD = 4;
+constexpr int kDataBlocksPerSide = kT / kD;
+constexpr int kCellsPerDataBlock = kD * kD;
 constexpr int kCellsPerTile = kT * kT;
 static_assert(kT == 64, "tile index math below uses shifts by 6");
 /// Gaps of up to this many zero range bins inside a beam are scanned with the
@@ -120,7 +125,7 @@ struct Tile {
   std::uint32_t partial = 0;  // upper bound of any per-cell residual count
   std::unique_ptr<std::uint16_t[]> n16;
   std::unique_ptr<std::uint32_t[]> n32;
-  std::array<std::unique_ptr<std::complex<T>[]>, kBlocksPerSide * kBlocksPerSide> blocks{};
+  std::array<std::unique_ptr<std::complex<T>[]>, kDataBlocksPerSide * kDataBlocksPerSide> blocks{};
 
   [[nodiscard]] std::uint32_t count(int local) const {
     if (n32) return base + n32[local];
@@ -149,7 +154,7 @@ struct Tile {
     }
   }
   std::complex<T>* block(int b, int num_layers) {
-    if (!blocks[b]) blocks[b] = std::make_unique<std::complex<T>[]>(kCellsPerBlock * num_layers);
+    if (!blocks[b]) blocks[b] = std::make_unique<std::complex<T>[]>(kCellsPerDataBlock * num_layers);
     return blocks[b].get();
   }
   [[nodiscard]] std::size_t bytes(int num_layers) const {
@@ -157,15 +162,17 @@ struct Tile {
     if (n16) b += kCellsPerTile * sizeof(std::uint16_t);
     if (n32) b += kCellsPerTile * sizeof(std::uint32_t);
     for (const auto& blk : blocks) {
-      if (blk) b += kCellsPerBlock * num_layers * sizeof(std::complex<T>);
+      if (blk) b += kCellsPerDataBlock * num_layers * sizeof(std::complex<T>);
     }
     return b;
   }
 };
 
 inline int local_index(int ix, int iy) { return (iy & (kT - 1)) * kT + (ix & (kT - 1)); }
-inline int block_of(int local) { return ((local / kT) / kB) * kBlocksPerSide + (local % kT) / kB; }
-inline int cell_in_block(int local) { return ((local / kT) % kB) * kB + (local % kT) % kB; }
+inline int block_of(int local) {
+  return ((local / kT) / kD) * kDataBlocksPerSide + (local % kT) / kD;
+}
+inline int cell_in_block(int local) { return ((local / kT) % kD) * kD + (local % kT) % kD; }
 
 }  // namespace
 
@@ -282,12 +289,12 @@ class ImplT final : public CovarianceGridmap::Impl {
     const std::size_t plane = kCellsPerTile;
     for (int local = 0; local < kCellsPerTile; ++local) counts[local] = t.count(local);
     std::fill(layers, layers + L_ * plane, std::complex<float>(0.0F, 0.0F));
-    for (int b = 0; b < kBlocksPerSide * kBlocksPerSide; ++b) {
+    for (int b = 0; b < kDataBlocksPerSide * kDataBlocksPerSide; ++b) {
       const std::complex<T>* blk = t.blocks[b].get();
       if (!blk) continue;
-      const int row0 = (b / kBlocksPerSide) * kB, col0 = (b % kBlocksPerSide) * kB;
-      for (int c = 0; c < kCellsPerBlock; ++c) {
-        const int local = (row0 + c / kB) * kT + col0 + c % kB;
+      const int row0 = (b / kDataBlocksPerSide) * kD, col0 = (b % kDataBlocksPerSide) * kD;
+      for (int c = 0; c < kCellsPerDataBlock; ++c) {
+        const int local = (row0 + c / kD) * kT + col0 + c % kD;
         const std::uint32_t n = counts[local];
         if (n == 0) continue;
         const T inv = T(1) / static_cast<T>(n);

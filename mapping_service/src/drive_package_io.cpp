@@ -630,6 +630,14 @@ fs::path parent_for_temp(const fs::path& dir) {
 
 namespace detail {
 
+void check_package_destination(const fs::path& dir, bool overwrite) {
+  check_empty_or_absent(dir, overwrite);
+}
+
+fs::path make_package_temp_dir(const fs::path& dir) {
+  return make_unique_dir(parent_for_temp(dir), hidden_stem(dir, ".tmp"));
+}
+
 /// Shared tail of both writers: the gridmap.tif is already in `tmp`; writes the
 /// candidates, the manifest, validates, and moves `tmp` into place.
 DriveManifest finish_package(DriveManifest m, const DrivePackage& values, const fs::path& tmp,

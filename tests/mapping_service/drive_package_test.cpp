@@ -399,3 +399,82 @@ TEST_F(DrivePackageTest, EmptyDriveStillMakesAValidPackage) {
 
 }  // namespace
 }  // namespace polmap::mapping
+
+#include "polmap/radar/covariance_gridmap.hpp"
+
+namespace polmap::mapping {
+namespace {
+
+TEST_F(DrivePackageTest, WritesRadarGridmapTileByTileAlignedToItsCells) {
+  radar::GridmapConfig cfg;
+  cfg.cell_size_m = 0.1;
+  cfg.level = PolLevel::Full;
+  radar::CovarianceGridmap gm(cfg);
+  std::mt19937 rng(11);
+  std::normal_distribution<double> g(0.0, 1.0);
+  // Three separate patches, including negative cell indices and far-apart tiles
+  // (the bounding box spans many empty GeoTIFF blocks).
+  struct Cell {
+    int ix, iy;
+  };
+  std::vector<Cell> cells;
+  for (int ix = -70; ix < -40; ++ix)
+    for (int iy = 5; iy < 9; ++iy) cells.push_back({ix, iy});
+  for (int ix = 600; ix < 603; ++ix)
+    for (int iy = -300; iy < -290; ++iy) cells.push_back({ix, iy});
+  cells.push_back({1000, 700});
+  for (const auto& c : cells) {
+    const int n = 1 + ((c.ix * 31 + c.iy * 17) % 5 + 5) % 5;
+    for (int s = 0; s < n; ++s) {
+      std::vector<cdouble> k(3);
+      for (auto& x : k) x = {g(rng), g(rng)};
+      gm.add_cell_sample(c.ix, c.iy, k);
+    }
+  }
+  auto d = make_synthetic_drive("drive_radar");
+  d.pkg.points.clear();
+  d.pkg.lines.clear();
+  PointCandidate p;
+  p.position_m = gm.cell_center(600, -295);
+  p.num_cells = 1;
+  d.pkg.points.push_back(p);
+  write_drive_package(d.pkg, gm, root_ / "pkg");
+  const DrivePackage back = read_and_validate_package(root_ / "pkg");
+  const radar::CellBox b = gm.bounds();
+  EXPECT_DOUBLE_EQ(back.manifest.gridmap.origin_x_m, b.min_ix * 0.1);
+  EXPECT_DOUBLE_EQ(back.manifest.gridmap.origin_y_m, b.max_iy * 0.1);
+  EXPECT_EQ(back.manifest.gridmap.width, b.width());
+  EXPECT_EQ(back.manifest.gridmap.height, b.height());
+  const GridmapRaster r = read_gridmap(back);
+  std::size_t observed = 0;
+  for (int row = 0; row < r.height; ++row) {
+    for (int col = 0; col < r.width; ++col) {
+      const int ix = b.min_ix + col;
+      const int iy = b.max_iy - 1 - row;
+      const std::size_t k = static_cast<std::size_t>(row) * r.width + col;
+      ASSERT_EQ(r.count[k], gm.count(ix, iy)) << ix << "," << iy;
+      if (r.count[k] == 0) continue;
+      ++observed;
+      const Eigen::MatrixXcd c = gm.covariance(ix, iy);
+      for (int i = 0; i < 3; ++i)
+        for (int j = i; j < 3; ++j) {
+          const cdouble got = r.layers[GridmapRaster::layer_index(3, i, j)][k];
+          ASSERT_LE(std::abs(got - c(i, j)), 1e-5 * std::abs(c(0, 0) + c(1, 1) + c(2, 2)))
+              << ix << "," << iy << " C" << i << j;
+        }
+      // The cell centre in the raster geotransform is the gridmap's cell centre.
+      const Eigen::Vector2d centre{r.origin_x_m + (col + 0.5) * 0.1,
+                                   r.origin_y_m - (row + 0.5) * 0.1};
+      ASSERT_LT((centre - gm.cell_center(ix, iy)).norm(), 1e-9);
+    }
+  }
+  EXPECT_EQ(observed, cells.size());
+  // Sparse: ~107 x 100 m bounding box, three patches -> a few blocks only.
+  EXPECT_LT(fs::file_size(root_ / "pkg" / "gridmap.tif"), 60'000U);
+  // Deterministic bytes from the tile path too.
+  write_drive_package(d.pkg, gm, root_ / "pkg2");
+  EXPECT_EQ(pack_drive_package(root_ / "pkg"), pack_drive_package(root_ / "pkg2"));
+}
+
+}  // namespace
+}  // namespace polmap::mapping

@@ -23,6 +23,7 @@
 #include "polmap/schema/errors.hpp"
 
 namespace polmap::radar {
+class CovarianceGridmap;
 struct DriveProcessingResult;
 }
 
@@ -105,6 +106,15 @@ class PackageValidationError : public ValidationError {
 /// Throws ValidationError for inconsistent inputs, IoError for file system failures.
 /// Returns the manifest as written.
 DriveManifest write_drive_package(const DrivePackage& pkg, const GridmapRaster& raster,
+                                  const std::filesystem::path& dir,
+                                  const PackageWriteOptions& options = {});
+
+/// Writes a package whose gridmap comes straight from a radar::CovarianceGridmap: the
+/// GeoTIFF is aligned to the gridmap's cell grid (origin = bounds() corner) and written
+/// block by block from the allocated tiles (memory: one 256x256 block, never the bounding
+/// box). `pkg` supplies manifest metadata, candidates and trajectory as in the plain
+/// overload; the gridmap's level and cell size must match the manifest's.
+DriveManifest write_drive_package(const DrivePackage& pkg, const radar::CovarianceGridmap& gridmap,
                                   const std::filesystem::path& dir,
                                   const PackageWriteOptions& options = {});
 

@@ -44,9 +44,11 @@ struct Problem {
   std::vector<double> h0, h1;    // v_r = h0·v + h1·ω
   std::vector<double> g0, g1;    // ∂v_r/∂θ = g0·v + g1·ω
   std::vector<double> vr;        // measured (time-corrected) radial velocity
+  std::vector<double> tau;       // frame time − estimate time (≤ 0)
+  std::vector<double> ext;       // extrapolation variance / σ_vr² (unknown acceleration error)
   std::vector<int> first, count; // its copies in the augmented arrays
   // augmented copies
-  std::vector<double> a_h0, a_h1, a_g0, a_g1, a_vr;
+  std::vector<double> a_h0, a_h1, a_g0, a_g1, a_vr, a_ext;
   std::vector<int> a_det;
 };
 
@@ -83,7 +85,7 @@ class Ransac {
     for (std::size_t j = 0; j < n; ++j) {
       const double r = p_.a_vr[j] - (p_.a_h0[j] * v + p_.a_h1[j] * w);
       const double d = p_.a_g0[j] * v + p_.a_g1[j] * w;
-      const double t2 = thr2_ * (1.0 + az2_ * d * d);
+      const double t2 = thr2_ * (1.0 + az2_ * d * d + p_.a_ext[j]);
       const double q = r * r / t2;
       const bool in = q < 1.0;
       inl += in ? 1 : 0;
@@ -137,21 +139,34 @@ class Ransac {
     return best;
   }
 
-  /// Weighted least squares on inliers, starting from (v, w): each round picks
+  /// Weighted least squares on inliers, starting from (v, w). Each round picks
   /// per detection its best-matching copy, keeps it if within the threshold,
-  /// and re-solves. The covariance is s²·(HᵀWH)⁻¹, s² = Σ w r² / (n − 2).
+  /// and re-solves. Unknowns: (v, ω) at the estimate time and the correction
+  /// (δa, δα) of the acceleration used to shift older frames, with the prior
+  /// δa ~ N(0, σ_a²), δα ~ N(0, σ_α²) (frames spread over time make it
+  /// observable; a single frame leaves it at the prior, i.e. 0). The
+  /// covariance is s²·[N⁻¹]₂ₓ₂ (marginal of (v, ω)), s² = Σ w r² / (n − 2).
   Fit refine(double v, double w) const {
     Fit fit;
     const std::size_t n_det = p_.vr.size();
     std::vector<double> chosen(n_det, 0.0);  // chosen copy's v_r
     fit.inlier.assign(n_det, 0);
     const double s_vr2 = cfg_.vr_sigma_mps * cfg_.vr_sigma_mps;
-    auto select = [&](double mv, double mw) {
+    const double prior_a = 1.0 / std::max(cfg_.accel_uncertainty_mps2 * cfg_.accel_uncertainty_mps2, 1e-12);
+    const double prior_alpha =
+        1.0 / std::max(cfg_.yaw_accel_uncertainty_rps2 * cfg_.yaw_accel_uncertainty_rps2, 1e-12);
+    using Vec4 = Eigen::Matrix<double, 4, 1>;
+    using Mat4 = Eigen::Matrix<double, 4, 4>;
+    Vec4 x(v, w, 0.0, 0.0);
+    auto row = [&](std::size_t i) {
+      return Vec4(p_.h0[i], p_.h1[i], p_.h0[i] * p_.tau[i], p_.h1[i] * p_.tau[i]);
+    };
+    auto select = [&](const Vec4& xs) {
       int n = 0;
       for (std::size_t i = 0; i < n_det; ++i) {
-        const double pred = p_.h0[i] * mv + p_.h1[i] * mw;
-        const double d = p_.g0[i] * mv + p_.g1[i] * mw;
-        const double t2 = thr2_ * (1.0 + az2_ * d * d);
+        const double pred = row(i).dot(xs);
+        const double d = p_.g0[i] * xs(0) + p_.g1[i] * xs(1);
+        const double t2 = thr2_ * (1.0 + az2_ * d * d + p_.ext[i]);
         double best_r2 = std::numeric_limits<double>::infinity();
         for (int c = 0; c < p_.count[i]; ++c) {
           const int j = p_.first[i] + c;
@@ -166,56 +181,60 @@ class Ransac {
       }
       return n;
     };
-    // Normal equations with weights fixed at (mv, mw) (the azimuth term depends on m).
-    auto normal = [&](double mv, double mw, Eigen::Matrix2d& A, Eigen::Vector2d& b) {
-      A.setZero();
+    // Normal equations, weights fixed at xs (the azimuth term depends on m).
+    auto normal = [&](const Vec4& xs, Mat4& N, Vec4& b) {
+      N.setZero();
       b.setZero();
       for (std::size_t i = 0; i < n_det; ++i) {
         if (!fit.inlier[i]) continue;
-        const double d = p_.g0[i] * mv + p_.g1[i] * mw;
+        const double d = p_.g0[i] * xs(0) + p_.g1[i] * xs(1);
         const double wgt = 1.0 / (s_vr2 * (1.0 + az2_ * d * d));
-        const Eigen::Vector2d h(p_.h0[i], p_.h1[i]);
-        A += wgt * h * h.transpose();
-        b += wgt * h * chosen[i];
+        const Vec4 h = row(i);
+        N.noalias() += wgt * h * h.transpose();
+        b.noalias() += wgt * h * chosen[i];
       }
+      N(2, 2) += prior_a;
+      N(3, 3) += prior_alpha;
     };
-    auto solvable = [](const Eigen::Matrix2d& A) {
-      // Reject near-singular normal matrices (all inliers along one direction).
-      const Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> es(A);
+    // Marginal information of (v, ω) must be well-conditioned (inliers not
+    // all along one direction).
+    auto marginal_ok = [](const Mat4& N) {
+      const Eigen::Matrix2d S =
+          N.topLeftCorner<2, 2>() -
+          N.topRightCorner<2, 2>() * N.bottomRightCorner<2, 2>().inverse() * N.bottomLeftCorner<2, 2>();
+      const Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> es(S);
       return es.eigenvalues()(0) > 1e-9 * std::max(es.eigenvalues()(1), 1e-300);
     };
-    Eigen::Matrix2d A;
-    Eigen::Vector2d b;
+    Mat4 N;
+    Vec4 b;
     for (int round = 0; round < cfg_.refinement_rounds; ++round) {
-      const int n = select(v, w);
-      if (n < 3) return fit;
-      normal(v, w, A, b);
-      if (!solvable(A)) return fit;
-      const Eigen::Vector2d m = A.ldlt().solve(b);
-      const bool converged = std::abs(m(0) - v) < 1e-6 && std::abs(m(1) - w) < 1e-8;
-      v = m(0);
-      w = m(1);
+      if (select(x) < 3) return fit;
+      normal(x, N, b);
+      if (!marginal_ok(N)) return fit;
+      const Vec4 xn = N.ldlt().solve(b);
+      const bool converged = (xn - x).cwiseAbs().maxCoeff() < 1e-8;
+      x = xn;
       if (converged) break;
     }
-    const int n = select(v, w);
+    const int n = select(x);
     if (n < 3) return fit;
-    normal(v, w, A, b);
-    if (!solvable(A)) return fit;
-    const Eigen::Matrix2d A_inv = A.inverse();
-    const Eigen::Vector2d m = A_inv * b;
+    normal(x, N, b);
+    if (!marginal_ok(N)) return fit;
+    const Mat4 N_inv = N.inverse();
+    const Vec4 xf = N_inv * b;
     double chi2 = 0.0;
     for (std::size_t i = 0; i < n_det; ++i) {
       if (!fit.inlier[i]) continue;
-      const double d = p_.g0[i] * v + p_.g1[i] * w;
+      const double d = p_.g0[i] * x(0) + p_.g1[i] * x(1);
       const double wgt = 1.0 / (s_vr2 * (1.0 + az2_ * d * d));
-      const double r = chosen[i] - (p_.h0[i] * m(0) + p_.h1[i] * m(1));
+      const double r = chosen[i] - row(i).dot(xf);
       chi2 += wgt * r * r;
     }
     fit.ok = true;
-    fit.v = m(0);
-    fit.w = m(1);
+    fit.v = xf(0);
+    fit.w = xf(1);
     fit.inliers = n;
-    fit.cov = (chi2 / static_cast<double>(n - 2)) * A_inv;
+    fit.cov = (chi2 / static_cast<double>(n - 2)) * N_inv.topLeftCorner<2, 2>();
     return fit;
   }
 
@@ -229,7 +248,7 @@ class Ransac {
 }  // namespace
 
 EgoMotionEstimator::EgoMotionEstimator(std::vector<SensorMount> mounts, EgoMotionConfig cfg)
-    : mounts_(std::move(mounts)), cfg_(cfg), latest_(mounts_.size()) {
+    : mounts_(std::move(mounts)), cfg_(cfg) {
   POLMAP_EXPECT(!mounts_.empty());
   POLMAP_EXPECT(cfg_.min_inliers >= 3);
   POLMAP_EXPECT(cfg_.max_speed_mps > cfg_.min_speed_mps);
@@ -243,7 +262,7 @@ EgoMotionEstimator::EgoMotionEstimator(std::vector<SensorMount> mounts, EgoMotio
 }
 
 void EgoMotionEstimator::reset() {
-  for (auto& f : latest_) f.reset();
+  history_.clear();
   accepted_.clear();
   static_mask_.clear();
   calls_ = 0;
@@ -289,9 +308,11 @@ MotionEstimate EgoMotionEstimator::process(const SensorFrame& frame) {
   }
   POLMAP_EXPECT(new_idx < mounts_.size());  // frame of a sensor without mount
   last_time_s_ = frame.time_s;
-  latest_[new_idx] = StoredFrame{frame.time_s, frame.detections};
-
   const double t = frame.time_s;
+  while (!history_.empty() && t - history_.front().time_s > cfg_.combine_window_s) {
+    history_.pop_front();
+  }
+  history_.push_back(StoredFrame{new_idx, frame.time_s, frame.detections});
   std::mt19937_64 rng(cfg_.seed ^ (0x9E3779B97F4A7C15ULL * ++calls_));
 
   MotionEstimate est;
@@ -304,12 +325,9 @@ MotionEstimate EgoMotionEstimator::process(const SensorFrame& frame) {
   // --- combine the new frame with the latest frames of the other sensors ---
   const std::optional<Eigen::Vector2d> accel =
       cfg_.combine_window_s > 0 ? acceleration(t) : std::nullopt;
-  std::vector<std::size_t> order{new_idx};  // new frame first: its detections start at 0
-  for (std::size_t i = 0; i < mounts_.size(); ++i) {
-    if (i == new_idx || !latest_[i]) continue;
-    const double age = t - latest_[i]->time_s;
-    if (age >= 0 && age <= cfg_.combine_window_s) order.push_back(i);
-  }
+  // The new frame first (its detections start at index 0), then older frames.
+  std::vector<const StoredFrame*> order{&history_.back()};
+  for (std::size_t k = 0; k + 1 < history_.size(); ++k) order.push_back(&history_[k]);
 
   // Plausible motion box (global) and the prior's box (acceleration limits).
   const MotionBox global{cfg_.min_speed_mps, cfg_.max_speed_mps, -cfg_.max_yaw_rate_rps,
@@ -324,10 +342,12 @@ MotionEstimate EgoMotionEstimator::process(const SensorFrame& frame) {
   }
 
   Problem prob;
+  const double sa2 = cfg_.accel_uncertainty_mps2 * cfg_.accel_uncertainty_mps2;
+  const double salpha2 = cfg_.yaw_accel_uncertainty_rps2 * cfg_.yaw_accel_uncertainty_rps2;
   const double thr_margin = 3.0 * cfg_.inlier_threshold_mps;
   for (std::size_t fi = 0; fi < order.size(); ++fi) {
-    const SensorMount& mount = mounts_[order[fi]];
-    const StoredFrame& sf = *latest_[order[fi]];
+    const StoredFrame& sf = *order[fi];
+    const SensorMount& mount = mounts_[sf.mount_index];
     const double xm = mount.T_vehicle_sensor.x_m, ym = mount.T_vehicle_sensor.y_m;
     const double vua = mount.spec.v_unambiguous_mps;
     const double age = t - sf.time_s;
@@ -338,12 +358,17 @@ MotionEstimate EgoMotionEstimator::process(const SensorFrame& frame) {
       const double g0 = s, g1 = -ym * s - xm * c;
       double vr = d.radial_velocity_mps;
       if (accel && age > 0) vr += (h0 * (*accel)(0) + h1 * (*accel)(1)) * age;
+      // Variance (relative to σ_vr²) of the shift's error, unknown acceleration error.
+      const double ext = age * age *
+                         (h0 * h0 * sa2 + h1 * h1 * salpha2) / (cfg_.vr_sigma_mps * cfg_.vr_sigma_mps);
       const int i = static_cast<int>(prob.vr.size());
       prob.h0.push_back(h0);
       prob.h1.push_back(h1);
       prob.g0.push_back(g0);
       prob.g1.push_back(g1);
       prob.vr.push_back(vr);
+      prob.tau.push_back(-age);
+      prob.ext.push_back(ext);
       prob.first.push_back(static_cast<int>(prob.a_vr.size()));
       // Radial velocities this direction can show for any motion in the global
       // box (linear in (v, ω): extremes at the corners), plus a noise margin.
@@ -364,6 +389,7 @@ MotionEstimate EgoMotionEstimator::process(const SensorFrame& frame) {
         prob.a_g0.push_back(g0);
         prob.a_g1.push_back(g1);
         prob.a_vr.push_back(vr + 2.0 * k * vua);
+        prob.a_ext.push_back(ext);
         prob.a_det.push_back(i);
       }
       prob.count.push_back(static_cast<int>(prob.a_vr.size()) - prob.first.back());

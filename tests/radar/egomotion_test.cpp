@@ -380,9 +380,14 @@ TEST(EgoMotion, LeastSquaresMatchesGridSearch) {
 TEST(EgoMotion, SequentialTriggersAreCorrectedForAcceleration) {
   // Accelerating at 3 m/s² while turning in: each frame's detections are taken
   // at its own trigger time; the estimate refers to the newest frame's time.
-  auto mean_error = [](double accel_window_s) {
+  // Two mechanisms correct the older frames: the acceleration extrapolated from
+  // previous estimates (accel_window_s) and the acceleration correction the
+  // refinement estimates from the frames' time spread (prior σ_a).
+  auto mean_error = [](double accel_window_s, double accel_sigma) {
     EgoMotionConfig cfg;
     cfg.accel_window_s = accel_window_s;
+    cfg.accel_uncertainty_mps2 = accel_sigma;
+    cfg.yaw_accel_uncertainty_rps2 = accel_sigma / 10.0;
     EgoMotionEstimator est(default_front_mounts(), cfg);
     std::mt19937 rng(29);
     SynthSpec spec;
@@ -405,12 +410,17 @@ TEST(EgoMotion, SequentialTriggersAreCorrectedForAcceleration) {
     }
     return std::pair{sum / n, corrected};
   };
-  const auto [with, n_with] = mean_error(0.3);
-  const auto [without, n_without] = mean_error(0.0);  // window too short: no acceleration
-  EXPECT_EQ(n_without, 0);
-  EXPECT_EQ(n_with, 75);
-  EXPECT_LT(with, 0.015);
-  EXPECT_GT(without, 0.06);  // ≈ a·(33 + 67)/3 ms = 0.1 m/s bias without correction
+  const auto [both, n_both] = mean_error(0.3, 1.0);        // defaults
+  const auto [history, n_history] = mean_error(0.3, 1e-6);  // extrapolation only
+  const auto [data, n_data] = mean_error(0.0, 1.0);         // estimated from the frames only
+  const auto [none, n_none] = mean_error(0.0, 1e-6);        // no correction at all
+  EXPECT_EQ(n_both, 75);
+  EXPECT_EQ(n_history, 75);
+  EXPECT_EQ(n_none, 0);
+  EXPECT_LT(both, 0.012);
+  EXPECT_LT(history, 0.012);
+  EXPECT_LT(data, 0.015);
+  EXPECT_GT(none, 0.06);  // ≈ a·(33 + 67)/3 ms = 0.1 m/s bias without correction
 }
 
 TEST(EgoMotion, StaticMaskMarksStaticDetections) {

@@ -20,8 +20,9 @@
 /// detection, only its best-matching copy.
 ///
 /// Sequential triggering (sensors fire 0/33/66 ms into each cycle). process()
-/// combines the new frame with the most recent frame of every other sensor that
-/// is at most `combine_window_s` older. The motion state is not constant over
+/// combines the new frame with every stored frame at most `combine_window_s`
+/// older (default 0.09 s: the most recent frame of each other sensor; a longer
+/// window also adds earlier frames of the same sensors). The motion state is not constant over
 /// that span, so each older detection is corrected to the new frame's time t
 /// with the acceleration a and yaw acceleration α estimated from previous
 /// estimates (slope of a line fit over `accel_window_s`):
@@ -31,6 +32,14 @@
 /// all detections share the unknown m(t). (The target direction need not be
 /// corrected: it is the direction at t_s, matching the measurement at t_s.)
 /// Without a usable acceleration (start-up, after outages) no shift is applied.
+/// The extrapolated acceleration lags when the driver starts braking or
+/// accelerating, and a plain combination would then side with the majority of
+/// (older) frames. Hence (a) older detections get an inlier threshold widened
+/// by the extrapolation uncertainty σ_a·(t − t_s)·|h|, and (b) the final
+/// least squares also estimates a correction (δa, δα) to the acceleration,
+///     v_r,i = h_i·m(t) − (t − t_i)·h_i·(δa, δα)ᵀ,
+/// with a Gaussian prior (σ_a, σ_α) on it, so frames spread over time pull the
+/// acceleration to what the data show instead of biasing m(t).
 ///
 /// Plausibility (acceleration limits). With a recent accepted estimate m₀ at
 /// t₀, a new estimate must satisfy |v − v₀| ≤ a_max·(t − t₀) + slack_v and
@@ -104,9 +113,10 @@ struct EgoMotionConfig {
   std::uint64_t seed = 1;
 
   // --- sequential triggering ---
-  /// Frames of other sensors at most this much older than the new frame are
-  /// combined with it (0.09 s: one frame of each of the other two sensors at
-  /// 10 Hz with offsets 0/33/66 ms). 0 = per-frame estimates only.
+  /// Frames at most this much older than the new frame are combined with it
+  /// (0.09 s: one frame of each of the other two sensors at 10 Hz with offsets
+  /// 0/33/66 ms; 0.19 s: two frames of each sensor, √2 less noise, more reliance
+  /// on the acceleration model). 0 = per-frame estimates only.
   double combine_window_s = 0.09;
   /// Previous accepted estimates within this window give the acceleration used
   /// to correct older frames to the new frame's time (line fit of v and ω).
@@ -114,6 +124,12 @@ struct EgoMotionConfig {
   /// At least this many estimates spanning ≥ accel_window_s/3 are needed for an
   /// acceleration; otherwise no correction is applied.
   int accel_min_estimates = 3;
+  /// Uncertainty (σ) of that acceleration (it lags at the onset of braking or
+  /// accelerating; jerk). Older frames get a wider inlier threshold
+  /// accordingly, and the refinement estimates a correction of the
+  /// acceleration with this prior σ (see file comment).
+  double accel_uncertainty_mps2 = 1.0;
+  double yaw_accel_uncertainty_rps2 = 0.1;
 
   // --- physical plausibility vs. the previous estimate ---
   double max_accel_mps2 = 6.0;       ///< |dv/dt| limit
@@ -173,6 +189,7 @@ class EgoMotionEstimator {
 
  private:
   struct StoredFrame {
+    std::size_t mount_index = 0;
     double time_s = 0.0;
     std::vector<Detection> detections;
   };
@@ -185,7 +202,7 @@ class EgoMotionEstimator {
 
   std::vector<SensorMount> mounts_;
   EgoMotionConfig cfg_;
-  std::vector<std::optional<StoredFrame>> latest_;  // per mount index
+  std::deque<StoredFrame> history_;  // frames within combine_window_s, oldest first
   std::deque<Accepted> accepted_;                    // recent Ok estimates
   std::vector<bool> static_mask_;
   std::uint64_t calls_ = 0;

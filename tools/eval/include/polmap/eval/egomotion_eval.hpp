@@ -84,7 +84,7 @@ struct EgoMotionRecord {
   /// Odometry pose at estimate.time_s (std::nullopt before the first Ok
   /// estimate or beyond the hold time).
   std::optional<Pose2> T_odom_vehicle;
-  double compute_s = 0.0;  ///< wall time of EgoMotionEstimator::process
+  double compute_s = 0.0;  ///< CPU time (calling thread) of EgoMotionEstimator::process
 };
 
 /// Runs the estimator and the odometry frame by frame and keeps every result.
@@ -123,7 +123,7 @@ struct EgoMotionMetrics {
   std::optional<double> drift_endpoint_pct;
   std::optional<double> drift_pct;  ///< segment figure if available, else endpoint
   std::optional<double> heading_drift_deg_per_100m;  ///< mean over segments
-  /// Per-frame compute time of EgoMotionEstimator::process.
+  /// Per-frame compute time (thread CPU time) of EgoMotionEstimator::process.
   double compute_mean_ms = 0, compute_p95_ms = 0, compute_max_ms = 0;
 };
 

@@ -1,0 +1,116 @@
+#pragma once
+/// @file server.hpp
+/// The mapping service's HTTP server (cpp-httplib): drive uploads, map builds,
+/// localization tiles, and GIS views (MVT, TileJSON, gridmap PNG, export).
+/// The API is described in schema/openapi.yaml; summary:
+///
+///   GET    /health                          liveness + store summary (JSON)
+///   GET    /metrics                         Prometheus text format
+///   POST   /v1/drives              (key)    upload a drive package (ustar archive)
+///   GET    /v1/drives                       list drives
+///   GET    /v1/drives/{id}                  one drive (with manifest)
+///   DELETE /v1/drives/{id}         (key)    remove a drive
+///   POST   /v1/maps                (key)    start a map build -> 202 {version}
+///   GET    /v1/maps                         list map versions
+///   GET    /v1/maps/{version|current}       status and statistics
+///   GET    /v1/tiles/{z}/{x}/{y}[?version=] localization tile (application/vnd.polmap.tile)
+///   GET    /v1/mvt/{z}/{x}/{y}.mvt[?version=]  vector tile: points, lines, trajectories
+///   GET    /v1/tilejson.json[?version=]     TileJSON 3.0 of the MVT layers
+///   GET    /v1/gridmap/{z}/{x}/{y}.png[?version=]  fleet gridmap amplitude raster tile
+///   GET    /v1/export?format=gpkg|geojson|shp[&bbox=..][&version=]  GIS export download
+///
+/// Writes (key) need `Authorization: Bearer KEY` with a key of ServerConfig::api_keys
+/// (compared in constant time); errors are JSON {"error": "...", "field": "..."}.
+/// Every response carries CORS headers; OPTIONS answers preflights.
+///
+/// Threading: listen() blocks the calling thread and serves requests on a pool
+/// of `threads` workers; map builds run one at a time on a background thread.
+/// stop() may be called from any thread (e.g. a signal-waiting thread).
+#include <chrono>
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <memory>
+#include <string>
+#include <string_view>
+#include <vector>
+
+namespace polmap::mapping {
+
+class MapStore;
+
+/// Server settings. Defaults are what `polmap serve` uses.
+struct ServerConfig {
+  /// Bearer keys accepted for writes. Empty: every write is refused (401).
+  std::vector<std::string> api_keys;
+  /// Largest accepted upload body (413 beyond). 512 MiB: an hour of driving at
+  /// the gridmap's 0.1 m cells is ~100–300 MiB of DEFLATE GeoTIFF.
+  std::uint64_t max_upload_bytes = 512ull << 20;
+  /// Largest accepted JSON request body (POST /v1/maps).
+  std::uint64_t max_json_bytes = 1ull << 20;
+  /// Directory for in-flight uploads (removed after each request); empty = system temp dir.
+  std::filesystem::path upload_dir;
+  /// Worker threads. cpp-httplib keeps a worker per open keep-alive connection,
+  /// so this bounds the number of concurrently served connections.
+  int threads = 32;
+  /// Requests served on one keep-alive connection before it is closed.
+  int keep_alive_max_requests = 1000;
+  /// Idle keep-alive connections are closed after this many seconds.
+  int keep_alive_timeout_s = 5;
+  /// Cache-Control max-age of tiles of the *current* version (no ?version=):
+  /// clients revalidate with If-None-Match after this (304 if unchanged).
+  int current_tile_max_age_s = 60;
+  /// In-memory cache of tile payloads (localization, MVT, PNG) in bytes.
+  std::size_t tile_cache_bytes = 64ull << 20;
+  /// Base URL written into TileJSON (e.g. "https://maps.example.com"); empty =
+  /// "http://" + the request's Host header.
+  std::string public_url;
+  /// Access-Control-Allow-Origin value ("*": any origin; empty: no CORS headers).
+  std::string cors_allow_origin = "*";
+  /// MVT zoom range served and announced in TileJSON.
+  int mvt_min_zoom = 12;
+  int mvt_max_zoom = 22;
+  /// On start, versions left in status Building (a previous process died during a
+  /// build) are marked Failed. Turn off when several servers share one store.
+  bool fail_stale_builds_on_start = true;
+  /// One line per request (method, path, status, bytes, ms) and server events.
+  bool log_requests = true;
+  /// Log sink; default writes the line plus '\n' to stderr.
+  std::function<void(std::string_view line)> log_sink;
+};
+
+/// Reads an API key file: one key per line; blank lines and lines starting with
+/// '#' are ignored; surrounding whitespace is trimmed. Throws IoError if the file
+/// cannot be read, ValidationError if it holds no key.
+[[nodiscard]] std::vector<std::string> read_api_key_file(const std::filesystem::path& path);
+
+class Server {
+ public:
+  /// The store must outlive the server.
+  Server(MapStore& store, ServerConfig config);
+  ~Server();
+  Server(const Server&) = delete;
+  Server& operator=(const Server&) = delete;
+
+  /// Binds host:port (port 0 = any free port, see bound_port()) and serves until
+  /// stop(). Throws IoError if the address cannot be bound.
+  void listen(const std::string& host, int port);
+  /// Stops accepting, lets requests in flight finish, waits for a running map
+  /// build to finish (queued builds are marked failed), and makes listen() return.
+  /// Idempotent; safe from any thread.
+  void stop();
+  /// The bound port once listen() has bound (0 before).
+  [[nodiscard]] int bound_port() const;
+  /// Blocks until listen() has bound and is accepting, or the timeout passes.
+  bool wait_until_listening(std::chrono::milliseconds timeout) const;
+
+  /// Blocks until no map build is queued or running (tests, CLI).
+  void wait_for_builds() const;
+
+  struct Impl;
+
+ private:
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace polmap::mapping

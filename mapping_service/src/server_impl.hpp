@@ -1,0 +1,133 @@
+#pragma once
+// Internal: the state of mapping::Server shared by server*.cpp (not installed).
+#include <atomic>
+#include <condition_variable>
+#include <deque>
+#include <map>
+#include <mutex>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <set>
+#include <string>
+#include <thread>
+
+#include "http_util.hpp"
+#include "polmap/mapping_service/server.hpp"
+#include "polmap/mapping_service/store.hpp"
+#include "polmap/schema/recording.hpp"
+#include "polmap/tiles/tile_key.hpp"
+
+// After everything that includes Eigen: httplib pulls in <resolv.h>, whose `_res`
+// macro breaks Eigen's templates.
+#include <httplib.h>
+
+namespace polmap::mapping {
+
+/// Media types used by the server.
+inline constexpr const char* kJson = "application/json";
+
+/// Per-request context kept in thread-locals: cpp-httplib runs routing, the
+/// handler, response writing and the logger on the same worker thread.
+void set_route(const char* route);
+
+/// Immutable facts about a published map version, cached per version.
+struct VersionIndex {
+  std::int64_t version = 0;
+  std::map<tiles::TileKey, TileInfo> localization;  ///< tiles with payload
+  std::set<tiles::TileKey> covered;                 ///< tiles with payload + 1-tile margin
+  std::map<tiles::TileKey, TileInfo> gridmap;
+  int gridmap_max_zoom = -1;                        ///< base zoom of the fleet gridmap
+  std::optional<tiles::GeoBox> bounds;              ///< of the localization tiles
+  nlohmann::json parameters;
+};
+
+struct Server::Impl {
+  Impl(MapStore& store, ServerConfig config);
+  ~Impl();
+
+  MapStore& store;
+  ServerConfig cfg;
+  httplib::Server http;
+  http::Metrics metrics;
+  http::BlobCache cache;
+
+  // Listening state.
+  std::atomic<int> port{0};
+  std::atomic<bool> stopping{false};
+  mutable std::mutex state_mutex;
+  mutable std::condition_variable state_cv;
+  bool listening = false;
+
+  // ---- logging
+  void log(std::string_view level, std::string_view message) const;
+
+  // ---- helpers for handlers
+  /// True if the request carries a valid bearer key; otherwise fills a 401 reply.
+  bool require_key(const httplib::Request& req, httplib::Response& res) const;
+  static void reply_json(httplib::Response& res, int status, const nlohmann::json& body);
+  static void reply_error(httplib::Response& res, int status, std::string_view message,
+                          std::string_view field = {}, const nlohmann::json& extra = nullptr);
+  /// Serves a cached blob with ETag / If-None-Match / gzip negotiation.
+  /// Returns the status written (200 or 304).
+  int reply_blob(const httplib::Request& req, httplib::Response& res, const http::CachedBlob& blob,
+                 const std::string& cache_control) const;
+
+  // ---- map versions
+  /// The current version, cached for up to 1 s (invalidated by our own builds).
+  std::optional<std::int64_t> current_version();
+  void invalidate_current_version();
+  /// Index of a published version; nullptr if unknown or not published.
+  std::shared_ptr<const VersionIndex> version_index(std::int64_t version);
+  /// Resolves ?version= (explicit) or the current version. On failure writes the
+  /// error reply (400 malformed, 404 unknown/unpublished/none) and returns nullptr.
+  std::shared_ptr<const VersionIndex> resolve_version(const httplib::Request& req,
+                                                      httplib::Response& res, bool& is_explicit);
+
+  std::mutex version_mutex;
+  std::optional<std::int64_t> current_cached;
+  std::chrono::steady_clock::time_point current_cached_at{};
+  std::map<std::int64_t, std::shared_ptr<const VersionIndex>> indexes;
+
+  // ---- trajectories for the MVT layer (decimated, per drive content hash)
+  std::shared_ptr<const std::vector<GeoPoint>> drive_trajectory(const DriveRecord& drive);
+  std::mutex trajectory_mutex;
+  std::map<std::string, std::shared_ptr<const std::vector<GeoPoint>>> trajectories;
+  /// Bumped on every drive upload/delete: part of MVT cache keys (trajectories layer).
+  std::atomic<std::uint64_t> drives_generation{0};
+
+  // ---- map builds (one at a time, on build_thread)
+  struct BuildJob {
+    std::int64_t version = 0;
+    nlohmann::json request;
+  };
+  std::int64_t submit_build(const nlohmann::json& request);
+  void build_loop();
+  void run_build(const BuildJob& job);
+  mutable std::mutex build_mutex;
+  mutable std::condition_variable build_cv;
+  std::deque<BuildJob> build_queue;
+  bool build_running = false;
+  bool build_shutdown = false;
+  std::thread build_thread;
+
+  // ---- routes (one function per file)
+  void register_routes();
+  void register_drive_routes();
+  void register_map_routes();
+  void register_tile_routes();
+  void register_gis_routes();
+};
+
+/// JSON of a drive record (manifest only when with_manifest).
+nlohmann::json drive_to_json(const DriveRecord& d, bool with_manifest);
+/// JSON of a map version.
+nlohmann::json version_to_json(const MapVersionInfo& v);
+nlohmann::json geobox_to_json(const tiles::GeoBox& b);
+/// PNG of a stored fleet gridmap tile payload (TileLayer::Gridmap).
+std::string gridmap_png(std::string_view payload);
+/// Over-zoomed gridmap tile: the part of `ancestor_png` (a 256 px tile dz zoom
+/// levels up) covering `key`, scaled up with nearest-neighbour pixels.
+std::string gridmap_overzoom_png(std::string_view ancestor_png, const tiles::TileKey& ancestor,
+                                 const tiles::TileKey& key);
+
+}  // namespace polmap::mapping

@@ -1,0 +1,129 @@
+// `polmap drives --server URL [--json]`: lists the drives stored on the mapping service;
+// `polmap drives --server URL --delete ID --api-key KEY` removes one.
+#include <CLI/CLI.hpp>
+#include <cctype>
+#include <cstdio>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <string>
+
+#include "command.hpp"
+#include "polmap/schema/errors.hpp"
+
+// Last: httplib pulls in <resolv.h>, whose `_res` macro breaks Eigen templates.
+#include <httplib.h>
+
+namespace polmap::cli {
+namespace {
+
+// Client side of the mapping service API (duplicated per command on purpose: each
+// cmd_*.cpp is self-contained).
+std::unique_ptr<httplib::Client> make_client(const std::string& url, int timeout_s) {
+  if (url.rfind("http://", 0) != 0 && url.rfind("https://", 0) != 0) {
+    throw ValidationError("--server '" + url + "': expected http://HOST:PORT");
+  }
+  std::string base = url;
+  while (base.size() > 8 && base.back() == '/') base.pop_back();
+  auto cli = std::make_unique<httplib::Client>(base);
+  if (!cli->is_valid()) throw ValidationError("--server '" + url + "': not a usable URL");
+  cli->set_connection_timeout(10, 0);
+  cli->set_read_timeout(timeout_s, 0);
+  cli->set_write_timeout(timeout_s, 0);
+  cli->set_keep_alive(false);
+  return cli;
+}
+
+/// Throws a one-line error for a failed request: transport error or HTTP status >= 400,
+/// with the server's JSON error message and field when present.
+const httplib::Response& expect_ok(const httplib::Result& r, const std::string& url,
+                                   const std::string& what) {
+  if (!r) {
+    std::string reason = httplib::to_string(r.error());
+    if (r.error() == httplib::Error::Connection) reason = "connection refused or host unreachable";
+    throw IoError(what + ": cannot reach " + url + " (" + reason + ")");
+  }
+  if (r->status < 400) return *r;
+  std::string message = r->body;
+  std::string field;
+  try {
+    const auto j = nlohmann::json::parse(r->body);
+    if (j.is_object() && j.contains("error")) message = j["error"].get<std::string>();
+    if (j.is_object() && j.contains("field")) field = j["field"].get<std::string>();
+  } catch (const std::exception&) {
+  }
+  if (message.size() > 500) message = message.substr(0, 500) + "...";
+  std::string line = what + ": server answered " + std::to_string(r->status);
+  if (r->status == 401) line += " (API key missing or not accepted)";
+  line += ": " + message;
+  if (!field.empty() && message.find(field) == std::string::npos) line += " [field: " + field + "]";
+  throw Error(line);
+}
+
+std::string percent_encode(const std::string& s) {
+  static constexpr char kHex[] = "0123456789ABCDEF";
+  std::string out;
+  for (unsigned char c : s) {
+    if (std::isalnum(c) || c == '-' || c == '_' || c == '.' || c == '~') {
+      out.push_back(static_cast<char>(c));
+    } else {
+      out.push_back('%');
+      out.push_back(kHex[c >> 4]);
+      out.push_back(kHex[c & 15]);
+    }
+  }
+  return out;
+}
+
+struct DrivesOptions {
+  std::string server;
+  std::string api_key;
+  std::string del;
+  bool json = false;
+};
+
+void run(const DrivesOptions& o) {
+  auto cli = make_client(o.server, 60);
+  if (!o.del.empty()) {
+    httplib::Headers headers{{"Authorization", "Bearer " + o.api_key}};
+    const auto r = cli->Delete("/v1/drives/" + percent_encode(o.del), headers);
+    expect_ok(r, o.server, "delete drive " + o.del);
+    std::printf("drive %s deleted\n", o.del.c_str());
+    return;
+  }
+  const auto r = cli->Get("/v1/drives");
+  const auto& res = expect_ok(r, o.server, "list drives");
+  if (o.json) {
+    std::printf("%s\n", res.body.c_str());
+    return;
+  }
+  const auto j = nlohmann::json::parse(res.body);
+  std::printf("%-24s %-12s %10s %8s %8s  %s\n", "drive_id", "vehicle", "distance_m", "points",
+              "lines", "ingested_at");
+  for (const auto& d : j.at("drives")) {
+    std::printf("%-24s %-12s %10.1f %8lld %8lld  %s\n", d.value("drive_id", "").c_str(),
+                d.value("vehicle_id", "").c_str(), d.value("distance_m", 0.0),
+                static_cast<long long>(d.value("num_points", 0)),
+                static_cast<long long>(d.value("num_lines", 0)),
+                d.value("ingested_at", "").c_str());
+  }
+}
+
+void setup(CLI::App& app) {
+  auto opts = std::make_shared<DrivesOptions>();
+  CLI::App* cmd = app.add_subcommand("drives", "List (or delete) drives on the mapping service");
+  cmd->add_option("--server", opts->server, "Service URL, e.g. http://127.0.0.1:8080")->required();
+  cmd->add_option("--delete", opts->del, "Delete this drive id (needs --api-key)");
+  cmd->add_option("--api-key", opts->api_key, "API key (Bearer token) for writes")
+      ->envname("POLMAP_API_KEY");
+  cmd->add_flag("--json", opts->json, "Print the server's JSON");
+  cmd->callback([opts] {
+    if (!opts->del.empty() && opts->api_key.empty()) {
+      throw ValidationError("--delete needs --api-key (or POLMAP_API_KEY)");
+    }
+    run(*opts);
+  });
+}
+
+}  // namespace
+POLMAP_REGISTER_COMMAND(drives, setup);
+}  // namespace polmap::cli

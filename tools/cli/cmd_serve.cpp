@@ -1,0 +1,131 @@
+// `polmap serve --db FILE --listen HOST:PORT --api-key-file FILE [...]`: the mapping
+// service's HTTP server on an embedded SQLite store. Stops gracefully on SIGINT/SIGTERM
+// (requests in flight finish, a running map build is cancelled and marked failed).
+#include <pthread.h>
+#include <signal.h>
+
+#include <CLI/CLI.hpp>
+#include <atomic>
+#include <cstdio>
+#include <ctime>
+#include <string>
+#include <thread>
+
+#include "command.hpp"
+#include "polmap/mapping_service/server.hpp"
+#include "polmap/mapping_service/sqlite_store.hpp"
+#include "polmap/schema/errors.hpp"
+
+namespace polmap::cli {
+namespace {
+
+struct ServeOptions {
+  std::string db;
+  std::string listen = "127.0.0.1:8080";
+  std::string api_key_file;
+  double max_upload_mib = 512;
+  int threads = 32;
+  int current_max_age_s = 60;
+  std::string public_url;
+  std::string upload_dir;
+  bool quiet = false;
+};
+
+std::pair<std::string, int> split_listen(const std::string& s) {
+  const auto colon = s.rfind(':');
+  if (colon == std::string::npos || colon == 0 || colon + 1 == s.size()) {
+    throw ValidationError("--listen '" + s + "': expected HOST:PORT, e.g. 127.0.0.1:8080");
+  }
+  std::string host = s.substr(0, colon);
+  if (host.size() > 2 && host.front() == '[' && host.back() == ']') host = host.substr(1, host.size() - 2);
+  int port = -1;
+  try {
+    std::size_t used = 0;
+    port = std::stoi(s.substr(colon + 1), &used);
+    if (used != s.size() - colon - 1) port = -1;
+  } catch (const std::exception&) {
+    port = -1;
+  }
+  if (port < 0 || port > 65535) {
+    throw ValidationError("--listen '" + s + "': port must be 0..65535");
+  }
+  return {host, port};
+}
+
+void run(const ServeOptions& o) {
+  const auto [host, port] = split_listen(o.listen);
+  mapping::ServerConfig cfg;
+  cfg.api_keys = mapping::read_api_key_file(o.api_key_file);
+  cfg.max_upload_bytes = static_cast<std::uint64_t>(o.max_upload_mib * 1024.0 * 1024.0);
+  cfg.threads = o.threads;
+  cfg.current_tile_max_age_s = o.current_max_age_s;
+  cfg.public_url = o.public_url;
+  cfg.upload_dir = o.upload_dir;
+  cfg.log_requests = !o.quiet;
+
+  // Block the stop signals in every thread (the server's threads inherit this mask);
+  // one thread waits for them and stops the server.
+  sigset_t signals;
+  sigemptyset(&signals);
+  sigaddset(&signals, SIGINT);
+  sigaddset(&signals, SIGTERM);
+  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+
+  mapping::SqliteMapStore store(o.db);
+  mapping::Server server(store, cfg);
+  std::atomic<bool> done{false};
+  std::thread waiter([&] {
+    const timespec tick{0, 200'000'000};
+    while (!done) {
+      const int sig = sigtimedwait(&signals, nullptr, &tick);
+      if (sig == SIGINT || sig == SIGTERM) {
+        std::fprintf(stderr, "polmap serve: %s received, stopping\n",
+                     sig == SIGINT ? "SIGINT" : "SIGTERM");
+        server.stop();
+        return;
+      }
+    }
+  });
+  try {
+    server.listen(host, port);
+  } catch (...) {
+    done = true;
+    waiter.join();
+    throw;
+  }
+  done = true;
+  waiter.join();
+}
+
+void setup(CLI::App& app) {
+  auto opts = std::make_shared<ServeOptions>();
+  CLI::App* cmd = app.add_subcommand(
+      "serve", "Run the mapping service HTTP server (drive uploads, map builds, tiles)");
+  cmd->add_option("--db", opts->db, "SQLite database file (created if missing)")->required();
+  cmd->add_option("--listen", opts->listen, "HOST:PORT to listen on (port 0: any free port)")
+      ->capture_default_str();
+  cmd->add_option("--api-key-file", opts->api_key_file,
+                  "File with the API keys for writes, one per line ('#' comments)")
+      ->required()
+      ->check(CLI::ExistingFile);
+  cmd->add_option("--max-upload-mib", opts->max_upload_mib, "Largest accepted package upload")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  cmd->add_option("--threads", opts->threads, "Worker threads (= concurrent connections)")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 4096));
+  cmd->add_option("--current-max-age-s", opts->current_max_age_s,
+                  "Cache-Control max-age of tiles of the current map version")
+      ->capture_default_str()
+      ->check(CLI::NonNegativeNumber);
+  cmd->add_option("--public-url", opts->public_url,
+                  "Base URL written into TileJSON (default: from the Host header)");
+  cmd->add_option("--upload-dir", opts->upload_dir,
+                  "Directory for in-flight uploads (default: system temp dir)");
+  cmd->add_flag("--quiet", opts->quiet, "No per-request log lines");
+  cmd->callback([opts] { run(*opts); });
+}
+
+}  // namespace
+POLMAP_REGISTER_COMMAND(serve, setup);
+}  // namespace polmap::cli

@@ -1,0 +1,120 @@
+#pragma once
+/// @file tile_fetcher.hpp
+/// HTTP client of the tile API (GET /v1/tiles/{z}/{x}/{y}, schema/openapi.yaml)
+/// with an on-disk cache, implementing the non-blocking TileSource.
+///
+/// Behaviour:
+///  - tile() answers from memory only. A miss (or a stale entry) queues the key
+///    for the background worker and returns what memory has (nullopt on a
+///    miss). The per-frame loop therefore never waits for disk or network.
+///  - The worker thread serves the queue in priority order (missing tiles
+///    first, then prefetch, then revalidation): it loads the disk cache, and
+///    asks the server when the copy is missing or older than
+///    revalidate_after_s, with If-None-Match: <etag> so an unchanged tile costs
+///    a 304 without payload.
+///  - Answers: 200 -> decoded (a payload that does not decode is an error, not
+///    cached); 304 -> cached copy confirmed; 204 -> covered, no landmarks (empty
+///    tile); 404 -> outside the map's coverage (empty tile, revalidated like
+///    others since a map can grow); 5xx / transport errors -> retried with
+///    exponential backoff (backoff_initial_s doubling to backoff_max_s).
+///  - Offline: after a transport error the server counts as unreachable and is
+///    not contacted again before the backoff expires; meanwhile every tile
+///    with a disk copy is served from the cache regardless of its age.
+///  - New map versions: every response carries X-Polmap-Map-Version. When it
+///    is newer than the version of the cached copies, all cached tiles are
+///    marked stale and revalidated as they are used, so a vehicle picks up a
+///    published map within one revalidation round, without a restart. Tiles in
+///    use are also revalidated every revalidate_after_s (the server's
+///    Cache-Control max-age of current tiles is 60 s).
+///  - Disk cache: <cache_dir>/<z>/<x>/<y>.pmtc, one file per tile holding a
+///    small text header (format tag, HTTP status, ETag, map version from the
+///    header, fetch time) followed by the tile payload. Written to a temporary
+///    file in the same directory and renamed, so a crash never leaves a torn
+///    file; unreadable files are ignored (refetched).
+#include <chrono>
+#include <cstdint>
+#include <filesystem>
+#include <memory>
+#include <optional>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "polmap/localization_client/tile_source.hpp"
+#include "polmap/schema/geo.hpp"
+
+namespace polmap::loc {
+
+/// Settings of the fetcher; defaults suit a vehicle on a cellular link.
+struct TileFetcherConfig {
+  /// Base URL of the mapping service, e.g. "http://127.0.0.1:8080". Empty:
+  /// offline mode (disk cache only).
+  std::string server_url;
+  /// Disk cache directory (created if missing). Empty: memory only.
+  std::filesystem::path cache_dir;
+  /// Copies older than this are revalidated (If-None-Match) when used; 60 s
+  /// matches the server's max-age of current-version tiles.
+  double revalidate_after_s = 60.0;
+  double connect_timeout_s = 2.0;
+  double read_timeout_s = 5.0;
+  /// Retry delays after 5xx/transport errors: initial, doubled up to max.
+  double backoff_initial_s = 0.25;
+  double backoff_max_s = 10.0;
+  /// Tiles kept in memory (least recently used beyond are dropped; the disk
+  /// cache keeps them). 512 z16 tiles ≈ 100 km² of map.
+  std::size_t memory_capacity_tiles = 512;
+  /// Optional query string appended to tile requests, e.g. "version=7" to pin
+  /// a map version (then no version pickup happens).
+  std::string query;
+};
+
+/// Counters for logs and tests.
+struct TileFetcherStats {
+  std::uint64_t memory_hits = 0;
+  std::uint64_t memory_misses = 0;
+  std::uint64_t disk_loads = 0;
+  std::uint64_t responses_200 = 0;
+  std::uint64_t responses_304 = 0;
+  std::uint64_t responses_204 = 0;
+  std::uint64_t responses_404 = 0;
+  std::uint64_t server_errors = 0;     ///< 5xx and undecodable payloads
+  std::uint64_t transport_errors = 0;  ///< connection refused, timeouts
+  std::uint64_t bytes_downloaded = 0;
+  std::uint64_t map_version = 0;  ///< newest X-Polmap-Map-Version seen (0: none)
+  bool server_reachable = false;  ///< last request reached the server
+  std::size_t queued = 0;
+};
+
+class TileFetcher final : public TileSource {
+ public:
+  explicit TileFetcher(TileFetcherConfig cfg);
+  /// Stops the worker (waits for an in-flight request, at most the timeouts).
+  ~TileFetcher() override;
+  TileFetcher(const TileFetcher&) = delete;
+  TileFetcher& operator=(const TileFetcher&) = delete;
+
+  std::optional<tiles::LocalizationTile> tile(const tiles::TileKey& key) override;
+  void prefetch(std::span<const tiles::TileKey> keys) override;
+
+  /// Blocking helper for start-up and tests (never call it from the frame
+  /// loop): waits until every key has an answer in memory or timeout_s passes.
+  /// Returns true when all are available.
+  bool wait_for(std::span<const tiles::TileKey> keys, double timeout_s);
+  /// Blocks until the queue is empty and the worker idle, or timeout_s passes.
+  bool wait_idle(double timeout_s);
+  /// Marks every cached tile stale, so its next use revalidates it.
+  void invalidate_all();
+
+  [[nodiscard]] TileFetcherStats stats() const;
+  [[nodiscard]] const TileFetcherConfig& config() const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+/// Tiles (zoom z) within radius_m of a geodetic point (their bounding box test).
+[[nodiscard]] std::vector<tiles::TileKey> tiles_around(const GeoPoint& p, double radius_m,
+                                                       int z = tiles::kLocalizationZoom);
+
+}  // namespace polmap::loc

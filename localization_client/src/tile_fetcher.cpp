@@ -1,0 +1,470 @@
+#include "polmap/localization_client/tile_fetcher.hpp"
+
+#include <httplib.h>
+
+#include <algorithm>
+#include <charconv>
+#include <cmath>
+#include <condition_variable>
+#include <fstream>
+#include <map>
+#include <mutex>
+#include <sstream>
+#include <thread>
+
+#include "polmap/schema/errors.hpp"
+#include "polmap/tiles/local_frame.hpp"
+
+namespace polmap::loc {
+namespace {
+
+using SteadyClock = std::chrono::steady_clock;
+
+double unix_now_s() {
+  return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
+}
+
+constexpr std::string_view kCacheTag = "PMTC1";
+
+/// One cached answer of the server for a tile.
+struct Entry {
+  tiles::LocalizationTile tile;  ///< empty for 204 / 404
+  std::string payload;           ///< encoded tile as received (200 only), for the disk cache
+  int http_status = 200;         ///< 200, 204 (covered, no landmarks) or 404 (outside)
+  std::string etag;              ///< quoted, as sent by the server ("" for 204/404)
+  std::uint64_t header_version = 0;
+  double fetched_unix_s = 0.0;  ///< last time the server confirmed it
+  bool stale = false;           ///< forced revalidation (new map version seen)
+  std::uint64_t last_used = 0;
+};
+
+enum Priority : int { kMissing = 0, kPrefetch = 1, kRevalidate = 2 };
+
+struct Job {
+  int priority = kMissing;
+  SteadyClock::time_point due;
+  int attempts = 0;
+  std::uint64_t order = 0;  ///< FIFO among equal priority
+};
+
+std::filesystem::path cache_path(const std::filesystem::path& dir, const tiles::TileKey& k) {
+  return dir / std::to_string(k.z) / std::to_string(k.x) / (std::to_string(k.y) + ".pmtc");
+}
+
+tiles::LocalizationTile empty_tile(const tiles::TileKey& key, std::uint64_t version) {
+  tiles::LocalizationTile t;
+  t.key = key;
+  t.map_version = version;
+  return t;
+}
+
+/// Parses a cache file; nullopt when it is not a complete, valid one.
+std::optional<Entry> read_cache_file(const std::filesystem::path& path, const tiles::TileKey& key) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return std::nullopt;
+  std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::size_t end = bytes.find("\n\n");
+  if (end == std::string::npos) return std::nullopt;
+  std::istringstream head(bytes.substr(0, end));
+  std::string line;
+  if (!std::getline(head, line) || line != kCacheTag) return std::nullopt;
+  Entry e;
+  bool has_status = false;
+  while (std::getline(head, line)) {
+    const std::size_t sp = line.find(' ');
+    const std::string k = line.substr(0, sp);
+    const std::string v = sp == std::string::npos ? "" : line.substr(sp + 1);
+    if (k == "status") {
+      e.http_status = std::atoi(v.c_str());
+      has_status = true;
+    } else if (k == "etag") {
+      e.etag = v;
+    } else if (k == "version") {
+      e.header_version = std::strtoull(v.c_str(), nullptr, 10);
+    } else if (k == "fetched") {
+      e.fetched_unix_s = std::strtod(v.c_str(), nullptr);
+    }
+  }
+  if (!has_status) return std::nullopt;
+  const std::string_view payload = std::string_view(bytes).substr(end + 2);
+  if (e.http_status == 200) {
+    try {
+      e.tile = tiles::decode_localization_tile(payload, path.string());
+    } catch (const Error&) {
+      return std::nullopt;
+    }
+    if (!(e.tile.key == key)) return std::nullopt;
+    e.payload = std::string(payload);
+  } else if (e.http_status == 204 || e.http_status == 404) {
+    e.tile = empty_tile(key, e.header_version);
+  } else {
+    return std::nullopt;
+  }
+  return e;
+}
+
+/// Atomic write: temporary file in the same directory, then rename.
+bool write_cache_file(const std::filesystem::path& path, const Entry& e, std::string_view payload) {
+  std::error_code ec;
+  std::filesystem::create_directories(path.parent_path(), ec);
+  if (ec) return false;
+  std::ostringstream tmp_name;
+  tmp_name << path.filename().string() << ".tmp." << std::this_thread::get_id();
+  const std::filesystem::path tmp = path.parent_path() / tmp_name.str();
+  {
+    std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
+    if (!out) return false;
+    out << kCacheTag << "\nstatus " << e.http_status << "\netag " << e.etag << "\nversion "
+        << e.header_version << "\nfetched " << std::to_string(e.fetched_unix_s) << "\n\n";
+    out.write(payload.data(), static_cast<std::streamsize>(payload.size()));
+    out.flush();
+    if (!out) {
+      std::filesystem::remove(tmp, ec);
+      return false;
+    }
+  }
+  std::filesystem::rename(tmp, path, ec);
+  if (ec) {
+    std::filesystem::remove(tmp, ec);
+    return false;
+  }
+  return true;
+}
+
+}  // namespace
+
+struct TileFetcher::Impl {
+  explicit Impl(TileFetcherConfig c) : cfg(std::move(c)) {
+    if (!cfg.cache_dir.empty()) {
+      std::error_code ec;
+      std::filesystem::create_directories(cfg.cache_dir, ec);
+      if (ec) throw IoError("tile cache directory " + cfg.cache_dir.string() + ": " + ec.message());
+    }
+    worker = std::thread([this] { run(); });
+  }
+
+  ~Impl() {
+    {
+      std::lock_guard lock(mutex);
+      stopping = true;
+    }
+    cv.notify_all();
+    if (worker.joinable()) worker.join();
+  }
+
+  // ---- state (guarded by mutex)
+  TileFetcherConfig cfg;
+  mutable std::mutex mutex;
+  std::condition_variable cv;       ///< worker wake-up
+  std::condition_variable changed;  ///< an entry or the queue changed (waiters)
+  std::map<tiles::TileKey, Entry> entries;
+  std::map<tiles::TileKey, Job> jobs;
+  bool in_flight = false;
+  bool stopping = false;
+  std::uint64_t use_tick = 0;
+  std::uint64_t job_order = 0;
+  SteadyClock::time_point offline_until{};
+  double offline_backoff_s = 0.0;
+  TileFetcherStats stats;
+  std::thread worker;
+
+  [[nodiscard]] bool is_stale(const Entry& e) const {
+    return e.stale || unix_now_s() - e.fetched_unix_s > cfg.revalidate_after_s;
+  }
+
+  /// Queues a key (keeps the more urgent priority / earlier due time).
+  void enqueue_locked(const tiles::TileKey& key, int priority, SteadyClock::time_point due) {
+    auto [it, inserted] = jobs.try_emplace(key);
+    if (inserted) {
+      it->second = {priority, due, 0, job_order++};
+    } else {
+      it->second.priority = std::min(it->second.priority, priority);
+      if (it->second.attempts == 0) it->second.due = std::min(it->second.due, due);
+    }
+    cv.notify_one();
+  }
+
+  void evict_locked() {
+    while (entries.size() > cfg.memory_capacity_tiles) {
+      auto victim = entries.begin();
+      for (auto it = entries.begin(); it != entries.end(); ++it) {
+        if (it->second.last_used < victim->second.last_used) victim = it;
+      }
+      entries.erase(victim);
+    }
+  }
+
+  void note_version_locked(std::uint64_t v) {
+    if (v > stats.map_version) {
+      // A newer map was published: everything cached may be outdated.
+      if (stats.map_version != 0) {
+        for (auto& [k, e] : entries) e.stale = true;
+      }
+      stats.map_version = v;
+    }
+  }
+
+  void run() {
+    std::unique_lock lock(mutex);
+    std::optional<httplib::Client> client;
+    while (!stopping) {
+      // Next due job: lowest priority value, then FIFO.
+      const auto now = SteadyClock::now();
+      auto pick = jobs.end();
+      SteadyClock::time_point earliest = SteadyClock::time_point::max();
+      for (auto it = jobs.begin(); it != jobs.end(); ++it) {
+        if (it->second.due > now) {
+          earliest = std::min(earliest, it->second.due);
+          continue;
+        }
+        if (pick == jobs.end() || it->second.priority < pick->second.priority ||
+            (it->second.priority == pick->second.priority &&
+             it->second.order < pick->second.order)) {
+          pick = it;
+        }
+      }
+      if (pick == jobs.end()) {
+        changed.notify_all();
+        if (earliest == SteadyClock::time_point::max()) {
+          cv.wait(lock);
+        } else {
+          cv.wait_until(lock, earliest);
+        }
+        continue;
+      }
+      const tiles::TileKey key = pick->first;
+      Job job = pick->second;
+      jobs.erase(pick);
+      in_flight = true;
+      process_locked(lock, key, job, client);
+      in_flight = false;
+      changed.notify_all();
+    }
+  }
+
+  /// Handles one job; releases the lock around disk and network I/O.
+  void process_locked(std::unique_lock<std::mutex>& lock, const tiles::TileKey& key, Job job,
+                      std::optional<httplib::Client>& client) {
+    // 1. Disk cache.
+    if (!entries.contains(key) && !cfg.cache_dir.empty()) {
+      lock.unlock();
+      auto e = read_cache_file(cache_path(cfg.cache_dir, key), key);
+      lock.lock();
+      if (e && !entries.contains(key)) {
+        e->last_used = ++use_tick;
+        // A copy from a version older than the newest seen must be revalidated.
+        if (e->header_version < stats.map_version) e->stale = true;
+        entries.emplace(key, std::move(*e));
+        ++stats.disk_loads;
+        evict_locked();
+        changed.notify_all();
+      }
+    }
+    // 2. Server, when needed and allowed.
+    const auto it = entries.find(key);
+    const bool have = it != entries.end();
+    if (cfg.server_url.empty()) return;
+    if (have && !is_stale(it->second)) return;
+    const auto now = SteadyClock::now();
+    if (now < offline_until) {
+      // Unreachable: serve the cached copy; keep trying for missing tiles.
+      if (!have) enqueue_locked(key, job.priority, offline_until);
+      return;
+    }
+    const std::string etag = have && it->second.http_status == 200 ? it->second.etag : "";
+    lock.unlock();
+    if (!client) {
+      client.emplace(cfg.server_url);
+      const auto us = [](double s) { return static_cast<time_t>(s * 1e6); };
+      client->set_connection_timeout(0, us(cfg.connect_timeout_s));
+      client->set_read_timeout(0, us(cfg.read_timeout_s));
+      client->set_write_timeout(0, us(cfg.read_timeout_s));
+      client->set_keep_alive(true);
+    }
+    httplib::Headers headers;
+    if (!etag.empty()) headers.emplace("If-None-Match", etag);
+    std::string path = "/v1/tiles/" + tiles::to_string(key);
+    if (!cfg.query.empty()) path += "?" + cfg.query;
+    const httplib::Result res = client->Get(path, headers);
+    lock.lock();
+    if (!res) {
+      ++stats.transport_errors;
+      stats.server_reachable = false;
+      offline_backoff_s = offline_backoff_s <= 0.0
+                              ? cfg.backoff_initial_s
+                              : std::min(cfg.backoff_max_s, 2.0 * offline_backoff_s);
+      offline_until = SteadyClock::now() + std::chrono::duration_cast<SteadyClock::duration>(
+                                               std::chrono::duration<double>(offline_backoff_s));
+      if (!have) enqueue_locked(key, job.priority, offline_until);
+      lock.unlock();
+      client.reset();  // a fresh connection next time
+      lock.lock();
+      return;
+    }
+    stats.server_reachable = true;
+    offline_backoff_s = 0.0;
+    offline_until = {};
+    std::uint64_t header_version = 0;
+    if (res->has_header("X-Polmap-Map-Version")) {
+      const std::string v = res->get_header_value("X-Polmap-Map-Version");
+      std::from_chars(v.data(), v.data() + v.size(), header_version);
+      note_version_locked(header_version);
+    }
+    Entry e;
+    e.fetched_unix_s = unix_now_s();
+    e.header_version = header_version;
+    e.last_used = have ? it->second.last_used : ++use_tick;
+    switch (res->status) {
+      case 200: {
+        try {
+          e.tile = tiles::decode_localization_tile(res->body, cfg.server_url + path);
+        } catch (const Error&) {
+          ++stats.server_errors;
+          retry_locked(key, job);
+          return;
+        }
+        ++stats.responses_200;
+        stats.bytes_downloaded += res->body.size();
+        e.http_status = 200;
+        e.etag = res->get_header_value("ETag");
+        e.payload = res->body;
+        break;
+      }
+      case 304: {
+        ++stats.responses_304;
+        if (!have) {  // cannot happen unless the copy was evicted meanwhile
+          enqueue_locked(key, job.priority, SteadyClock::now());
+          return;
+        }
+        it->second.fetched_unix_s = e.fetched_unix_s;
+        it->second.stale = false;
+        if (header_version != 0) it->second.header_version = header_version;
+        if (!cfg.cache_dir.empty()) {
+          const Entry copy = it->second;
+          lock.unlock();
+          // Rewritten to refresh the fetch time in the header.
+          write_cache_file(cache_path(cfg.cache_dir, key), copy, copy.payload);
+          lock.lock();
+        }
+        changed.notify_all();
+        return;
+      }
+      case 204:
+      case 404: {
+        (res->status == 204 ? stats.responses_204 : stats.responses_404) += 1;
+        e.http_status = res->status;
+        e.tile = empty_tile(key, header_version);
+        break;
+      }
+      default:
+        ++stats.server_errors;
+        retry_locked(key, job);
+        return;
+    }
+    entries[key] = e;
+    evict_locked();
+    changed.notify_all();
+    if (!cfg.cache_dir.empty()) {
+      lock.unlock();
+      write_cache_file(cache_path(cfg.cache_dir, key), e, e.payload);
+      lock.lock();
+    }
+  }
+
+  void retry_locked(const tiles::TileKey& key, Job job) {
+    ++job.attempts;
+    const double delay =
+        std::min(cfg.backoff_max_s, cfg.backoff_initial_s * std::pow(2.0, job.attempts - 1));
+    job.due = SteadyClock::now() + std::chrono::duration_cast<SteadyClock::duration>(
+                                       std::chrono::duration<double>(delay));
+    auto [jt, inserted] = jobs.try_emplace(key, job);
+    if (!inserted) jt->second.priority = std::min(jt->second.priority, job.priority);
+    cv.notify_one();
+  }
+};
+
+TileFetcher::TileFetcher(TileFetcherConfig cfg) : impl_(std::make_unique<Impl>(std::move(cfg))) {}
+TileFetcher::~TileFetcher() = default;
+
+std::optional<tiles::LocalizationTile> TileFetcher::tile(const tiles::TileKey& key) {
+  std::lock_guard lock(impl_->mutex);
+  auto& I = *impl_;
+  const auto it = I.entries.find(key);
+  if (it == I.entries.end()) {
+    ++I.stats.memory_misses;
+    I.enqueue_locked(key, kMissing, SteadyClock::now());
+    return std::nullopt;
+  }
+  ++I.stats.memory_hits;
+  it->second.last_used = ++I.use_tick;
+  if (!I.cfg.server_url.empty() && I.is_stale(it->second)) {
+    I.enqueue_locked(key, kRevalidate, std::max(SteadyClock::now(), I.offline_until));
+  }
+  return it->second.tile;
+}
+
+void TileFetcher::prefetch(std::span<const tiles::TileKey> keys) {
+  std::lock_guard lock(impl_->mutex);
+  for (const auto& k : keys) {
+    const auto it = impl_->entries.find(k);
+    if (it == impl_->entries.end()) {
+      impl_->enqueue_locked(k, kPrefetch, SteadyClock::now());
+    } else if (!impl_->cfg.server_url.empty() && impl_->is_stale(it->second)) {
+      impl_->enqueue_locked(k, kRevalidate, std::max(SteadyClock::now(), impl_->offline_until));
+    }
+  }
+}
+
+bool TileFetcher::wait_for(std::span<const tiles::TileKey> keys, double timeout_s) {
+  const auto deadline = SteadyClock::now() + std::chrono::duration_cast<SteadyClock::duration>(
+                                                 std::chrono::duration<double>(timeout_s));
+  std::unique_lock lock(impl_->mutex);
+  for (const auto& k : keys) {
+    if (!impl_->entries.contains(k)) impl_->enqueue_locked(k, kMissing, SteadyClock::now());
+  }
+  return impl_->changed.wait_until(lock, deadline, [&] {
+    return std::all_of(keys.begin(), keys.end(),
+                       [&](const auto& k) { return impl_->entries.contains(k); });
+  });
+}
+
+bool TileFetcher::wait_idle(double timeout_s) {
+  const auto deadline = SteadyClock::now() + std::chrono::duration_cast<SteadyClock::duration>(
+                                                 std::chrono::duration<double>(timeout_s));
+  std::unique_lock lock(impl_->mutex);
+  impl_->cv.notify_one();
+  return impl_->changed.wait_until(lock, deadline, [&] {
+    if (impl_->in_flight) return false;
+    const auto now = SteadyClock::now();
+    return std::none_of(impl_->jobs.begin(), impl_->jobs.end(),
+                        [&](const auto& kv) { return kv.second.due <= now; });
+  });
+}
+
+void TileFetcher::invalidate_all() {
+  std::lock_guard lock(impl_->mutex);
+  for (auto& [k, e] : impl_->entries) e.stale = true;
+}
+
+TileFetcherStats TileFetcher::stats() const {
+  std::lock_guard lock(impl_->mutex);
+  TileFetcherStats s = impl_->stats;
+  s.queued = impl_->jobs.size();
+  return s;
+}
+
+const TileFetcherConfig& TileFetcher::config() const { return impl_->cfg; }
+
+std::vector<tiles::TileKey> tiles_around(const GeoPoint& p, double radius_m, int z) {
+  const tiles::LocalFrame f(p);
+  const GeoPoint sw = f.to_geo({-radius_m, -radius_m});
+  const GeoPoint ne = f.to_geo({radius_m, radius_m});
+  tiles::GeoBox box;
+  box.min_lat_deg = std::min(sw.lat_deg, ne.lat_deg);
+  box.max_lat_deg = std::max(sw.lat_deg, ne.lat_deg);
+  box.min_lon_deg = sw.lon_deg;
+  box.max_lon_deg = ne.lon_deg;  // min > max across the antimeridian: handled by tiles_covering
+  return tiles::tiles_covering(box, z);
+}
+
+}  // namespace polmap::loc

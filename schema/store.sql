@@ -47,6 +47,11 @@
 --   tiles             localization tiles of a version (z = tiles::kLocalizationZoom, XYZ keys)
 --   gridmap_tiles     fleet gridmap raster tiles of a version (fleet_gridmap.hpp documents
 --                     the payload), same shape as tiles.
+--   drive_trajectories (migration 2) a drive's trajectory decimated at ingest to one sample per
+--                     metre travelled (at least one per 5 s): samples_json = [[time_s, lat_deg,
+--                     lon_deg, yaw_enu_rad, speed_mps], ...]; for map display (MVT, TileJSON
+--                     bounds) without opening the package. Drives ingested before migration 2
+--                     have no row.
 
 -- bootstrap (every open)
 CREATE TABLE IF NOT EXISTS schema_migrations (
@@ -179,3 +184,10 @@ CREATE TABLE gridmap_tiles (
   PRIMARY KEY (version, z, x, y)
 ) WITHOUT ROWID;
 CREATE INDEX gridmap_tiles_blob ON gridmap_tiles(blob);
+
+-- migration 2: decimated drive trajectories
+CREATE TABLE drive_trajectories (
+  drive         INTEGER PRIMARY KEY REFERENCES drives(id) ON DELETE CASCADE,
+  min_spacing_m REAL NOT NULL,
+  samples_json  TEXT NOT NULL
+);

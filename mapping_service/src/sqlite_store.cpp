@@ -160,6 +160,17 @@ CREATE TABLE gridmap_tiles (
 ) WITHOUT ROWID;
 CREATE INDEX gridmap_tiles_blob ON gridmap_tiles(blob);)sql";
 
+constexpr std::string_view kMigration2 = R"sql(CREATE TABLE drive_trajectories (
+  drive         INTEGER PRIMARY KEY REFERENCES drives(id) ON DELETE CASCADE,
+  min_spacing_m REAL NOT NULL,
+  samples_json  TEXT NOT NULL
+);)sql";
+
+/// Trajectory decimation for drive_trajectories: a sample is kept when it is
+/// this far from the last kept one (or kTrajectoryMaxGapS later).
+constexpr double kTrajectorySpacingM = 1.0;
+constexpr double kTrajectoryMaxGapS = 5.0;
+
 std::string now_iso() {
   const std::time_t t = std::chrono::system_clock::to_time_t(std::chrono::system_clock::now());
   std::tm tm{};
@@ -417,6 +428,7 @@ const std::vector<StoreMigration>& sqlite_store_migrations() {
   static const std::vector<StoreMigration> m{
       {0, "bootstrap", kBootstrapSql},
       {1, "initial schema", kMigration1},
+      {2, "decimated drive trajectories", kMigration2},
   };
   return m;
 }
@@ -826,6 +838,31 @@ PutDriveResult SqliteMapStore::put_drive(const DrivePackage& package,
                      std::max(a.lat_deg, b.lat_deg), std::min(a.lon_deg, b.lon_deg),
                      std::max(a.lon_deg, b.lon_deg));
       }
+      {
+        nlohmann::json samples = nlohmann::json::array();
+        const TrajectorySample* last = nullptr;
+        for (std::size_t i = 0; i < package.trajectory.size(); ++i) {
+          const auto& t = package.trajectory[i];
+          bool keep = last == nullptr || i + 1 == package.trajectory.size() ||
+                      t.time_s - last->time_s >= kTrajectoryMaxGapS;
+          if (!keep) {
+            const double dn = (t.lat_deg - last->lat_deg) * 111320.0;
+            const double de = (t.lon_deg - last->lon_deg) * 111320.0 *
+                              std::cos(t.lat_deg * 3.14159265358979 / 180.0);
+            keep = dn * dn + de * de >= kTrajectorySpacingM * kTrajectorySpacingM;
+          }
+          if (!keep) continue;
+          samples.push_back({t.time_s, t.lat_deg, t.lon_deg, t.yaw_enu_rad, t.speed_mps});
+          last = &t;
+        }
+        c.stmt(
+             "INSERT INTO drive_trajectories(drive, min_spacing_m, samples_json) VALUES (?1, ?2, "
+             "?3)")
+            .bind(1, drive_row)
+            .bind(2, kTrajectorySpacingM)
+            .bind(3, samples.dump())
+            .run();
+      }
       I.hook("rows_inserted");
       std::error_code e;
       if (fs::exists(final_dir, e)) fs::remove_all(final_dir, e);  // crash leftover
@@ -863,6 +900,27 @@ std::optional<DriveRecord> SqliteMapStore::get_drive(std::string_view drive_id) 
 std::optional<DriveRecord> SqliteMapStore::find_drive_by_hash(std::string_view content_hash) const {
   return impl_->read(
       [&](Connection& c) { return impl_->drive_where(c, "content_hash = ?1", content_hash); });
+}
+
+std::vector<TrajectorySample> SqliteMapStore::drive_trajectory(std::string_view drive_id) const {
+  return impl_->read([&](Connection& c) {
+    std::vector<TrajectorySample> out;
+    auto d = impl_->drive_where(c, "drive_id = ?1", drive_id);
+    if (!d) throw NotFoundError("drive '" + std::string(drive_id) + "' is not in the store");
+    auto s = c.stmt("SELECT samples_json FROM drive_trajectories WHERE drive = ?1");
+    s.bind(1, d->row);
+    if (!s.step()) return out;  // ingested before migration 2
+    for (const auto& v : nlohmann::json::parse(s.text(0))) {
+      TrajectorySample t;
+      t.time_s = v.at(0).get<double>();
+      t.lat_deg = v.at(1).get<double>();
+      t.lon_deg = v.at(2).get<double>();
+      t.yaw_enu_rad = v.at(3).get<double>();
+      t.speed_mps = v.at(4).get<double>();
+      out.push_back(t);
+    }
+    return out;
+  });
 }
 
 std::vector<DriveRecord> SqliteMapStore::drives_in(const GeoBox& box) const {
@@ -1210,8 +1268,8 @@ std::vector<MapVersionInfo> SqliteMapStore::list_map_versions() const {
 
 // --------------------------------------------------------------------- published content
 
-LandmarkSet SqliteMapStore::landmarks_in(std::int64_t version,
-                                         const std::optional<GeoBox>& box) const {
+LandmarkSet SqliteMapStore::landmarks_in(std::int64_t version, const std::optional<GeoBox>& box,
+                                         bool with_support) const {
   return impl_->read([&](Connection& c) {
     Impl::require_published(c, version);
     LandmarkSet out;
@@ -1223,7 +1281,7 @@ LandmarkSet SqliteMapStore::landmarks_in(std::int64_t version,
       const std::int64_t id = s.i64(0);
       if (!seen.insert(id).second) return;
       std::vector<std::int64_t> support;
-      {
+      if (with_support) {
         auto q = c.stmt("SELECT candidate FROM landmark_support WHERE landmark = ?1 ORDER BY candidate");
         q.bind(1, id);
         while (q.step()) support.push_back(q.i64(0));

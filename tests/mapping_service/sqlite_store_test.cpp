@@ -122,6 +122,39 @@ TEST(SqliteStore, OpensWithWalForeignKeysAndMigrationsOnce) {
   EXPECT_EQ(count_rows(db, "SELECT COUNT(*) FROM sqlite_master WHERE name = 'candidates_rtree'"), 1);
 }
 
+void exec_sql(const fs::path& db, const std::string& sql) {
+  sqlite3* h = nullptr;
+  ASSERT_EQ(sqlite3_open(db.c_str(), &h), SQLITE_OK);
+  char* err = nullptr;
+  EXPECT_EQ(sqlite3_exec(h, sql.c_str(), nullptr, nullptr, &err), SQLITE_OK) << (err ? err : "");
+  sqlite3_free(err);
+  sqlite3_close(h);
+}
+
+TEST(SqliteStore, UpgradesAnOlderDatabaseByApplyingOnlyMissingMigrations) {
+  TempDir tmp;
+  const fs::path db = tmp.path() / "map.db";
+  const auto [tar, hash] = write_archive(tmp.path(), "a", "A");
+  {
+    SqliteMapStore store(db);
+    (void)store.put_drive(make_package("a", 3, 1, 1), tar, hash);
+    EXPECT_EQ(store.drive_trajectory("a").size(), 10U);  // 10 m apart: all kept
+  }
+  // Turn it into a schema-1 database (as written by an older build).
+  exec_sql(db, "DROP TABLE drive_trajectories; DELETE FROM schema_migrations WHERE version = 2;");
+  SqliteMapStore store(db);
+  EXPECT_EQ(store.schema_version(), 2);
+  EXPECT_EQ(store.get_drive("a")->num_points, 3);  // data kept
+  EXPECT_TRUE(store.drive_trajectory("a").empty());  // ingested before migration 2
+  const auto [tar2, hash2] = write_archive(tmp.path(), "b", "B");
+  (void)store.put_drive(make_package("b", 3, 1, 2), tar2, hash2);
+  const auto traj = store.drive_trajectory("b");
+  ASSERT_EQ(traj.size(), 10U);
+  EXPECT_DOUBLE_EQ(traj[3].time_s, 13.0);
+  EXPECT_THROW((void)store.drive_trajectory("nope"), NotFoundError);
+  EXPECT_EQ(count_rows(db, "SELECT COUNT(*) FROM schema_migrations"), 2);
+}
+
 TEST(SqliteStore, StoreSqlDocumentsTheEmbeddedMigrations) {
   std::ifstream f(std::string(POLMAP_SOURCE_DIR) + "/schema/store.sql");
   ASSERT_TRUE(f) << "schema/store.sql missing";

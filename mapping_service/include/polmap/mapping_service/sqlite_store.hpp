@@ -84,6 +84,8 @@ class SqliteMapStore final : public MapStore {
   [[nodiscard]] std::optional<DriveRecord> get_drive(std::string_view drive_id) const override;
   [[nodiscard]] std::optional<DriveRecord> find_drive_by_hash(
       std::string_view content_hash) const override;
+  [[nodiscard]] std::vector<TrajectorySample> drive_trajectory(
+      std::string_view drive_id) const override;
   [[nodiscard]] std::vector<DriveRecord> drives_in(const GeoBox& box) const override;
   bool delete_drive(std::string_view drive_id) override;
 
@@ -104,8 +106,8 @@ class SqliteMapStore final : public MapStore {
   [[nodiscard]] std::optional<MapVersionInfo> get_map_version(std::int64_t version) const override;
   [[nodiscard]] std::vector<MapVersionInfo> list_map_versions() const override;
 
-  [[nodiscard]] LandmarkSet landmarks_in(std::int64_t version,
-                                         const std::optional<GeoBox>& box) const override;
+  [[nodiscard]] LandmarkSet landmarks_in(std::int64_t version, const std::optional<GeoBox>& box,
+                                         bool with_support = true) const override;
   [[nodiscard]] std::optional<StoredTile> get_tile(std::int64_t version, TileLayer layer,
                                                    const tiles::TileKey& key) const override;
   [[nodiscard]] std::optional<std::string> get_tile_etag(std::int64_t version, TileLayer layer,

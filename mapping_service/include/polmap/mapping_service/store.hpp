@@ -214,6 +214,11 @@ class MapStore {
   [[nodiscard]] virtual std::optional<DriveRecord> get_drive(std::string_view drive_id) const = 0;
   [[nodiscard]] virtual std::optional<DriveRecord> find_drive_by_hash(
       std::string_view content_hash) const = 0;
+  /// The drive's trajectory, decimated at ingest to one sample per metre
+  /// travelled (at least one per 5 s; first and last kept); only time, lat/lon,
+  /// yaw and speed are kept. NotFoundError for unknown drives.
+  [[nodiscard]] virtual std::vector<TrajectorySample> drive_trajectory(
+      std::string_view drive_id) const = 0;
   /// Drives whose bounding box intersects the box.
   [[nodiscard]] virtual std::vector<DriveRecord> drives_in(const GeoBox& box) const = 0;
   /// Removes the drive's rows (candidates, support links of old map versions)
@@ -256,9 +261,11 @@ class MapStore {
   // ------------------------------------------------------------ published content
   /// Landmarks of a published version inside `box` (all if nullopt); points
   /// inside, lines whose bounding box intersects. Throws NotFoundError if the
-  /// version is unknown or not published.
+  /// version is unknown or not published. with_support = false skips the
+  /// support lists (one query per landmark; not needed for display).
   [[nodiscard]] virtual LandmarkSet landmarks_in(std::int64_t version,
-                                                 const std::optional<GeoBox>& box) const = 0;
+                                                 const std::optional<GeoBox>& box,
+                                                 bool with_support = true) const = 0;
   /// A tile of a published version, or nullopt when the version has no tile
   /// there (empty area). Throws NotFoundError for unknown/unpublished versions.
   [[nodiscard]] virtual std::optional<StoredTile> get_tile(std::int64_t version, TileLayer layer,

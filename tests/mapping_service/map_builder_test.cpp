@@ -9,6 +9,7 @@
 #include <random>
 #include <set>
 
+#include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/mapping_service/sqlite_store.hpp"
 #include "polmap/tiles/local_frame.hpp"
 
@@ -283,6 +284,90 @@ TEST(MapBuilder, LeaveOneOutRegionAndCancellation) {
   ASSERT_EQ(g.status, MapBuildResult::Status::Published) << g.error;
   EXPECT_EQ(g.stats.gridmap_drives, 0);
   EXPECT_EQ(store.get_map_version(g.version)->statistics.at("gridmap").at("errors").size(), 3U);
+}
+
+/// A real package (written and validated by drive_package_io) with a gridmap:
+/// a 100 m x 60 m raster, observed (tr(C) = 1000, 30 dB) in a 20 m strip.
+GridmapRaster make_raster(int q) {
+  GridmapRaster r;
+  r.q = q;
+  r.cell_size_m = 0.1;
+  r.width = 1000;
+  r.height = 600;
+  r.origin_x_m = -70.0;
+  r.origin_y_m = 30.0;
+  r.count.assign(static_cast<std::size_t>(r.width) * r.height, 0);
+  r.layers.assign(static_cast<std::size_t>(q * (q + 1) / 2),
+                  std::vector<cdouble>(r.count.size(), cdouble(0, 0)));
+  for (int row = 200; row < 400; ++row) {
+    for (int col = 0; col < r.width; ++col) {
+      const std::size_t i = static_cast<std::size_t>(row) * r.width + col;
+      r.count[i] = 3;
+      r.layers[0][i] = 1000.0;
+    }
+  }
+  return r;
+}
+
+TEST(MapBuilder, RealPackagesBuildTheFleetGridmap) {
+  TempDir tmp;
+  SqliteMapStore store(tmp.path() / "map.db");
+  const World w = make_world(4, 50, 50.0);
+  for (int d = 0; d < 2; ++d) {
+    // Seeds 45 and 51: drive frames at (0, 0) and (37, 0) m from the world origin.
+    DrivePackage pkg = observe(w, "real" + std::to_string(d), d == 0 ? 45 : 51, {-25, -25}, {25, 25}, 0);
+    pkg.manifest.start_time_s = 0.0;
+    pkg.manifest.end_time_s = 1.0;
+    pkg.manifest.pol_level = PolLevel::SingleLR;
+    pkg.manifest.sensors = default_front_mounts();
+    const tiles::LocalFrame drive_frame(pkg.manifest.origin);
+    for (int k = 0; k <= 10; ++k) {
+      const GeoPoint g = drive_frame.to_geo(Eigen::Vector2d(-25.0 + 5.0 * k, 0.0));
+      TrajectorySample t;
+      t.time_s = 0.1 * k;
+      t.lat_deg = g.lat_deg;
+      t.lon_deg = g.lon_deg;
+      t.speed_mps = 10.0;
+      pkg.trajectory.push_back(t);
+    }
+    const fs::path dir = tmp.path() / ("pkg" + std::to_string(d));
+    (void)write_drive_package(pkg, make_raster(1), dir);
+    const fs::path tar = tmp.path() / ("pkg" + std::to_string(d) + ".tar");
+    write_drive_package_archive(dir, tar);
+    const DrivePackage valid = read_and_validate_package(tar);
+    std::ifstream f(tar, std::ios::binary);
+    const std::string bytes((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+    ASSERT_EQ(store.put_drive(valid, tar, package_content_hash(bytes)).status,
+              PutDriveResult::Status::Inserted);
+  }
+  const auto r = MapBuilder{}.build(store, {});
+  ASSERT_EQ(r.status, MapBuildResult::Status::Published) << r.error;
+  EXPECT_EQ(r.stats.gridmap_drives, 2);
+  EXPECT_GT(r.stats.gridmap_tiles, 5);
+  EXPECT_EQ(r.stats.point_landmarks, 50);
+  const auto grid = store.list_tiles(r.version, TileLayer::Gridmap);
+  ASSERT_EQ(static_cast<std::int64_t>(grid.size()), r.stats.gridmap_tiles);
+  const FleetGridmapConfig cfg;
+  int observed = 0;
+  for (const auto& t : grid) {
+    if (t.key.z != cfg.base_zoom) continue;
+    const auto png = store.get_tile(r.version, TileLayer::Gridmap, t.key);
+    ASSERT_TRUE(png);
+    for (float db : decode_gridmap_png_db(png->payload, cfg)) {
+      if (std::isnan(db)) continue;
+      ++observed;
+      EXPECT_NEAR(db, 30.0, 0.11);
+    }
+  }
+  // Observed: the union of both drives' 100 m x 20 m strips at ~0.39 m pixels.
+  EXPECT_GT(observed, 137 * 20 / (0.39 * 0.39) * 0.9);
+  EXPECT_LT(observed, 137 * 20 / (0.39 * 0.39) * 1.1);
+  // Same drives again: gridmap tiles reused byte for byte (same ETags).
+  const auto again = MapBuilder{}.build(store, {});
+  ASSERT_EQ(again.status, MapBuildResult::Status::Published) << again.error;
+  const auto grid2 = store.list_tiles(again.version, TileLayer::Gridmap);
+  ASSERT_EQ(grid2.size(), grid.size());
+  for (std::size_t i = 0; i < grid.size(); ++i) EXPECT_EQ(grid2[i].etag, grid[i].etag);
 }
 
 TEST(FleetGridmap, AccumulatesPowerAndCountsIntoWebMercatorPixels) {

@@ -49,8 +49,8 @@ class ConflictError : public ValidationError {
   using ValidationError::ValidationError;
 };
 
-/// A geodetic box in degrees (WGS84). Boxes crossing the antimeridian are not
-/// supported (min_lon_deg <= max_lon_deg).
+/// A geodetic box in degrees (WGS84). Antimeridian-crossing boxes
+/// (min_lon_deg > max_lon_deg) are queried as their two halves.
 using GeoBox = tiles::GeoBox;
 
 /// One ingested drive.

@@ -86,7 +86,7 @@ TEST(Determinism, SameSeedByteIdenticalRecordingFiles) {
     cfg.duration_s = 3.0;
     auto w = load_world("urban", 300.0, 5, cfg);
     DriveSimulator sim(w, cfg, 0);
-    RecordingWriter wr(dir / ("r" + std::to_string(k) + ".pmrec"), sim.header());
+    RecordingWriter wr(dir / (k == 0 ? "r0.pmrec" : "r1.pmrec"), sim.header());
     while (auto r = sim.next()) {
       if (const auto* t = std::get_if<TrajectorySample>(&*r)) {
         wr.write(*t);

@@ -51,14 +51,15 @@ TEST(Doppler, StaticScattererMatchesKinematicsAliasedAt14mps) {
         const Detection* best = nullptr;
         double bd = 1e9;
         for (const auto& d : f.detections) {
-          const double e = std::hypot(d.range_m - r, (d.azimuth_rad - az) * r);
+          // Normalised by the documented sigmas (3 cm, 0.5 deg).
+          const double e = std::hypot((d.range_m - r) / 0.03, (d.azimuth_rad - az) / (0.5 * kDeg));
           if (e < bd) {
             bd = e;
             best = &d;
           }
         }
         ASSERT_NE(best, nullptr);
-        EXPECT_LT(bd, 0.3);
+        EXPECT_LT(bd, 5.0);
         EXPECT_NEAR(wrap5(best->radial_velocity_mps - want), 0.0, 0.25)
             << "sensor " << int(m.sensor_id) << " target " << t.transpose() << " want " << want;
         EXPECT_GE(best->radial_velocity_mps, -5.0F);
@@ -108,7 +109,7 @@ TEST(Doppler, MovingObjectsAreDetectedButAbsentFromStaticSpectrum) {
   car.speed_mps = 9.0;
   car.direction = -1;
   car.lateral_m = 3.5;
-  for (const Eigen::Vector2d l : {Eigen::Vector2d(2.2, 0.9), Eigen::Vector2d(2.2, -0.9),
+  for (const Eigen::Vector2d& l : {Eigen::Vector2d(2.2, 0.9), Eigen::Vector2d(2.2, -0.9),
                                   Eigen::Vector2d(-2.2, 0.9), Eigen::Vector2d(-2.2, -0.9)}) {
     PointScatterer c;
     c.pos_m = l;

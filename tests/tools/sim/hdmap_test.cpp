@@ -98,7 +98,7 @@ TEST(HdMap, IntersectionHasLightsAndADrivableRoute) {
   DriveSimulator sim(w, cfg, 0);
   int frames = 0;
   while (auto r = sim.next()) frames += std::holds_alternative<SensorFrame>(*r);
-  EXPECT_EQ(frames, 60);
+  EXPECT_EQ(frames, 61);  // t = 0 ... 2.0 s inclusive (sensor 0 triggers at 2.0 s)
 }
 
 TEST(HdMap, ErrorsNameTheFile) {

@@ -31,8 +31,12 @@ TEST(World, UrbanHasDenseInfrastructure) {
   EXPECT_GT(c[ObjectClass::ParkedCar], 10);
   EXPECT_NEAR(w->route.length_m(), 1000.0, 0.2);
   for (const auto& o : w->objects) {
-    if (o.cls == ObjectClass::ParkedCar || o.cls == ObjectClass::Bin) EXPECT_FALSE(o.permanent);
-    if (o.cls == ObjectClass::LampPole) EXPECT_TRUE(o.permanent);
+    if (o.cls == ObjectClass::ParkedCar || o.cls == ObjectClass::Bin) {
+      EXPECT_FALSE(o.permanent);
+    }
+    if (o.cls == ObjectClass::LampPole) {
+      EXPECT_TRUE(o.permanent);
+    }
   }
 }
 

@@ -333,7 +333,7 @@ void build_rural(World& w, WorldBuilder& b, Rng& rng, double length, const SimCo
     s += straight;
     kappa.add(s, 0.0);
     const double radius = rng.uniform(180.0, 700.0);
-    const double arc = rng.uniform(60.0, 250.0);
+    const double arc = std::min(rng.uniform(60.0, 250.0), 0.6 * radius - 20.0);
     // Curve towards the mean direction so the road never loops back.
     const double sign = heading > 0.3 ? -1.0 : heading < -0.3 ? 1.0 : (rng.bernoulli(0.5) ? 1.0 : -1.0);
     const double ramp = 20.0;

@@ -1,0 +1,267 @@
+// HD-map comparison on real Lanelet2 maps with synthetic radar landmarks placed at the
+// HD-map features (known offsets, gaps and outliers), checked against brute force.
+#include "polmap/mapping_service/hdmap_compare.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <numbers>
+#include <random>
+
+#include "polmap/tiles/local_frame.hpp"
+
+namespace polmap::mapping {
+namespace {
+
+namespace fs = std::filesystem;
+using Vec = Eigen::Vector2d;
+
+const fs::path kShoulder = fs::path(POLMAP_DATA_DIR) / "hdmaps" / "autoware_road_shoulder.osm";
+const fs::path kIntersection = fs::path(POLMAP_DATA_DIR) / "hdmaps" / "autoware_intersection.osm";
+
+tiles::LocalFrame frame_of(const HdMap& hd) {
+  const auto b = hdmap_bounds(hd);
+  return tiles::LocalFrame({0.5 * (b->min_lat_deg + b->max_lat_deg),
+                            0.5 * (b->min_lon_deg + b->max_lon_deg), 0.0});
+}
+
+std::vector<std::vector<Vec>> hd_lines_local(const HdMap& hd, const tiles::LocalFrame& f) {
+  std::vector<std::vector<Vec>> out;
+  for (const auto& l : hd.lines) {
+    auto& v = out.emplace_back();
+    for (const auto& p : l.polyline) v.push_back(f.to_local(p));
+  }
+  return out;
+}
+
+double seg_dist(const Vec& p, const Vec& a, const Vec& b) {
+  const Vec d = b - a;
+  const double t = d.squaredNorm() > 0 ? std::clamp((p - a).dot(d) / d.squaredNorm(), 0.0, 1.0) : 0.0;
+  return (p - (a + t * d)).norm();
+}
+
+/// Brute-force reference of coverage: fine pieces, distance to every map segment.
+double brute_coverage(const std::vector<std::vector<Vec>>& hd, const std::vector<std::vector<Vec>>& map,
+                      double band, double step) {
+  double covered = 0, total = 0;
+  for (const auto& l : hd) {
+    for (std::size_t i = 1; i < l.size(); ++i) {
+      const Vec d = l[i] - l[i - 1];
+      const int n = std::max(1, static_cast<int>(std::ceil(d.norm() / step)));
+      for (int k = 0; k < n; ++k) {
+        const Vec mid = l[i - 1] + d * ((k + 0.5) / n);
+        const double len = d.norm() / n;
+        total += len;
+        double best = 1e300;
+        for (const auto& m : map)
+          for (std::size_t j = 1; j < m.size(); ++j) best = std::min(best, seg_dist(mid, m[j - 1], m[j]));
+        if (best <= band) covered += len;
+      }
+    }
+  }
+  return covered / total;
+}
+
+/// Segment-wise copies of the HD lines shifted `offset_m` to the left of their direction.
+std::vector<std::vector<Vec>> shifted(const std::vector<std::vector<Vec>>& lines, double offset_m) {
+  std::vector<std::vector<Vec>> out;
+  for (const auto& l : lines) {
+    for (std::size_t i = 1; i < l.size(); ++i) {
+      const Vec d = (l[i] - l[i - 1]).normalized();
+      const Vec n(-d.y(), d.x());
+      out.push_back({l[i - 1] + offset_m * n, l[i] + offset_m * n});
+    }
+  }
+  return out;
+}
+
+TEST(HdMapRead, RoadShoulderLinearFeatures) {
+  const HdMap hd = read_lanelet2_osm(kShoulder);
+  EXPECT_EQ(hd.num_ways, 1199U);
+  EXPECT_TRUE(hd.points.empty());  // no signs, lights or poles in this map
+  int curb = 0, border = 0, fence = 0;
+  for (const auto& l : hd.lines) {
+    EXPECT_GE(l.polyline.size(), 2U);
+    curb += l.type == "curbstone";  // includes the map's "curbestone" spelling
+    border += l.type == "road_border";
+    fence += l.type == "fence";
+  }
+  EXPECT_EQ(curb, 27);
+  EXPECT_EQ(border, 24);
+  EXPECT_EQ(fence, 5);
+  EXPECT_EQ(hd.lines.size(), 56U);
+  const auto b = hdmap_bounds(hd);
+  ASSERT_TRUE(b.has_value());
+  EXPECT_NEAR(b->min_lat_deg, 35.22, 0.02);
+  EXPECT_NEAR(b->min_lon_deg, 138.80, 0.02);
+}
+
+TEST(HdMapRead, IntersectionPointFeaturesAreCentroids) {
+  const HdMap hd = read_lanelet2_osm(kIntersection);
+  int lights = 0, signs = 0;
+  for (const auto& p : hd.points) {
+    lights += p.type == "traffic_light";
+    signs += p.type == "traffic_sign";
+  }
+  EXPECT_EQ(lights, 11);
+  EXPECT_EQ(signs, 1);
+}
+
+TEST(HdMapRead, Errors) {
+  EXPECT_THROW((void)read_lanelet2_osm("/nonexistent/map.osm"), IoError);
+  const fs::path bad = fs::temp_directory_path() / ("polmap_bad_" + std::to_string(::getpid()) + ".osm");
+  std::ofstream(bad) << "<osm><node id='1' lat='x' lon='2'/></osm>";
+  try {
+    (void)read_lanelet2_osm(bad);
+    ADD_FAILURE();
+  } catch (const FormatError& e) {
+    EXPECT_NE(std::string(e.what()).find("node 1"), std::string::npos) << e.what();
+  }
+  std::ofstream(bad) << "<osm><node id='1' lat='1' lon='2'></osm>";
+  EXPECT_THROW((void)read_lanelet2_osm(bad), FormatError);
+  fs::remove(bad);
+}
+
+TEST(HdMapCompare, LinesShiftedLaterallyOnRealMap) {
+  const HdMap hd = read_lanelet2_osm(kShoulder);
+  const auto f = frame_of(hd);
+  const auto hl = hd_lines_local(hd, f);
+  auto ml = shifted(hl, 0.2);
+  const auto r = compare_hdmap_metric({}, ml, {}, hl);
+  ASSERT_TRUE(r.line_median_lateral_offset_m.has_value());
+  EXPECT_NEAR(*r.line_median_lateral_offset_m, 0.2, 0.005);
+  ASSERT_TRUE(r.line_coverage.has_value());
+  EXPECT_GT(*r.line_coverage, 0.995);
+  EXPECT_GT(r.line_total_length_m, 1000.0);
+  EXPECT_NEAR(r.line_covered_length_m, *r.line_coverage * r.line_total_length_m, 1e-6);
+  EXPECT_EQ(r.matched_line_samples, r.map_line_samples);
+  // Outliers: radar lines with no HD counterpart (15 m away) do not move the median,
+  // and 20 % of the lines with a 0.6 m offset shift it only slightly.
+  std::vector<std::vector<Vec>> noisy = ml;
+  const std::size_t n = noisy.size();
+  for (std::size_t i = 0; i < n; i += 5) {
+    const Vec d = (noisy[i][1] - noisy[i][0]).normalized();
+    const Vec nrm(-d.y(), d.x());
+    noisy[i][0] += 0.4 * nrm;
+    noisy[i][1] += 0.4 * nrm;
+  }
+  for (std::size_t i = 0; i < 30; ++i) noisy.push_back({hl[i % hl.size()][0] + Vec(15, 15), hl[i % hl.size()][0] + Vec(25, 15)});
+  const auto r2 = compare_hdmap_metric({}, noisy, {}, hl);
+  EXPECT_LT(r2.matched_line_samples, r2.map_line_samples);
+  EXPECT_NEAR(*r2.line_median_lateral_offset_m, 0.2, 0.02);
+}
+
+TEST(HdMapCompare, CoverageOfPartialMapMatchesBruteForce) {
+  const HdMap hd = read_lanelet2_osm(kShoulder);
+  const auto f = frame_of(hd);
+  const auto hl = hd_lines_local(hd, f);
+  // Keep the first 60 % of every shifted segment, drop every third line entirely.
+  std::vector<std::vector<Vec>> ml;
+  for (std::size_t i = 0; i < hl.size(); ++i) {
+    if (i % 3 == 0) continue;
+    for (auto s : shifted({hl[i]}, 0.3)) {
+      s[1] = s[0] + 0.6 * (s[1] - s[0]);
+      ml.push_back(s);
+    }
+  }
+  HdMapCompareConfig cfg;
+  cfg.restrict_to_overlap = false;
+  const auto r = compare_hdmap_metric({}, ml, {}, hl, cfg);
+  const double want = brute_coverage(hl, ml, cfg.line_band_m, cfg.line_sample_step_m);
+  ASSERT_TRUE(r.line_coverage.has_value());
+  EXPECT_NEAR(*r.line_coverage, want, 1e-9);
+  EXPECT_GT(want, 0.3);
+  EXPECT_LT(want, 0.8);
+  EXPECT_NEAR(*r.line_median_lateral_offset_m, 0.3, 0.005);
+}
+
+TEST(HdMapCompare, PointsOnRealIntersectionWithOffsetsGapsAndOutliers) {
+  const HdMap hd = read_lanelet2_osm(kIntersection);
+  const auto f = frame_of(hd);
+  std::vector<Vec> hp;
+  for (const auto& p : hd.points) hp.push_back(f.to_local(p.position));
+  ASSERT_EQ(hp.size(), 12U);
+  // The features stand far enough apart for unambiguous 1 m matching.
+  double min_sep = 1e9;
+  for (std::size_t i = 0; i < hp.size(); ++i)
+    for (std::size_t j = i + 1; j < hp.size(); ++j) min_sep = std::min(min_sep, (hp[i] - hp[j]).norm());
+  ASSERT_GT(min_sep, 2.0) << "test assumes separated features";
+  std::vector<Vec> mp;
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> ang(0.0, 2 * std::numbers::pi);
+  // 10 of 12 found with a 0.3 m offset in random directions; 2 missed.
+  for (std::size_t i = 0; i < 10; ++i) {
+    const double a = ang(rng);
+    mp.push_back(hp[i] + 0.3 * Vec(std::cos(a), std::sin(a)));
+  }
+  // One 1.5 m off (outside the radius): a false positive, its feature stays unmatched.
+  mp.push_back(hp[10] + Vec(1.5, 0.0));
+  // Three outliers: radar point landmarks where the HD map has nothing.
+  mp.push_back(hp[0] + Vec(8.0, 0.0));
+  mp.push_back(hp[1] + Vec(0.0, -9.0));
+  mp.push_back(hp[2] + Vec(-7.0, 7.0));
+  const auto r = compare_hdmap_metric(mp, {}, hp, {});
+  EXPECT_EQ(r.map_points, 14U);
+  EXPECT_EQ(r.hd_points, 12U);
+  EXPECT_EQ(r.matched_points, 10U);
+  EXPECT_NEAR(*r.point_precision, 10.0 / 14.0, 1e-12);
+  EXPECT_NEAR(*r.point_recall, 10.0 / 12.0, 1e-12);
+  EXPECT_NEAR(*r.point_median_offset_m, 0.3, 1e-9);
+  for (const auto& m : r.point_matches) EXPECT_EQ(m.map_index, m.hd_index);
+  // No lines in either map: line metrics undefined, not zero.
+  EXPECT_FALSE(r.line_coverage.has_value());
+  EXPECT_FALSE(r.line_median_lateral_offset_m.has_value());
+}
+
+TEST(HdMapCompare, GreedyMatchingIsOneToOneAndPrefersClosest) {
+  // Two map points compete for one HD point; the closer wins, the other is unmatched.
+  const auto r = compare_hdmap_metric({Vec(0.2, 0), Vec(-0.5, 0)}, {}, {Vec(0, 0)}, {});
+  ASSERT_EQ(r.point_matches.size(), 1U);
+  EXPECT_EQ(r.point_matches[0].map_index, 0U);
+  EXPECT_NEAR(*r.point_precision, 0.5, 1e-12);
+  EXPECT_NEAR(*r.point_recall, 1.0, 1e-12);
+  // Boundary of the radius is inclusive.
+  EXPECT_EQ(compare_hdmap_metric({Vec(1.0, 0)}, {}, {Vec(0, 0)}, {}).matched_points, 1U);
+  EXPECT_EQ(compare_hdmap_metric({Vec(1.0001, 0)}, {}, {Vec(0, 0)}, {}).matched_points, 0U);
+}
+
+TEST(HdMapCompare, EvaluationAreaIsTheOverlap) {
+  // HD map covers x in [0, 100]; radar map drove x in [0, 50] only: HD points beyond
+  // 60 m (50 + 10 m margin) do not count against recall.
+  std::vector<Vec> hp, mp;
+  for (int x = 0; x <= 100; x += 10) hp.push_back(Vec(x, 0));
+  for (int x = 0; x <= 50; x += 10) mp.push_back(Vec(x + 0.1, 0));
+  const auto r = compare_hdmap_metric(mp, {}, hp, {});
+  EXPECT_EQ(r.hd_points, 7U);  // 0..60
+  EXPECT_NEAR(*r.point_recall, 6.0 / 7.0, 1e-12);
+  HdMapCompareConfig all;
+  all.restrict_to_overlap = false;
+  EXPECT_NEAR(*compare_hdmap_metric(mp, {}, hp, {}, all).point_recall, 6.0 / 11.0, 1e-12);
+}
+
+TEST(HdMapCompare, GeodeticEntryPointAndJson) {
+  const HdMap hd = read_lanelet2_osm(kShoulder);
+  const auto f = frame_of(hd);
+  const auto hl = hd_lines_local(hd, f);
+  LandmarkSet lm;
+  for (const auto& s : shifted(hl, 0.25)) {
+    StoredLineLandmark l;
+    l.polyline = {f.to_geo(s[0]), f.to_geo(s[1])};
+    lm.lines.push_back(l);
+  }
+  const auto r = compare_with_hdmap(lm, hd);
+  EXPECT_NEAR(*r.line_median_lateral_offset_m, 0.25, 0.005);
+  const auto j = to_json(r);
+  for (const char* k : {"point_precision", "point_recall", "point_median_offset_m",
+                        "line_median_lateral_offset_m", "line_covered_length_m",
+                        "line_total_length_m", "line_coverage"}) {
+    EXPECT_TRUE(j.contains(k)) << k;
+  }
+  EXPECT_TRUE(j["point_precision"].is_null());
+  EXPECT_GT(j["line_coverage"].get<double>(), 0.99);
+}
+
+}  // namespace
+}  // namespace polmap::mapping

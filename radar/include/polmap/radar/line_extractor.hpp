@@ -1,0 +1,95 @@
+#pragma once
+/// @file line_extractor.hpp
+/// Line-shaped landmark candidates (paper §III-C2), no polarimetry: the power
+/// trace(C) in dB -> median filter -> Hessian-eigenvalue ridgeness -> threshold ->
+/// skeleton (Guo–Hall thinning) -> probabilistic Hough segments, refined by a
+/// weighted least-squares fit to the skeleton pixels that support them.
+///
+/// Power image. P = trace(C) in dB relative to a floor (floor_db_over_noise above
+/// the map's noise power per component times q); cells below the floor or never
+/// observed read as the floor, so the image is ≥ 0 dB and its edges carry no
+/// artificial steps. In dB a curb 20 dB over the floor and a facade 40 dB over it
+/// both become ridges of a few dB/cell², so one threshold serves both.
+///
+/// Ridgeness. Hessian H of the median-filtered dB image at scale σ (Gaussian
+/// smoothing, then central second differences), eigenvalues λ1 ≤ λ2. A bright line
+/// has λ1 ≪ 0, λ2 ≈ 0; a bright blob (a point landmark) has λ1 ≈ λ2 ≪ 0. Ridgeness
+/// R = σ²·max(0, −λ1 − |λ2|) (scale-normalized, in dB; blobs score ~0). Only cells a
+/// ridge centre passes through are kept (Steger's line points: the Newton step
+/// −(∇·n)/λ1 to the profile maximum across the ridge, n the eigenvector of λ1, ends
+/// inside the cell); this removes the flanks of step edges (borders of clutter areas),
+/// which have a large λ1 but no maximum nearby. For a thin
+/// line of height h dB and width w, R ≈ h·w/(σ√(2π)); e.g. h = 20 dB, w = 0.1 m,
+/// σ = 0.15 m gives 5 dB.
+///
+/// The gridmap is processed in chunks of chunk_tiles² tiles with a halo; segments
+/// are clipped to their chunk and collinear pieces are merged across chunks.
+#include <opencv2/core.hpp>
+#include <vector>
+
+#include "polmap/radar/covariance_gridmap.hpp"
+#include "polmap/schema/landmark.hpp"
+
+namespace polmap::radar {
+
+struct LineExtractorConfig {
+  /// Power floor above q·σ² (σ² = map noise power per component), dB. Cells below
+  /// read as the floor: keeps speckle of empty looks out of the ridge filter.
+  double floor_db_over_noise = 0.0;
+  /// Median filter aperture, cells (3 or 5): removes speckle spikes, keeps edges.
+  int median_kernel_cells = 3;
+  /// Gaussian scale of the Hessian, metres: about the accumulated width of a curb
+  /// or wall response (range PSF 0.11 m plus pose and aspect smear).
+  double sigma_m = 0.15;
+  /// Ridgeness threshold (scale-normalized, dB); see the file comment for its scale.
+  double ridge_threshold_db = 1.5;
+  /// Hough accumulator resolution.
+  double hough_rho_m = 0.1;
+  double hough_theta_deg = 0.5;
+  /// Minimum Hough votes, as metres of supporting skeleton.
+  double hough_min_votes_m = 1.5;
+  /// Minimum segment length (after merging) and the largest gap bridged inside a segment.
+  double min_length_m = 2.0;
+  double max_gap_m = 0.5;
+  /// Skeleton pixels within this distance of a Hough segment refine it.
+  double refine_radius_m = 0.2;
+  /// End fitting: segment ends move along the line to where the power (dB over the
+  /// floor, 3×3 maximum) falls below end_level_fraction of the segment's median
+  /// (0.5: half the line's dB height, the geometric mean of line and floor power;
+  /// robust to speckle dips), gaps up to max_gap_m bridged, at most
+  /// max_end_extension_m beyond the Hough ends. The ridge filter alone loses ~σ per
+  /// end and breaks on speckle.
+  double end_level_fraction = 0.5;
+  double max_end_extension_m = 2.0;
+  /// Collinear merge (Hough duplicates, chunk borders): angle, lateral offset, gap.
+  double merge_angle_deg = 2.0;
+  double merge_offset_m = 0.15;
+  double merge_gap_m = 0.5;
+  /// Gridmap processing chunk: chunk_tiles × chunk_tiles tiles plus a halo.
+  int chunk_tiles = 8;
+};
+
+/// Line candidates of a whole gridmap (metres in the map frame), sorted by start (y, x).
+std::vector<LineCandidate> extract_lines(const CovarianceGridmap& map,
+                                         const LineExtractorConfig& cfg = {});
+
+/// Line candidates of a power image: CV_32F linear trace(C), row r ↔ iy = box.min_iy + r,
+/// column c ↔ ix = box.min_ix + c (CovarianceGridmap::trace_image). noise_power: σ² per
+/// component (0: floor at 1e-3 of the mean positive power); q: level dimension. If core
+/// is given, segments are clipped to it.
+std::vector<LineCandidate> extract_lines(const cv::Mat& power, const CellBox& box,
+                                         double cell_size_m, double noise_power, int q,
+                                         const LineExtractorConfig& cfg = {},
+                                         const CellBox* core = nullptr);
+
+/// The ridgeness image R (CV_32F, same layout as power), for inspection and tuning.
+cv::Mat ridgeness_image(const cv::Mat& power, double cell_size_m, double noise_power, int q,
+                        const LineExtractorConfig& cfg = {});
+
+/// Merges collinear, overlapping or nearly touching segments (angle, offset and gap
+/// limits of cfg); the merged segment spans the union of the projections on the
+/// longer segment's line. Strength is length-weighted.
+std::vector<LineCandidate> merge_collinear(std::vector<LineCandidate> lines,
+                                           const LineExtractorConfig& cfg);
+
+}  // namespace polmap::radar

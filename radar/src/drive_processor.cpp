@@ -1,0 +1,178 @@
+#include "polmap/radar/drive_processor.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <deque>
+#include <limits>
+#include <map>
+
+namespace polmap::radar {
+namespace {
+using Clock = std::chrono::steady_clock;
+double since(Clock::time_point t0) {
+  return std::chrono::duration<double>(Clock::now() - t0).count();
+}
+}  // namespace
+
+TrajectoryInterpolator::TrajectoryInterpolator(tiles::LocalFrame frame, double max_gap_s,
+                                               double max_extrapolation_s)
+    : frame_(std::move(frame)), max_gap_s_(max_gap_s), max_extrapolation_s_(max_extrapolation_s) {}
+
+bool TrajectoryInterpolator::add(const TrajectorySample& s) {
+  if (samples_.size() > first_ && !(s.time_s > samples_.back().t)) return false;
+  const Eigen::Vector2d xy = frame_.to_local(s.lat_deg, s.lon_deg);
+  const double yaw = wrap_angle_rad(s.yaw_enu_rad + frame_.convergence_rad(xy));
+  samples_.push_back({s.time_s, {xy.x(), xy.y(), yaw}, s.speed_mps, s.yaw_rate_rps});
+  return true;
+}
+
+double TrajectoryInterpolator::last_time_s() const {
+  return samples_.size() > first_ ? samples_.back().t : -std::numeric_limits<double>::infinity();
+}
+
+void TrajectoryInterpolator::forget_before(double time_s) {
+  while (first_ + 1 < samples_.size() && samples_[first_ + 1].t <= time_s) ++first_;
+  // Compact now and then so memory stays bounded on long drives.
+  if (first_ > 4096 && first_ * 2 > samples_.size()) {
+    samples_.erase(samples_.begin(), samples_.begin() + static_cast<std::ptrdiff_t>(first_));
+    first_ = 0;
+  }
+}
+
+std::optional<std::size_t> TrajectoryInterpolator::bracket(double t) const {
+  if (samples_.size() <= first_ + 1) return std::nullopt;
+  auto it = std::upper_bound(samples_.begin() + static_cast<std::ptrdiff_t>(first_), samples_.end(),
+                             t, [](double x, const Sample& s) { return x < s.t; });
+  if (it == samples_.begin() + static_cast<std::ptrdiff_t>(first_) || it == samples_.end()) {
+    return std::nullopt;
+  }
+  const std::size_t i = static_cast<std::size_t>(it - samples_.begin()) - 1;
+  if (samples_[i + 1].t - samples_[i].t > max_gap_s_) return std::nullopt;
+  return i;
+}
+
+std::optional<Pose2> TrajectoryInterpolator::T_frame_vehicle(double t) const {
+  if (samples_.size() <= first_) return std::nullopt;
+  const Sample& last = samples_.back();
+  if (t >= last.t) {
+    if (t - last.t > max_extrapolation_s_) return std::nullopt;
+    // Constant speed and yaw rate beyond the last sample (arc model, zero side slip).
+    return last.T * integrate_motion(last.v, last.w, t - last.t);
+  }
+  const auto i = bracket(t);
+  if (!i) return std::nullopt;
+  const Sample& a = samples_[*i];
+  const Sample& b = samples_[*i + 1];
+  const double w = (t - a.t) / (b.t - a.t);
+  return Pose2{a.T.x_m + w * (b.T.x_m - a.T.x_m), a.T.y_m + w * (b.T.y_m - a.T.y_m),
+               wrap_angle_rad(a.T.yaw_rad + w * wrap_angle_rad(b.T.yaw_rad - a.T.yaw_rad))};
+}
+
+std::optional<std::pair<double, double>> TrajectoryInterpolator::motion(double t) const {
+  if (samples_.size() <= first_) return std::nullopt;
+  const Sample& last = samples_.back();
+  if (t >= last.t) {
+    if (t - last.t > max_extrapolation_s_) return std::nullopt;
+    return std::make_pair(last.v, last.w);
+  }
+  const auto i = bracket(t);
+  if (!i) return std::nullopt;
+  const Sample& a = samples_[*i];
+  const Sample& b = samples_[*i + 1];
+  const double w = (t - a.t) / (b.t - a.t);
+  return std::make_pair(a.v + w * (b.v - a.v), a.w + w * (b.w - a.w));
+}
+
+DriveProcessingResult process_drive(RecordSource& source, const DriveProcessingConfig& cfg,
+                                    const std::function<void(double time_s)>& progress) {
+  const auto t_start = Clock::now();
+  GridmapConfig gcfg = cfg.gridmap;
+  gcfg.window_s = 0.0;
+  DriveProcessingResult res{source.header(), tiles::LocalFrame(source.header().origin),
+                            CovarianceGridmap(gcfg), {}, {}, {}, {}};
+  DriveProcessingStats& st = res.stats;
+  std::map<std::uint8_t, SensorMount> mounts;
+  for (const SensorMount& m : res.header.sensors) mounts[m.sensor_id] = m;
+
+  TrajectoryInterpolator traj(res.frame, cfg.max_interpolation_gap_s, cfg.max_extrapolation_s);
+  std::deque<SensorFrame> pending;
+  Eigen::Vector2d last_xy = Eigen::Vector2d::Zero();
+  bool have_xy = false;
+
+  auto map_frame = [&](const SensorFrame& f) {
+    const auto mit = mounts.find(f.sensor_id);
+    if (mit == mounts.end()) {
+      ++st.frames_unknown_sensor;
+      return;
+    }
+    const std::optional<Pose2> T = traj.T_frame_vehicle(f.time_s);
+    if (!T) {
+      ++st.frames_without_pose;
+      return;
+    }
+    const Pose2 T_frame_sensor = *T * mit->second.T_vehicle_sensor;
+    const auto t0 = Clock::now();
+    if (cfg.use_cube && f.cube) {
+      const auto vw = traj.motion(f.time_s);
+      StaticReductionConfig sr = cfg.static_reduction;
+      if (sr.azimuth_bins_rad.empty()) sr.azimuth_bins_rad = f.spectrum.azimuth_bins_rad;
+      if (!(sr.noise_sigma > 0.0) && f.spectrum.noise_sigma > 0.0F) sr.noise_sigma = f.spectrum.noise_sigma;
+      const PolSpectrum s = static_reduce(*f.cube, mit->second, vw->first, vw->second, sr);
+      res.gridmap.add(s, T_frame_sensor, f.time_s);
+      ++st.frames_from_cube;
+    } else {
+      if (f.spectrum.azimuth_bins_rad.size() < 2) {
+        ++st.frames_without_pose;  // nothing to map
+        return;
+      }
+      res.gridmap.add(f.spectrum, T_frame_sensor, f.time_s);
+    }
+    st.gridmap_seconds += since(t0);
+    ++st.frames_mapped;
+    if (progress) progress(f.time_s);
+  };
+  // Maps queued frames whose pose is decided: a trajectory sample at or after their time exists.
+  auto drain = [&](bool at_end) {
+    while (!pending.empty() && (at_end || pending.front().time_s <= traj.last_time_s())) {
+      map_frame(pending.front());
+      pending.pop_front();
+    }
+    if (!pending.empty()) traj.forget_before(pending.front().time_s - 1.0);
+  };
+
+  while (auto rec = source.next()) {
+    if (auto* s = std::get_if<TrajectorySample>(&*rec)) {
+      if (!traj.add(*s)) continue;
+      const Eigen::Vector2d xy = res.frame.to_local(s->lat_deg, s->lon_deg);
+      if (have_xy) st.distance_m += (xy - last_xy).norm();
+      last_xy = xy;
+      have_xy = true;
+      if (st.trajectory_samples == 0) st.start_time_s = s->time_s;
+      st.end_time_s = s->time_s;
+      ++st.trajectory_samples;
+      res.trajectory.push_back(*s);
+      drain(false);
+    } else {
+      ++st.sensor_frames;
+      pending.push_back(std::move(std::get<SensorFrame>(*rec)));
+      drain(false);
+    }
+  }
+  drain(true);
+
+  if (cfg.extract_points) {
+    const auto t0 = Clock::now();
+    res.points = extract_points(res.gridmap, cfg.points);
+    st.points_seconds = since(t0);
+  }
+  if (cfg.extract_lines) {
+    const auto t0 = Clock::now();
+    res.lines = extract_lines(res.gridmap, cfg.lines);
+    st.lines_seconds = since(t0);
+  }
+  st.total_seconds = since(t_start);
+  return res;
+}
+
+}  // namespace polmap::radar

@@ -157,5 +157,71 @@ TEST(World, SignPlateIsSpecular) {
   EXPECT_NEAR(10 * std::log10(p[0] / p[1]), 20.0, 0.5);
 }
 
+TEST(World, VegetationAttenuatesWhatIsBehindIt) {
+  double peak[2];
+  for (int k = 0; k < 2; ++k) {
+    auto w = test::empty_world();
+    test::add_point(*w, {3.7 + 20.0, 2.0}, odd_bounce(), 0.0, ObjectClass::GuidePost);
+    if (k == 1) {
+      WorldObject o;
+      o.cls = ObjectClass::Vegetation;
+      o.geometry_m = {{3.7 + 19.4, 0.0}, {3.7 + 19.4, 4.0}};
+      const std::uint32_t id = w->add_object(o);
+      LineScatterer l;
+      l.p0_m = o.geometry_m[0];
+      l.p1_m = o.geometry_m[1];
+      l.model = ExtendedModel::Volume;
+      l.rcs_per_m_dbsm = -80.0F;  // scattering negligible here: measure the loss only
+      l.vegetation = true;
+      l.object = id;
+      w->lines.push_back(l);
+    }
+    w->build_index();
+    SimConfig cfg = test::quiet_config();
+    cfg.radar.thermal_noise = false;
+    FrameRenderer rend(w, cfg);
+    const SensorFrame f = rend.render(cfg.sensors[0], test::state_at(0, 0, 0, 0.0), nullptr, 0, false, 1);
+    peak[k] = std::norm(test::peak_cell(f.spectrum)->s[1]);
+  }
+  EXPECT_NEAR(10 * std::log10(peak[0] / peak[1]), 15.0, 0.1);
+}
+
+TEST(World, ExtendedObjectsShowRayleighSpeckle) {
+  // A diffuse wall: the complex amplitude of a fixed cell over independent frames is
+  // circular Gaussian, so E|s|^4 / (E|s|^2)^2 = 2 (a constant target would give 1).
+  auto w = test::empty_world();
+  WorldObject o;
+  o.cls = ObjectClass::Wall;
+  o.geometry_m = {{3.7 + 5.0, 6.0}, {3.7 + 25.0, 6.0}};
+  const std::uint32_t id = w->add_object(o);
+  LineScatterer proto;
+  proto.model = ExtendedModel::Surface;
+  proto.rcs_per_m_dbsm = 0.0F;
+  proto.object = id;
+  w->add_line_pieces(o.geometry_m, proto);
+  w->build_index();
+  SimConfig cfg = test::quiet_config();
+  FrameRenderer rend(w, cfg);
+  // Cell looking at the wall: range 10 m, azimuth atan(6 / 8) = 36.9 deg -> beam 65 (37.5 deg).
+  const int rb = static_cast<int>(std::lround(std::hypot(8.0, 6.0) / 0.075));
+  double m2 = 0, m4 = 0;
+  int n = 0;
+  for (int k = 0; k < 600; ++k) {
+    const SensorFrame f = rend.render(cfg.sensors[0], test::state_at(0, 0, 0, 0.0), nullptr, k, false, 5000 + k);
+    for (const auto& c : f.spectrum.cells) {
+      if (c.range_bin == rb && c.azimuth_bin == 65) {
+        const double p = std::norm(c.s[1]);
+        m2 += p;
+        m4 += p * p;
+        ++n;
+      }
+    }
+  }
+  ASSERT_GT(n, 500);  // strong cell: stored almost always
+  m2 /= n;
+  m4 /= n;
+  EXPECT_NEAR(m4 / (m2 * m2), 2.0, 0.35);
+}
+
 }  // namespace
 }  // namespace polmap::sim

@@ -187,8 +187,9 @@ TEST(World, VegetationAttenuatesWhatIsBehindIt) {
 }
 
 TEST(World, ExtendedObjectsShowRayleighSpeckle) {
-  // A diffuse wall: the complex amplitude of a fixed cell over independent frames is
-  // circular Gaussian, so E|s|^4 / (E|s|^2)^2 = 2 (a constant target would give 1).
+  // A diffuse wall: the complex amplitude of a fixed cell over frames from (slightly)
+  // different sensor positions is circular Gaussian, so E|s|^4 / (E|s|^2)^2 = 2 (a constant
+  // target would give 1). Standing still, the speckle is frozen (only noise changes).
   auto w = test::empty_world();
   WorldObject o;
   o.cls = ObjectClass::Wall;
@@ -207,7 +208,8 @@ TEST(World, ExtendedObjectsShowRayleighSpeckle) {
   double m2 = 0, m4 = 0;
   int n = 0;
   for (int k = 0; k < 600; ++k) {
-    const SensorFrame f = rend.render(cfg.sensors[0], test::state_at(0, 0, 0, 0.0), nullptr, k, false, 5000 + k);
+    const SensorFrame f =
+        rend.render(cfg.sensors[0], test::state_at(0.002 * k, 0, 0, 0.0), nullptr, k, false, 5000 + k);
     for (const auto& c : f.spectrum.cells) {
       if (c.range_bin == rb && c.azimuth_bin == 65) {
         const double p = std::norm(c.s[1]);
@@ -221,6 +223,26 @@ TEST(World, ExtendedObjectsShowRayleighSpeckle) {
   m2 /= n;
   m4 /= n;
   EXPECT_NEAR(m4 / (m2 * m2), 2.0, 0.35);
+  // Frozen at standstill: same pose, different frames -> differences are noise only.
+  double diff = 0, pow = 0;
+  int same = 0;
+  for (int k = 0; k < 50; ++k) {
+    const SensorFrame a = rend.render(cfg.sensors[0], test::state_at(0, 0, 0, 0.0), nullptr, 0, false, 1);
+    const SensorFrame b = rend.render(cfg.sensors[0], test::state_at(0, 0, 0, 0.0), nullptr, 1, false, 2 + k);
+    for (const auto& ca : a.spectrum.cells) {
+      if (ca.range_bin != rb || ca.azimuth_bin != 65) continue;
+      for (const auto& cb : b.spectrum.cells) {
+        if (cb.range_bin == rb && cb.azimuth_bin == 65) {
+          diff += std::norm(ca.s[1] - cb.s[1]);
+          pow += std::norm(ca.s[1]);
+          ++same;
+        }
+      }
+    }
+  }
+  ASSERT_GT(same, 40);
+  EXPECT_NEAR(diff / same, 2.0, 0.8);  // two independent noise draws, sigma = 1 each
+  EXPECT_GT(pow / same, 100.0);
 }
 
 }  // namespace

@@ -1,6 +1,7 @@
 #include "polmap/sim/drive_simulator.hpp"
 
 #include <algorithm>
+#include <cstring>
 #include <cmath>
 #include <limits>
 #include <numbers>
@@ -124,7 +125,16 @@ SensorFrame FrameRenderer::render(const SensorMount& mount, const ExactState& st
   };
   auto is_present = [&](std::uint32_t id) { return plan == nullptr || plan->present(id); };
 
-  synth_.begin(v_sens, with_cube);
+  // Speckle (distributed targets, ground, bark) is a function of the exact sensor pose:
+  // frozen while standing, independent once the sensor moved a few millimetres.
+  auto bits = [](double d) {
+    std::uint64_t u;
+    std::memcpy(&u, &d, sizeof u);
+    return u;
+  };
+  const std::uint64_t scene_key =
+      seed_of(cfg_.seed, 0x7370656bULL, mount.sensor_id, bits(ps.x()), bits(ps.y()), bits(psi));
+  synth_.begin(v_sens, with_cube, scene_key);
   const double fov = rc.fov_half_deg * kDeg + kFovMarginRad;
   const double rmax = rc.max_range_m + 0.5;
 
@@ -211,7 +221,8 @@ SensorFrame FrameRenderer::render(const SensorMount& mount, const ExactState& st
     e.azimuth_rad = az;
     e.radial_velocity_mps = synth_.static_velocity(az);
     if (p.diffuse_fraction > 0) {
-      const ScatteringVector vs = volume.sample(rng);
+      HashRng prng(seed_of(scene_key, 0x70ULL, i));
+      const ScatteringVector vs = volume.sample(prng);
       const double a = std::sqrt(1.0 - p.diffuse_fraction), b = std::sqrt(p.diffuse_fraction);
       for (int c = 0; c < 4; ++c) e.amplitude[c] = z * a * p.omega[c] + amp * b * vs[c];
     } else {
@@ -247,23 +258,24 @@ SensorFrame FrameRenderer::render(const SensorMount& mount, const ExactState& st
                                    : l.model == ExtendedModel::MixedRandom
                                        ? DistributedModel::mixed()
                                        : DistributedModel::surface();
-    int run_r = -1, run_b = -1;
+    int run_r = -1, run_b = -1, run_k = 0;
     double pd = 0, psp = 0;
     auto flush = [&]() {
       if (run_r >= 0 && (pd > 0 || psp > 0)) {
+        HashRng cell_rng(seed_of(scene_key, 0x6cULL, li, static_cast<std::uint64_t>(run_k)));
         ScatteringVector s{};
         if (pd > 0) {
           if (l.model == ExtendedModel::EvenDihedral) {
-            const cdouble z = rng.cnormal(pd);
+            const cdouble z = cell_rng.cnormal(pd);
             for (int c = 0; c < 4; ++c) s[c] = z * even[c];
           } else {
-            s = model.sample(rng);
+            s = model.sample(cell_rng);
             const double k = std::sqrt(pd);
             for (auto& c : s) c *= k;
           }
         }
         if (psp > 0) {
-          const cdouble z = rng.cnormal(psp);
+          const cdouble z = cell_rng.cnormal(psp);
           for (int c = 0; c < 4; ++c) s[c] += z * odd_ref()[c];
         }
         synth_.add_cell(run_r, run_b, s);
@@ -302,6 +314,7 @@ SensorFrame FrameRenderer::render(const SensorMount& mount, const ExactState& st
         flush();
         run_r = rb;
         run_b = bb;
+        run_k = k;
       }
       pd += diff;
       psp += spec;

@@ -52,16 +52,4 @@ std::array<double, 4> DistributedModel::channel_power() const {
   return {ll / norm, lr / norm, lr / norm, ll / norm};
 }
 
-ScatteringVector DistributedModel::sample(Rng& rng) const {
-  const double norm = 0.5 * (var_hh + var_vv + 2.0 * var_hv);
-  const double k = 1.0 / std::sqrt(norm);
-  const cdouble z1 = rng.cnormal(), z2 = rng.cnormal(), z3 = rng.cnormal();
-  const double r = std::min(1.0, std::abs(rho_hh_vv));
-  const cdouble hh = std::sqrt(var_hh) * z1;
-  const cdouble vv = std::sqrt(var_vv) * (rho_hh_vv * z1 + std::sqrt(1.0 - r * r) * z2);
-  const cdouble hv = std::sqrt(var_hv) * z3;
-  ScatteringVector o = lr_from_linear(hh * k, hv * k, vv * k);
-  return o;
-}
-
 }  // namespace polmap::sim

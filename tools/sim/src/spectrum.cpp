@@ -156,8 +156,9 @@ double SpectrumSynthesizer::snr_linear(double rcs_dbsm, double range_m) const {
   return snr_linear_sigma(std::pow(10.0, rcs_dbsm / 10.0), range_m);
 }
 
-void SpectrumSynthesizer::begin(const Eigen::Vector2d& vs, bool with_cube) {
+void SpectrumSynthesizer::begin(const Eigen::Vector2d& vs, bool with_cube, std::uint64_t key) {
   vs_ = vs;
+  scene_key_ = key;
   for (int b = 0; b < num_beams_; ++b) static_vr_beam_[b] = static_velocity(beam_az_[b]);
   with_cube_ = with_cube;
   cands_.clear();
@@ -273,7 +274,8 @@ void SpectrumSynthesizer::finish(Rng& rng, SensorFrame& out) {
     const int i = idx % num_range_;
     auto& cell = image_[idx];
     if (cfg_.ground_clutter && i >= explicit_ground_bins_ && clutter_[i] > 0) {
-      const ScatteringVector g = ground.sample(rng);
+      HashRng cell_rng(seed_of(scene_key_, 0x67726f756e64ULL, static_cast<std::uint64_t>(idx)));
+      const ScatteringVector g = ground.sample(cell_rng);
       const double a = std::sqrt(clutter_[i]);
       for (int c = 0; c < 4; ++c) cell[c] += cfloat(g[c] * a);
     }

@@ -123,4 +123,39 @@ class Rng {
   std::mt19937_64 eng_;
 };
 
+/// Counter-based generator keyed by a hash: cheap to create per resolution cell, so the
+/// speckle of a cell can be a function of (scene geometry, cell) - frozen while the
+/// sensor stands still, fresh as soon as it moves.
+class HashRng {
+ public:
+  explicit HashRng(std::uint64_t key) : key_(mix64(key)) {}
+  std::uint64_t bits() { return mix64(key_ + 0x9E3779B97F4A7C15ULL * (++n_)); }
+  double uniform() { return static_cast<double>(bits() >> 11) * 0x1.0p-53; }
+  /// Standard normal (Box-Muller, pairs cached).
+  double normal() {
+    if (has_spare_) {
+      has_spare_ = false;
+      return spare_;
+    }
+    const double u = 1.0 - uniform();  // (0, 1]
+    const double v = uniform();
+    const double r = std::sqrt(-2.0 * std::log(u));
+    spare_ = r * std::sin(2.0 * std::numbers::pi * v);
+    has_spare_ = true;
+    return r * std::cos(2.0 * std::numbers::pi * v);
+  }
+  std::complex<double> cnormal(double variance = 1.0) {
+    const double s = std::sqrt(0.5 * variance);
+    const double re = normal();
+    const double im = normal();
+    return {s * re, s * im};
+  }
+
+ private:
+  std::uint64_t key_;
+  std::uint64_t n_ = 0;
+  double spare_ = 0.0;
+  bool has_spare_ = false;
+};
+
 }  // namespace polmap::sim

@@ -7,6 +7,8 @@
 ///   S_LR = S_RL = j (S_HH + S_VV) / 2.
 /// Normalisation: span/2 = (|S_LL|^2+|S_LR|^2+|S_RL|^2+|S_RR|^2)/2 = 1, so the dominant
 /// channel of a pure odd or even scatterer carries exactly the target's RCS.
+#include <algorithm>
+#include <cmath>
 #include <complex>
 
 #include "polmap/schema/polarimetry.hpp"
@@ -47,8 +49,18 @@ struct DistributedModel {
 
   /// Expected |S_c|^2 per LR channel for half_span normalised to 1.
   [[nodiscard]] std::array<double, 4> channel_power() const;
-  /// One sample with E[half_span] = 1.
-  ScatteringVector sample(Rng& rng) const;
+  /// One sample with E[half_span] = 1 (any generator with cnormal(): Rng, HashRng).
+  template <typename Gen>
+  ScatteringVector sample(Gen& rng) const {
+    const double norm = 0.5 * (var_hh + var_vv + 2.0 * var_hv);
+    const double k = 1.0 / std::sqrt(norm);
+    const cdouble z1 = rng.cnormal(), z2 = rng.cnormal(), z3 = rng.cnormal();
+    const double r = std::min(1.0, std::abs(rho_hh_vv));
+    const cdouble hh = std::sqrt(var_hh) * z1;
+    const cdouble vv = std::sqrt(var_vv) * (rho_hh_vv * z1 + std::sqrt(1.0 - r * r) * z2);
+    const cdouble hv = std::sqrt(var_hv) * z3;
+    return lr_from_linear(hh * k, hv * k, vv * k);
+  }
 };
 
 }  // namespace polmap::sim

@@ -72,7 +72,10 @@ class SpectrumSynthesizer {
   // --- one frame ---
   /// Starts a frame. sensor_velocity: velocity of the sensor over ground, in the sensor
   /// frame (static points have v_r(phi) = -v . (cos phi, sin phi)).
-  void begin(const Eigen::Vector2d& sensor_velocity_mps, bool with_cube);
+  /// scene_key: hash of the sensor pose; ground speckle of a cell is a function of
+  /// (scene_key, cell), frozen while the sensor stands still.
+  void begin(const Eigen::Vector2d& sensor_velocity_mps, bool with_cube,
+             std::uint64_t scene_key = 0);
   /// Static radial velocity of azimuth phi in the current frame.
   [[nodiscard]] double static_velocity(double azimuth_rad) const;
   /// Adds a point echo (full PSF, Doppler-weighted) and a detection candidate.
@@ -115,6 +118,7 @@ class SpectrumSynthesizer {
 
   // frame state
   Eigen::Vector2d vs_ = Eigen::Vector2d::Zero();
+  std::uint64_t scene_key_ = 0;
   std::vector<double> static_vr_beam_;
   std::vector<std::array<cfloat, 4>> image_;
   std::vector<std::uint8_t> touched_flag_;

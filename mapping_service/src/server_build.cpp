@@ -37,7 +37,8 @@ nlohmann::json execute_build(MapStore& store, std::int64_t version, const nlohma
   control.cancel = &stop;
   const MapBuildResult r = builder().run(store, version, to_request(request), control);
   if (r.status != MapBuildResult::Status::Published) {
-    throw Error(std::string(to_string(r.status)) + ": " + r.error);
+    const std::string status(to_string(r.status));
+    throw Error(r.error.empty() || r.error == status ? status : status + ": " + r.error);
   }
   return to_json(r.stats);
 }

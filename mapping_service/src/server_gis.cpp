@@ -1,10 +1,15 @@
 // GIS endpoints: GET /v1/export (GeoPackage / GeoJSON / Shapefile download) and the
 // conversion of stored fleet gridmap tiles into PNG.
+#include <unistd.h>
+
+#include <cstdlib>
 #include <cstring>
+#include <fstream>
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "polmap/mapping_service/export.hpp"
 #include "polmap/schema/errors.hpp"
 #include "server_impl.hpp"
 
@@ -40,17 +45,69 @@ std::string gridmap_overzoom_png(std::string_view ancestor_png, const tiles::Til
 void Server::Impl::register_gis_routes() {
   http.Get("/v1/export", [this](const httplib::Request& req, httplib::Response& res) {
     set_route("export");
-    const std::string format = req.get_param_value("format");
-    if (format != "gpkg" && format != "geojson" && format != "shp") {
-      return reply_error(res, 400, "format must be gpkg, geojson or shp", "format");
+    const std::string fmt = req.get_param_value("format");
+    const auto format = parse_export_format(fmt);
+    if (!format) {
+      return reply_error(res, 400, "format must be gpkg, geojson, shp or gtiff", "format");
     }
-    if (req.has_param("bbox") && !http::parse_bbox(req.get_param_value("bbox"))) {
-      return reply_error(res, 400, "bbox must be minlon,minlat,maxlon,maxlat in degrees", "bbox");
+    std::optional<GeoBox> bbox;
+    if (req.has_param("bbox")) {
+      bbox = http::parse_bbox(req.get_param_value("bbox"));
+      if (!bbox) {
+        return reply_error(res, 400, "bbox must be minlon,minlat,maxlon,maxlat in degrees", "bbox");
+      }
+      if (bbox->crosses_antimeridian()) {
+        return reply_error(res, 400, "bbox must not cross the antimeridian (min_lon <= max_lon)",
+                           "bbox");
+      }
     }
     bool is_explicit = false;
     const auto idx = resolve_version(req, res, is_explicit);
     if (!idx) return;
-    reply_error(res, 501, "GIS export is not available in this build yet");
+
+    // Export into a private temp dir; the response streams the file and the releaser
+    // removes the directory when the response is done (or the client went away).
+    const std::filesystem::path base =
+        cfg.upload_dir.empty() ? std::filesystem::temp_directory_path() : cfg.upload_dir;
+    std::string templ = (base / "polmap-export-XXXXXX").string();
+    if (::mkdtemp(templ.data()) == nullptr) {
+      throw IoError("cannot create an export directory in " + base.string());
+    }
+    const std::filesystem::path dir = templ;
+    const std::string name = "polmap-map-v" + std::to_string(idx->version) +
+                             std::string(export_file_extension(*format));
+    const std::filesystem::path file = dir / name;
+    try {
+      const ExportSummary summary = export_map(store, idx->version, *format, bbox, file);
+      log("info", "export " + name + ": " + std::to_string(summary.points) + " points, " +
+                      std::to_string(summary.lines) + " lines, " +
+                      std::to_string(summary.gridmap_tiles) + " gridmap tiles");
+    } catch (...) {
+      std::error_code ec;
+      std::filesystem::remove_all(dir, ec);
+      throw;
+    }
+    const auto size = std::filesystem::file_size(file);
+    auto in = std::make_shared<std::ifstream>(file, std::ios::binary);
+    if (!*in) throw IoError("cannot read the export " + file.string());
+    res.status = 200;
+    res.set_header("Content-Disposition", "attachment; filename=\"" + name + "\"");
+    res.set_header("Cache-Control", is_explicit ? "public, max-age=3600" : "no-cache");
+    res.set_content_provider(
+        static_cast<size_t>(size), std::string(export_content_type(*format)),
+        [in](size_t offset, size_t length, httplib::DataSink& sink) {
+          std::vector<char> buf(std::min<size_t>(length, 1u << 16));
+          in->seekg(static_cast<std::streamoff>(offset));
+          in->read(buf.data(), static_cast<std::streamsize>(buf.size()));
+          const auto got = static_cast<size_t>(in->gcount());
+          if (got == 0) return false;
+          return sink.write(buf.data(), got);
+        },
+        [dir, in](bool) {
+          in->close();
+          std::error_code ec;
+          std::filesystem::remove_all(dir, ec);
+        });
   });
 }
 

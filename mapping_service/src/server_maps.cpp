@@ -89,8 +89,9 @@ void Server::Impl::run_build(const BuildJob& job) {
     log("info", "map build " + std::to_string(job.version) + " published in " +
                     std::to_string(s) + " s: " + stats.dump());
   } catch (const std::exception& e) {
-    metrics.build_finished("failed");
-    log("error", "map build " + std::to_string(job.version) + " failed: " + e.what());
+    metrics.build_finished(stopping ? "cancelled" : "failed");
+    log(stopping ? "warn" : "error",
+        "map build " + std::to_string(job.version) + " failed: " + e.what());
     try {
       const auto info = store.get_map_version(job.version);
       if (info && info->status == MapVersionStatus::Building) {

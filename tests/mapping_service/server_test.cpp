@@ -540,6 +540,47 @@ TEST_F(ServerTest, VectorTilesTileJsonAndGridmap) {
             204);
 }
 
+TEST_F(ServerTest, ExportStreamsGisFiles) {
+  const std::int64_t version = upload_and_build();
+  auto c = client();
+  auto r = c.Get("/v1/export?format=geojson");
+  ASSERT_TRUE(r);
+  ASSERT_EQ(r->status, 200) << r->body;
+  EXPECT_EQ(r->get_header_value("Content-Type"), "application/geo+json");
+  EXPECT_EQ(r->get_header_value("Content-Disposition"),
+            "attachment; filename=\"polmap-map-v" + std::to_string(version) + ".geojson\"");
+  const json fc = json::parse(r->body);
+  EXPECT_EQ(fc["type"], "FeatureCollection");
+  std::size_t points = 0;
+  for (const auto& f : fc["features"]) points += f["geometry"]["type"] == "Point";
+  EXPECT_EQ(points, true_points().size());
+
+  r = c.Get("/v1/export?format=gpkg&version=" + std::to_string(version));
+  ASSERT_EQ(r->status, 200);
+  const auto gpkg = dir_ / "export.gpkg";
+  std::ofstream(gpkg, std::ios::binary) << r->body;
+  GDALAllRegister();
+  GDALDatasetUniquePtr ds(GDALDataset::Open(gpkg.c_str(), GDAL_OF_VECTOR, nullptr, nullptr, nullptr));
+  ASSERT_TRUE(ds);
+  EXPECT_EQ(ds->GetLayerByName("points")->GetFeatureCount(),
+            static_cast<GIntBig>(true_points().size()));
+  ds.reset();
+
+  r = c.Get("/v1/export?format=shp");
+  ASSERT_EQ(r->status, 200);
+  EXPECT_EQ(r->body.substr(0, 2), "PK");  // zip
+
+  // A bbox far away: a valid, empty file. Bad arguments: 400.
+  r = c.Get("/v1/export?format=geojson&bbox=10,47,10.01,47.01");
+  ASSERT_EQ(r->status, 200);
+  EXPECT_TRUE(json::parse(r->body)["features"].empty());
+  EXPECT_EQ(c.Get("/v1/export?format=pdf")->status, 400);
+  EXPECT_EQ(c.Get("/v1/export?format=gpkg&bbox=1,2,3")->status, 400);
+  EXPECT_EQ(c.Get("/v1/export?format=gpkg&version=42")->status, 404);
+  // Temp files are gone once the responses are done.
+  EXPECT_TRUE(eventually([&] { return upload_leftovers() == 0; }));
+}
+
 TEST_F(ServerTest, StopIsGracefulAndIdempotent) {
   auto c = client();
   EXPECT_EQ(c.Get("/health")->status, 200);

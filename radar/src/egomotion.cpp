@@ -58,10 +58,18 @@ struct Hypothesis {
   double cost = std::numeric_limits<double>::infinity();  // Σ min(r²/thr², 1), tie-break
 };
 
+/// Gaussian prior on (v, ω) at the estimate time: the previous estimate
+/// extrapolated, its covariance grown by the process noise.
+struct MotionPrior {
+  Eigen::Vector2d mean;
+  Eigen::Matrix2d information;  // inverse covariance
+};
+
 struct Fit {
   bool ok = false;
   double v = 0.0, w = 0.0;
   Eigen::Matrix2d cov = Eigen::Matrix2d::Zero();
+  Eigen::Matrix2d cov_data = Eigen::Matrix2d::Zero();  // without the motion prior
   int inliers = 0;
   std::vector<char> inlier;  // per original detection
 };
@@ -101,8 +109,17 @@ class Ransac {
 
   /// RANSAC drawing minimal samples from `pool` (augmented indices) and
   /// accepting only hypotheses inside `box`.
-  Hypothesis run(const std::vector<int>& pool, const MotionBox& box, std::mt19937_64& rng) const {
+  /// `seed` (the predicted motion, if any) is scored as an extra hypothesis:
+  /// with few detections at nearly one azimuth no well-conditioned minimal
+  /// sample may exist, but the prediction can still gather their support.
+  Hypothesis run(const std::vector<int>& pool, const MotionBox& box, std::mt19937_64& rng,
+                 const std::optional<Eigen::Vector2d>& seed = std::nullopt) const {
     Hypothesis best;
+    if (seed && box.contains((*seed)(0), (*seed)(1))) {
+      best.v = (*seed)(0);
+      best.w = (*seed)(1);
+      score(best);
+    }
     if (pool.size() < 2 || box.empty()) return best;
     std::uniform_int_distribution<std::size_t> pick(0, pool.size() - 1);
     const double log_fail = std::log(1.0 - cfg_.ransac_confidence);
@@ -146,7 +163,7 @@ class Ransac {
   /// δa ~ N(0, σ_a²), δα ~ N(0, σ_α²) (frames spread over time make it
   /// observable; a single frame leaves it at the prior, i.e. 0). The
   /// covariance is s²·[N⁻¹]₂ₓ₂ (marginal of (v, ω)), s² = Σ w r² / (n − 2).
-  Fit refine(double v, double w) const {
+  Fit refine(double v, double w, const std::optional<MotionPrior>& prior) const {
     Fit fit;
     const std::size_t n_det = p_.vr.size();
     std::vector<double> chosen(n_det, 0.0);  // chosen copy's v_r
@@ -196,6 +213,11 @@ class Ransac {
       N(2, 2) += prior_a;
       N(3, 3) += prior_alpha;
     };
+    auto add_motion_prior = [&](Mat4& N, Vec4& b) {
+      if (!prior) return;
+      N.topLeftCorner<2, 2>() += prior->information;
+      b.head<2>() += prior->information * prior->mean;
+    };
     // Marginal information of (v, ω) must be well-conditioned (inliers not
     // all along one direction).
     auto marginal_ok = [](const Mat4& N) {
@@ -210,7 +232,8 @@ class Ransac {
     for (int round = 0; round < cfg_.refinement_rounds; ++round) {
       if (select(x) < 3) return fit;
       normal(x, N, b);
-      if (!marginal_ok(N)) return fit;
+      if (!marginal_ok(N)) return fit;  // data alone must not be degenerate
+      add_motion_prior(N, b);
       const Vec4 xn = N.ldlt().solve(b);
       const bool converged = (xn - x).cwiseAbs().maxCoeff() < 1e-8;
       x = xn;
@@ -220,21 +243,40 @@ class Ransac {
     if (n < 3) return fit;
     normal(x, N, b);
     if (!marginal_ok(N)) return fit;
-    const Mat4 N_inv = N.inverse();
-    const Vec4 xf = N_inv * b;
+    // Residual variance factor from the data alone (without the prior), then
+    // the posterior: data information scaled by 1/s², plus the prior's.
+    const Vec4 x_data = N.ldlt().solve(b);
+    Mat4 N_post = N;
+    Vec4 b_post = b;
     double chi2 = 0.0;
     for (std::size_t i = 0; i < n_det; ++i) {
       if (!fit.inlier[i]) continue;
       const double d = p_.g0[i] * x(0) + p_.g1[i] * x(1);
       const double wgt = 1.0 / (s_vr2 * (1.0 + az2_ * d * d));
-      const double r = chosen[i] - row(i).dot(xf);
+      const double r = chosen[i] - row(i).dot(x_data);
       chi2 += wgt * r * r;
     }
+    const double s2 = std::max(chi2 / static_cast<double>(n - 2), 1e-6);
+    if (prior) {
+      // Data rows scaled by 1/s² (the prior terms on δa, δα stay as they are).
+      N_post.topLeftCorner<2, 4>() /= s2;
+      N_post.bottomLeftCorner<2, 2>() /= s2;
+      N_post(2, 2) = (N(2, 2) - prior_a) / s2 + prior_a;
+      N_post(3, 3) = (N(3, 3) - prior_alpha) / s2 + prior_alpha;
+      N_post(2, 3) /= s2;
+      N_post(3, 2) /= s2;
+      b_post /= s2;
+      add_motion_prior(N_post, b_post);
+    }
+    const Mat4 N_inv = N_post.inverse();
+    const Vec4 xf = N_inv * b_post;
+    fit.cov_data = s2 * Mat4(N.inverse()).topLeftCorner<2, 2>();
     fit.ok = true;
     fit.v = xf(0);
     fit.w = xf(1);
     fit.inliers = n;
-    fit.cov = (chi2 / static_cast<double>(n - 2)) * N_inv.topLeftCorner<2, 2>();
+    fit.cov = prior ? Eigen::Matrix2d(N_inv.topLeftCorner<2, 2>())
+                    : Eigen::Matrix2d(s2 * N_inv.topLeftCorner<2, 2>());
     return fit;
   }
 
@@ -250,7 +292,7 @@ class Ransac {
 EgoMotionEstimator::EgoMotionEstimator(std::vector<SensorMount> mounts, EgoMotionConfig cfg)
     : mounts_(std::move(mounts)), cfg_(cfg) {
   POLMAP_EXPECT(!mounts_.empty());
-  POLMAP_EXPECT(cfg_.min_inliers >= 3);
+  POLMAP_EXPECT(cfg_.min_inliers >= 3 && cfg_.min_inliers_with_prior >= 3);
   POLMAP_EXPECT(cfg_.max_speed_mps > cfg_.min_speed_mps);
   POLMAP_EXPECT(cfg_.inlier_threshold_mps > 0 && cfg_.vr_sigma_mps > 0);
   POLMAP_EXPECT(cfg_.ransac_confidence > 0 && cfg_.ransac_confidence < 1);
@@ -341,6 +383,18 @@ MotionEstimate EgoMotionEstimator::process(const SensorFrame& frame) {
     prior_box = MotionBox{p.v_mps - dv, p.v_mps + dv, p.yaw_rate_rps - dw, p.yaw_rate_rps + dw};
   }
 
+  // Motion prior: the last accepted estimate extrapolated to t.
+  std::optional<MotionPrior> motion_prior;
+  if (prior_box && cfg_.prior_accel_sigma_mps2 > 0 && cfg_.prior_yaw_accel_sigma_rps2 > 0) {
+    const auto& p = accepted_.back();
+    const double dt = t - p.time_s;
+    const Eigen::Vector2d acc = acceleration(t).value_or(Eigen::Vector2d::Zero());
+    Eigen::Matrix2d P = static_cast<double>(std::max(p.num_frames, 1)) * p.covariance;
+    P(0, 0) += std::pow(cfg_.prior_accel_sigma_mps2 * dt, 2) + 1e-12;
+    P(1, 1) += std::pow(cfg_.prior_yaw_accel_sigma_rps2 * dt, 2) + 1e-12;
+    motion_prior = MotionPrior{Eigen::Vector2d(p.v_mps, p.yaw_rate_rps) + acc * dt, P.inverse()};
+  }
+
   Problem prob;
   const double sa2 = cfg_.accel_uncertainty_mps2 * cfg_.accel_uncertainty_mps2;
   const double salpha2 = cfg_.yaw_accel_uncertainty_rps2 * cfg_.yaw_accel_uncertainty_rps2;
@@ -396,9 +450,19 @@ MotionEstimate EgoMotionEstimator::process(const SensorFrame& frame) {
     }
   }
   est.num_detections = static_cast<int>(prob.vr.size());
-  est.num_frames = static_cast<int>(order.size());
+  est.num_frames = 0;  // frames that contributed detections
+  for (const StoredFrame* f : order) est.num_frames += f->detections.empty() ? 0 : 1;
   est.time_corrected = accel.has_value() && order.size() > 1;
-  const int n_required = cfg_.min_inliers;
+  // With a motion prior the fit is regularized, so fewer static inliers
+  // suffice in sparse scenes, provided they are a fair share of the
+  // detections (not a handful of coincidences among many moving ones).
+  const int n_required =
+      motion_prior
+          ? std::min(cfg_.min_inliers,
+                     std::max(cfg_.min_inliers_with_prior,
+                              static_cast<int>(std::ceil(cfg_.min_inlier_fraction_with_prior *
+                                                         static_cast<double>(prob.vr.size())))))
+          : cfg_.min_inliers;
   if (est.num_detections < n_required) {
     est.status = MotionEstimate::Status::TooFewDetections;
     return est;
@@ -410,18 +474,26 @@ MotionEstimate EgoMotionEstimator::process(const SensorFrame& frame) {
 
   auto consistent = [&](double v, double w) { return !prior_box || prior_box->contains(v, w); };
   auto well_constrained = [&](const Fit& f) {
+    // The detections themselves must roughly determine both v and ω: the prior
+    // may sharpen an estimate, never supply a whole direction of it.
+    if (f.ok && (f.cov_data(0, 0) > cfg_.max_data_v_std_mps * cfg_.max_data_v_std_mps ||
+                 f.cov_data(1, 1) > cfg_.max_data_yaw_rate_std_rps * cfg_.max_data_yaw_rate_std_rps)) {
+      return false;
+    }
     return f.ok && f.inliers >= n_required && f.cov(0, 0) <= cfg_.max_v_std_mps * cfg_.max_v_std_mps &&
            f.cov(1, 1) <= cfg_.max_yaw_rate_std_rps * cfg_.max_yaw_rate_std_rps;
   };
 
   // Stage 1: global RANSAC over the whole augmented set.
   Fit fit;
-  const Hypothesis best = ransac.run(pool, global, rng);
+  const std::optional<Eigen::Vector2d> seed =
+      motion_prior ? std::optional<Eigen::Vector2d>(motion_prior->mean) : std::nullopt;
+  const Hypothesis best = ransac.run(pool, global, rng, seed);
   if (best.inliers < n_required) {
     est.status = MotionEstimate::Status::TooFewDetections;
     return est;
   }
-  fit = ransac.refine(best.v, best.w);
+  fit = ransac.refine(best.v, best.w, motion_prior);
   bool accepted = well_constrained(fit) && consistent(fit.v, fit.w);
 
   // Stage 2: the best hypothesis violates the acceleration limits (or its fit
@@ -437,9 +509,9 @@ MotionEstimate EgoMotionEstimator::process(const SensorFrame& frame) {
       const double tol = std::abs(prob.a_h0[j]) * dv + std::abs(prob.a_h1[j]) * dw + thr_margin;
       if (std::abs(prob.a_vr[j] - pred) <= tol) pool2.push_back(static_cast<int>(j));
     }
-    const Hypothesis best2 = ransac.run(pool2, box, rng);
+    const Hypothesis best2 = ransac.run(pool2, box, rng, seed);
     if (best2.inliers >= n_required) {
-      const Fit fit2 = ransac.refine(best2.v, best2.w);
+      const Fit fit2 = ransac.refine(best2.v, best2.w, motion_prior);
       if (well_constrained(fit2) && consistent(fit2.v, fit2.w)) {
         fit = fit2;
         accepted = true;
@@ -463,7 +535,8 @@ MotionEstimate EgoMotionEstimator::process(const SensorFrame& frame) {
   est.num_inliers = fit.inliers;
   for (std::size_t i = 0; i < frame.detections.size(); ++i) static_mask_[i] = fit.inlier[i] != 0;
 
-  accepted_.push_back({t, fit.v, fit.w});
+  est.used_motion_prior = motion_prior.has_value();
+  accepted_.push_back({t, fit.v, fit.w, fit.cov, est.num_frames});
   const double keep_s = std::max(cfg_.accel_window_s, 0.0);
   while (accepted_.size() > 1 && t - accepted_.front().time_s > keep_s) accepted_.pop_front();
   return est;

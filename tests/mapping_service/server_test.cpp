@@ -170,6 +170,13 @@ TEST_F(ServerTest, WritesNeedAValidKey) {
   EXPECT_EQ(store_->list_drives().size(), 0u);
   EXPECT_EQ(store_->list_map_versions().size(), 0u);
   EXPECT_EQ(upload_leftovers(), 0u);
+  // A refused small upload does not break the keep-alive connection it came on.
+  auto keep = client();
+  keep.set_keep_alive(true);
+  EXPECT_EQ(keep.Post("/v1/drives", auth("nope"), std::string(1000, 'x'), "application/x-tar")->status,
+            401);
+  EXPECT_EQ(keep.Get("/health")->status, 200);
+  EXPECT_EQ(keep.Get("/health")->status, 200);
   // The second key and the case-insensitive scheme work.
   auto c5 = client();
   r = c5.Post("/v1/drives", {{"Authorization", std::string("bearer ") + kOtherKey}}, tar,
@@ -579,6 +586,17 @@ TEST_F(ServerTest, ExportStreamsGisFiles) {
   EXPECT_EQ(c.Get("/v1/export?format=gpkg&version=42")->status, 404);
   // Temp files are gone once the responses are done.
   EXPECT_TRUE(eventually([&] { return upload_leftovers() == 0; }));
+}
+
+TEST(ApiKeyFile, CommentsBlankLinesAndWhitespace) {
+  const auto f = std::filesystem::temp_directory_path() /
+                 ("polmap-keys-" + std::to_string(::getpid()));
+  std::ofstream(f) << "# fleet keys\n\n  key-one  \n#disabled\nkey-two\r\n\t\n";
+  EXPECT_EQ(read_api_key_file(f), (std::vector<std::string>{"key-one", "key-two"}));
+  std::ofstream(f) << "# nothing here\n\n";
+  EXPECT_THROW((void)read_api_key_file(f), ValidationError);
+  std::filesystem::remove(f);
+  EXPECT_THROW((void)read_api_key_file(f), IoError);
 }
 
 TEST_F(ServerTest, StopIsGracefulAndIdempotent) {

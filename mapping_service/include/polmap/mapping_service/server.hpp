@@ -19,6 +19,12 @@
 ///   GET    /v1/gridmap/{z}/{x}/{y}.png[?version=]  fleet gridmap amplitude raster tile
 ///   GET    /v1/export?format=gpkg|geojson|shp[&bbox=..][&version=]  GIS export download
 ///
+/// Localization tiles: 200 with the payload (strong ETag, If-None-Match -> 304;
+/// immutable caching for ?version=N, 60 s + must-revalidate for the current version),
+/// 204 for a tile inside the version's coverage without landmarks (coverage = the
+/// tiles holding landmarks plus a one-tile margin), 404 outside the coverage, for
+/// zooms other than 16 and unknown/unpublished versions, 400 for a malformed z/x/y.
+///
 /// Writes (key) need `Authorization: Bearer KEY` with a key of ServerConfig::api_keys
 /// (compared in constant time); errors are JSON {"error": "...", "field": "..."}.
 /// Every response carries CORS headers; OPTIONS answers preflights.

@@ -134,6 +134,7 @@ json manifest_to_json(const DriveManifest& m) {
         {"origin_y_m", m.gridmap.origin_y_m},
         {"num_bands", m.gridmap.num_bands},
         {"block_size", m.gridmap.block_size},
+        {"mantissa_bits", m.gridmap.mantissa_bits},
         {"bands", gridmap_band_names(m.pol_level)}}},
       {"counts",
        {{"points", m.counts.points},
@@ -375,6 +376,14 @@ DriveManifest manifest_from_json(const json& j) {
                                    "expected " + std::to_string(kGridmapBlockSize));
     }
     m.gridmap.block_size = static_cast<int>(block);
+    // Optional (absent in packages written before it existed: lossless).
+    if (g.find("mantissa_bits") != nullptr) {
+      const auto bits = g.integer("mantissa_bits");
+      if (bits < 1 || bits > 23) {
+        throw PackageValidationError(kManifest, "gridmap.mantissa_bits", "outside [1, 23]");
+      }
+      m.gridmap.mantissa_bits = static_cast<int>(bits);
+    }
     const json& names = g.array("bands");
     if (names != json(gridmap_band_names(m.pol_level))) {
       throw PackageValidationError(kManifest, "gridmap.bands",
@@ -673,7 +682,8 @@ std::vector<std::pair<std::string, std::string>> tiff_metadata(const DriveManife
           {"POLMAP_DRIVE_ID", m.drive_id},
           {"POLMAP_POL_LEVEL", std::string(to_string(m.pol_level))},
           {"POLMAP_BAND_1", "N: observation count (0 = no data)"},
-          {"POLMAP_LAYERS", "covariance C = 1/N sum Omega Omega^H, upper triangle, row-major"}};
+          {"POLMAP_LAYERS", "covariance C = 1/N sum Omega Omega^H, upper triangle, row-major"},
+          {"POLMAP_MANTISSA_BITS", std::to_string(m.gridmap.mantissa_bits)}};
 }
 
 }  // namespace detail
@@ -711,7 +721,7 @@ DriveManifest write_drive_package(const DrivePackage& pkg, const GridmapRaster& 
     r = &empty;
   }
   m.gridmap = {r->width, r->height, r->origin_x_m, r->origin_y_m, 1 + q * q,
-               detail::kGridmapBlockSize};
+               detail::kGridmapBlockSize, std::clamp(options.mantissa_bits, 1, 23)};
 
   const fs::path tmp =
       detail::make_unique_dir(parent_for_temp(dir), hidden_stem(dir, ".tmp"));
@@ -725,6 +735,7 @@ DriveManifest write_drive_package(const DrivePackage& pkg, const GridmapRaster& 
     spec.level = m.pol_level;
     spec.crs_proj = m.crs_proj;
     spec.deflate_level = options.deflate_level;
+    spec.mantissa_bits = std::clamp(options.mantissa_bits, 1, 23);
     spec.metadata = detail::tiff_metadata(m);
     detail::write_gridmap_tiff(*r, spec, (tmp / kGridmapFileName).string());
     return detail::finish_package(std::move(m), pkg, tmp, dir, options);

@@ -5,6 +5,7 @@
 #include "package_internal.hpp"
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/radar/covariance_gridmap.hpp"
+#include "polmap/radar/drive_processor.hpp"
 
 namespace polmap::mapping {
 
@@ -40,8 +41,8 @@ DriveManifest write_drive_package(const DrivePackage& pkg, const radar::Covarian
   if (bounds.empty()) bounds = {0, 0, 1, 1};  // an empty drive: one empty cell at the origin
   const int width = bounds.width();
   const int height = bounds.height();
-  m.gridmap = {width,      height, bounds.min_ix * cs, bounds.max_iy * cs, 1 + q * q,
-               detail::kGridmapBlockSize};
+  m.gridmap = {width,     height, bounds.min_ix * cs, bounds.max_iy * cs, 1 + q * q,
+               detail::kGridmapBlockSize, std::clamp(options.mantissa_bits, 1, 23)};
 
   // GeoTIFF blocks touched by allocated tiles, in row-major block order (deterministic).
   std::set<std::pair<int, int>> blocks;  // (by, bx)
@@ -67,6 +68,7 @@ DriveManifest write_drive_package(const DrivePackage& pkg, const radar::Covarian
     spec.level = m.pol_level;
     spec.crs_proj = m.crs_proj;
     spec.deflate_level = options.deflate_level;
+    spec.mantissa_bits = std::clamp(options.mantissa_bits, 1, 23);
     spec.metadata = detail::tiff_metadata(m);
     detail::GridmapTiffWriter writer((tmp / kGridmapFileName).string(), spec);
     detail::GridmapBlockBuffer block(writer.num_bands());
@@ -109,6 +111,40 @@ DriveManifest write_drive_package(const DrivePackage& pkg, const radar::Covarian
     fs::remove_all(tmp, ec);
     throw;
   }
+}
+
+DriveManifest write_drive_package(const radar::DriveProcessingResult& result, const fs::path& dir,
+                                  const PackageWriteOptions& options) {
+  const RecordingHeader& h = result.header;
+  DrivePackage pkg;
+  DriveManifest& m = pkg.manifest;
+  m.drive_id = h.drive_id;
+  m.vehicle_id = h.vehicle_id;
+  m.world = h.world;
+  m.origin = result.frame.origin();
+  m.crs_proj = result.frame.proj_string();
+  m.sensors = h.sensors;
+  m.pol_level = result.gridmap.level();
+  m.cell_size_m = result.gridmap.cell_size_m();
+  m.distance_m = result.stats.distance_m;
+  m.producer = h.producer.empty() ? "polmap" : "polmap (recording: " + h.producer + ")";
+  pkg.points = result.points;
+  pkg.lines = result.lines;
+  // The package's trajectory is strictly time-ordered (as the pose interpolation used it):
+  // repeated or out-of-order samples of the log are dropped.
+  pkg.trajectory.reserve(result.trajectory.size());
+  for (const auto& s : result.trajectory) {
+    if (pkg.trajectory.empty() || s.time_s > pkg.trajectory.back().time_s) {
+      pkg.trajectory.push_back(s);
+    }
+  }
+  if (!pkg.trajectory.empty()) {
+    m.start_time_s = pkg.trajectory.front().time_s;
+    m.end_time_s = pkg.trajectory.back().time_s;
+  } else {
+    m.start_time_s = m.end_time_s = h.start_time_s;
+  }
+  return write_drive_package(pkg, result.gridmap, dir, options);
 }
 
 }  // namespace polmap::mapping

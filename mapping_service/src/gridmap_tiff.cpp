@@ -3,6 +3,7 @@
 #include <ogr_spatialref.h>
 
 #include <algorithm>
+#include <cstring>
 #include <cmath>
 #include <mutex>
 
@@ -145,11 +146,34 @@ int GridmapTiffWriter::blocks_y() const {
   return (spec_.height + kGridmapBlockSize - 1) / kGridmapBlockSize;
 }
 
+namespace {
+/// Rounds a finite float to nearest with `bits` mantissa bits (ties away from zero).
+inline float round_mantissa(float v, int bits) {
+  std::uint32_t u = 0;
+  std::memcpy(&u, &v, 4);
+  if ((u & 0x7f800000U) == 0x7f800000U) return v;  // inf/nan untouched
+  const int drop = 23 - bits;
+  const std::uint32_t half = 1U << (drop - 1);
+  const std::uint32_t mask = ~((1U << drop) - 1U);
+  // A carry out of the mantissa increments the exponent: still the correct rounding.
+  u = (u + half) & mask;
+  std::memcpy(&v, &u, 4);
+  return v;
+}
+}  // namespace
+
 void GridmapTiffWriter::write_block(int bx, int by, GridmapBlockBuffer& block) {
   POLMAP_EXPECT(ds_ != nullptr && block.num_bands == num_bands_);
   const float* n = block.band(0);
   constexpr std::size_t kCells = static_cast<std::size_t>(kGridmapBlockSize) * kGridmapBlockSize;
   if (std::all_of(n, n + kCells, [](float v) { return v == 0.0F; })) return;
+  if (spec_.mantissa_bits < 23) {
+    const int bits = std::max(1, spec_.mantissa_bits);
+    for (int b = 1; b < num_bands_; ++b) {
+      float* d = block.band(b);
+      for (std::size_t k = 0; k < kCells; ++k) d[k] = round_mantissa(d[k], bits);
+    }
+  }
   GdalErrorCapture capture;
   for (int b = 0; b < num_bands_; ++b) {
     if (ds_->GetRasterBand(b + 1)->WriteBlock(bx, by, block.band(b)) != CE_None) {

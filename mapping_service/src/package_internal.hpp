@@ -68,6 +68,8 @@ struct GridmapTiffSpec {
   PolLevel level = PolLevel::Full;
   std::string crs_proj;
   int deflate_level = 6;
+  /// Mantissa bits kept in the covariance bands (23 = lossless); see PackageWriteOptions.
+  int mantissa_bits = 23;
   /// Dataset metadata items (domain ""), e.g. POLMAP_DRIVE_ID.
   std::vector<std::pair<std::string, std::string>> metadata;
 };

@@ -227,6 +227,8 @@ GridmapScan validate_gridmap(const std::string& path, const DriveManifest& m,
       }
     }
   }
+  // Float rounding of the sums, plus the writer's mantissa rounding of each factor.
+  const double cs_tolerance = 1.0 + 1e-3 + 8.0 * std::ldexp(1.0, -g.mantissa_bits);
   for (int by = 0; by < nby; ++by) {
     for (int bx = 0; bx < nbx; ++bx) {
       for (int b = 0; b < nb; ++b) {
@@ -268,7 +270,7 @@ GridmapScan validate_gridmap(const std::string& path, const DriveManifest& m,
               const double re = block.band(off[i][j])[k];
               const double im = block.band(off[i][j] + 1)[k];
               const double bound = static_cast<double>(cii) * block.band(diag[j])[k];
-              if (re * re + im * im > bound * (1.0 + 1e-3) + 1e-30) {
+              if (re * re + im * im > bound * cs_tolerance + 1e-30) {
                 invalid(kTif, names[off[i][j]],
                         "|C_ij|^2 exceeds C_ii C_jj " + where() + " (not a covariance)");
               }

@@ -478,3 +478,41 @@ TEST_F(DrivePackageTest, WritesRadarGridmapTileByTileAlignedToItsCells) {
 
 }  // namespace
 }  // namespace polmap::mapping
+
+namespace polmap::mapping {
+namespace {
+
+TEST_F(DrivePackageTest, MantissaRoundingBoundsTheRelativeError) {
+  const auto d = make_synthetic_drive();
+  PackageWriteOptions opts;
+  opts.mantissa_bits = 10;
+  write_drive_package(d.pkg, d.raster, root_ / "lossy", opts);
+  write_drive_package(d.pkg, d.raster, root_ / "exact");
+  const auto pkg = read_and_validate_package(root_ / "lossy");
+  EXPECT_EQ(pkg.manifest.gridmap.mantissa_bits, 10);
+  EXPECT_EQ(read_and_validate_package(root_ / "exact").manifest.gridmap.mantissa_bits, 23);
+  const GridmapRaster g = read_gridmap(pkg);
+  EXPECT_EQ(g.count, d.raster.count);  // N stays exact
+  double worst = 0.0;
+  for (std::size_t l = 0; l < 6; ++l) {
+    for (std::size_t k = 0; k < g.count.size(); ++k) {
+      const cdouble want = d.raster.layers[l][k];
+      const cdouble got = g.layers[l][k];
+      // Per component: float rounding (2^-24) then 10-bit rounding (2^-11).
+      for (const auto& [w, v] : {std::pair{want.real(), got.real()}, std::pair{want.imag(), got.imag()}}) {
+        if (w == 0.0) {
+          ASSERT_EQ(v, 0.0);
+          continue;
+        }
+        worst = std::max(worst, std::abs(v - w) / std::abs(w));
+      }
+    }
+  }
+  EXPECT_LE(worst, std::ldexp(1.0, -11) + std::ldexp(1.0, -23));
+  EXPECT_GT(worst, std::ldexp(1.0, -14));  // it really rounded
+  EXPECT_LT(fs::file_size(root_ / "lossy" / "gridmap.tif"),
+            fs::file_size(root_ / "exact" / "gridmap.tif") * 7 / 10);
+}
+
+}  // namespace
+}  // namespace polmap::mapping

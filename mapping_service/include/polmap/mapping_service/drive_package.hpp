@@ -50,6 +50,7 @@ struct GridmapInfo {
   double origin_y_m = 0.0;  ///< drive-frame y of the northern edge
   int num_bands = 0;        ///< 1 + q^2
   int block_size = 256;     ///< GeoTIFF tile edge in cells
+  int mantissa_bits = 23;   ///< Float32 mantissa bits kept in the covariance bands (23 = all)
 };
 
 /// Feature counts of candidates.gpkg (checked against the layers on validation).

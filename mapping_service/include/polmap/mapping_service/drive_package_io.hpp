@@ -37,6 +37,12 @@ struct PackageWriteOptions {
   bool overwrite = false;
   /// zlib level of the GeoTIFF's DEFLATE tiles (1 fastest .. 9 smallest).
   int deflate_level = 6;
+  /// Float32 mantissa bits kept in the covariance bands (1..23; N is always exact).
+  /// 23 = lossless. Fewer bits round each value to nearest with relative error
+  /// <= 2^-(bits+1) and let DEFLATE shrink the gridmap: speckle makes a covariance
+  /// estimate from N looks uncertain by ~1/sqrt(N), so 10 bits (5e-4) lose nothing
+  /// physical. Measured sizes: schema/drive_package.md "Size".
+  int mantissa_bits = 23;
   /// Re-read and fully validate the written package before it replaces `dir`, so a writer
   /// bug can never produce a package the server would reject.
   bool validate_after_write = true;
@@ -118,9 +124,10 @@ DriveManifest write_drive_package(const DrivePackage& pkg, const radar::Covarian
                                   const std::filesystem::path& dir,
                                   const PackageWriteOptions& options = {});
 
-/// Writes a package from a processed drive (radar::process_drive): the gridmap is
-/// streamed tile by tile (never densified), candidates and trajectory as in the plain
-/// overload. Defined once radar/drive_processor.hpp exists.
+/// Writes a package from a processed drive (radar::process_drive): metadata from the
+/// recording header and processing stats (time span = first/last trajectory sample,
+/// distance = trajectory path length), the gridmap streamed tile by tile (never
+/// densified), candidates and the (strictly time-ordered) trajectory.
 DriveManifest write_drive_package(const radar::DriveProcessingResult& result,
                                   const std::filesystem::path& dir,
                                   const PackageWriteOptions& options = {});

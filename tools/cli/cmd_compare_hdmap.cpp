@@ -1,0 +1,114 @@
+// `polmap compare-hdmap --db FILE --hdmap FILE.osm [--json] [--version V] [--radius M]
+//  [--band M] [--no-overlap]`: compares a published radar landmark map with a Lanelet2
+// HD map (mapping_service/hdmap_compare.hpp): point precision/recall/median offset against
+// signs, lights and poles; line lateral offset and coverage against curbs, road borders,
+// walls, fences and guard rails.
+#include <CLI/CLI.hpp>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <memory>
+#include <string>
+
+#include "command.hpp"
+#include "polmap/mapping_service/hdmap_compare.hpp"
+#include "polmap/mapping_service/sqlite_store.hpp"
+#include "polmap/schema/errors.hpp"
+
+namespace polmap::cli {
+namespace {
+
+struct CompareOptions {
+  std::string db;
+  std::string hdmap;
+  std::int64_t version = 0;
+  bool json = false;
+  bool no_overlap = false;
+  mapping::HdMapCompareConfig cfg;
+};
+
+std::string fmt(const std::optional<double>& v, const char* spec, double scale = 1.0) {
+  if (!v) return "n/a";
+  char buf[64];
+  std::snprintf(buf, sizeof(buf), spec, *v * scale);
+  return buf;
+}
+
+void run(CompareOptions o) {
+  if (!std::filesystem::is_regular_file(o.db)) {
+    throw IoError("--db " + o.db + ": no such map database");
+  }
+  const mapping::HdMap hd = mapping::read_lanelet2_osm(o.hdmap);
+  mapping::SqliteMapStore store(o.db);
+  std::int64_t version = o.version;
+  if (version == 0) {
+    const auto current = store.current_map_version();
+    if (!current) throw NotFoundError(o.db + ": no published map version (run build-map first)");
+    version = *current;
+  }
+  o.cfg.restrict_to_overlap = !o.no_overlap;
+  // Landmarks near the HD map only (its box grown by the evaluation margin).
+  std::optional<mapping::GeoBox> box = mapping::hdmap_bounds(hd);
+  if (box && o.cfg.restrict_to_overlap) {
+    const double dlat = (o.cfg.overlap_margin_m + 1.0) / 111'000.0;
+    const double mid_lat = 0.5 * (box->min_lat_deg + box->max_lat_deg) * M_PI / 180.0;
+    const double dlon = dlat / std::max(0.05, std::cos(mid_lat));
+    box->min_lat_deg -= dlat;
+    box->max_lat_deg += dlat;
+    box->min_lon_deg -= dlon;
+    box->max_lon_deg += dlon;
+  } else {
+    box.reset();
+  }
+  const mapping::LandmarkSet lm = store.landmarks_in(version, box, /*with_support=*/false);
+  const mapping::HdMapComparison r = mapping::compare_with_hdmap(lm, hd, o.cfg);
+  if (o.json) {
+    auto j = mapping::to_json(r);
+    j["map_version"] = version;
+    j["hdmap"] = o.hdmap;
+    j["hdmap_point_features"] = hd.points.size();
+    j["hdmap_line_features"] = hd.lines.size();
+    j["point_match_radius_m"] = o.cfg.point_match_radius_m;
+    j["line_band_m"] = o.cfg.line_band_m;
+    std::printf("%s\n", j.dump(2).c_str());
+    return;
+  }
+  std::printf("map version %lld vs %s (%zu point features, %zu line features; %s)\n",
+              static_cast<long long>(version), o.hdmap.c_str(), hd.points.size(), hd.lines.size(),
+              o.cfg.restrict_to_overlap ? "evaluated where both maps exist"
+                                        : "evaluated everywhere");
+  std::printf("points: %zu of %zu map points matched %zu HD points within %.2f m: precision %s, "
+              "recall %s, median offset %s m\n",
+              r.matched_points, r.map_points, r.hd_points, o.cfg.point_match_radius_m,
+              fmt(r.point_precision, "%.3f").c_str(), fmt(r.point_recall, "%.3f").c_str(),
+              fmt(r.point_median_offset_m, "%.3f").c_str());
+  std::printf("lines: median lateral offset %s m (%zu of %zu samples within %.2f m of an HD line); "
+              "covered %.1f m of %.1f m HD line length (%s %%)\n",
+              fmt(r.line_median_lateral_offset_m, "%.3f").c_str(), r.matched_line_samples,
+              r.map_line_samples, o.cfg.line_band_m, r.line_covered_length_m, r.line_total_length_m,
+              fmt(r.line_coverage, "%.1f", 100.0).c_str());
+}
+
+void setup(CLI::App& app) {
+  auto opts = std::make_shared<CompareOptions>();
+  CLI::App* cmd = app.add_subcommand(
+      "compare-hdmap", "Compare a map version's landmarks with a Lanelet2 HD map (.osm)");
+  cmd->add_option("--db", opts->db, "Map store database (SQLite)")->required();
+  cmd->add_option("--hdmap", opts->hdmap, "Lanelet2 OSM file")->required();
+  cmd->add_option("--version", opts->version, "Published map version (default: current)")
+      ->check(CLI::PositiveNumber);
+  cmd->add_flag("--json", opts->json, "Print the metrics as JSON");
+  cmd->add_option("--radius", opts->cfg.point_match_radius_m,
+                  "Point match radius, metres (default 1.0)")
+      ->check(CLI::PositiveNumber);
+  cmd->add_option("--band", opts->cfg.line_band_m,
+                  "Lateral band for line offsets and coverage, metres (default 1.0)")
+      ->check(CLI::PositiveNumber);
+  cmd->add_flag("--no-overlap", opts->no_overlap,
+                "Count all features, not only where both maps exist");
+  cmd->callback([opts] { run(*opts); });
+}
+
+}  // namespace
+POLMAP_REGISTER_COMMAND(compare_hdmap, setup);
+}  // namespace polmap::cli

@@ -31,6 +31,58 @@ std::uint64_t seed_of(std::uint64_t base, T... parts) {
 /// Uniform [0,1) from a hash (stateless draws, e.g. per-object presence in a drive).
 inline double hash_uniform(std::uint64_t h) { return static_cast<double>(mix64(h) >> 11) * 0x1.0p-53; }
 
+/// Tables of the Marsaglia-Tsang ziggurat (built once).
+struct Ziggurat {
+  static constexpr double kR = 3.442619855899;
+  std::uint32_t kn[128];
+  double wn[128], fn[128];
+  Ziggurat() {
+    const double m1 = 2147483648.0, vn = 9.91256303526217e-3;
+    double dn = kR, tn = dn;
+    const double q = vn / std::exp(-0.5 * dn * dn);
+    kn[0] = static_cast<std::uint32_t>((dn / q) * m1);
+    kn[1] = 0;
+    wn[0] = q / m1;
+    wn[127] = dn / m1;
+    fn[0] = 1.0;
+    fn[127] = std::exp(-0.5 * dn * dn);
+    for (int i = 126; i >= 1; --i) {
+      dn = std::sqrt(-2.0 * std::log(vn / dn + std::exp(-0.5 * dn * dn)));
+      kn[i + 1] = static_cast<std::uint32_t>((dn / tn) * m1);
+      tn = dn;
+      fn[i] = std::exp(-0.5 * dn * dn);
+      wn[i] = dn / m1;
+    }
+  }
+};
+inline const Ziggurat& ziggurat() {
+  static const Ziggurat z;
+  return z;
+}
+
+/// Standard normal by the Marsaglia-Tsang ziggurat (128 layers) from any generator with
+/// bits() (64 random bits) and uniform() in [0, 1).
+template <typename Gen>
+double ziggurat_normal(Gen& g) {
+  const Ziggurat& z = ziggurat();
+  for (;;) {
+    const std::uint64_t u = g.bits();
+    const int iz = static_cast<int>(u & 127U);
+    const auto hz = static_cast<std::int32_t>(static_cast<std::uint32_t>(u >> 32));
+    const double x = hz * z.wn[iz];
+    if (static_cast<std::uint32_t>(hz < 0 ? -static_cast<std::int64_t>(hz) : hz) < z.kn[iz]) return x;
+    if (iz == 0) {  // tail beyond r
+      double xt, yt;
+      do {
+        xt = -std::log1p(-g.uniform()) / Ziggurat::kR;
+        yt = -std::log1p(-g.uniform());
+      } while (yt + yt < xt * xt);
+      return hz > 0 ? Ziggurat::kR + xt : -Ziggurat::kR - xt;
+    }
+    if (z.fn[iz] + g.uniform() * (z.fn[iz - 1] - z.fn[iz]) < std::exp(-0.5 * x * x)) return x;
+  }
+}
+
 class Rng {
  public:
   explicit Rng(std::uint64_t seed) : eng_(seed) {}
@@ -42,26 +94,8 @@ class Rng {
   /// Integer uniform in [0, n).
   std::uint64_t index(std::uint64_t n) { return static_cast<std::uint64_t>(uniform() * n) % n; }
   bool bernoulli(double p) { return uniform() < p; }
-  /// Standard normal (Marsaglia-Tsang ziggurat, 128 layers, tables built once).
-  double normal() {
-    const Ziggurat& z = ziggurat();
-    for (;;) {
-      const std::uint64_t u = eng_();
-      const int iz = static_cast<int>(u & 127U);
-      const auto hz = static_cast<std::int32_t>(static_cast<std::uint32_t>(u >> 32));
-      const double x = hz * z.wn[iz];
-      if (static_cast<std::uint32_t>(hz < 0 ? -static_cast<std::int64_t>(hz) : hz) < z.kn[iz]) return x;
-      if (iz == 0) {  // tail beyond r
-        double xt, yt;
-        do {
-          xt = -std::log1p(-uniform()) / Ziggurat::kR;
-          yt = -std::log1p(-uniform());
-        } while (yt + yt < xt * xt);
-        return hz > 0 ? Ziggurat::kR + xt : -Ziggurat::kR - xt;
-      }
-      if (z.fn[iz] + uniform() * (z.fn[iz - 1] - z.fn[iz]) < std::exp(-0.5 * x * x)) return x;
-    }
-  }
+  /// Standard normal (ziggurat).
+  double normal() { return ziggurat_normal(*this); }
   double normal(double mean, double sigma) { return mean + sigma * normal(); }
   /// Circular complex Gaussian with E|z|^2 = variance.
   std::complex<double> cnormal(double variance = 1.0) {
@@ -92,34 +126,6 @@ class Rng {
   }
 
  private:
-  struct Ziggurat {
-    static constexpr double kR = 3.442619855899;
-    std::uint32_t kn[128];
-    double wn[128], fn[128];
-    Ziggurat() {
-      const double m1 = 2147483648.0, vn = 9.91256303526217e-3;
-      double dn = kR, tn = dn;
-      const double q = vn / std::exp(-0.5 * dn * dn);
-      kn[0] = static_cast<std::uint32_t>((dn / q) * m1);
-      kn[1] = 0;
-      wn[0] = q / m1;
-      wn[127] = dn / m1;
-      fn[0] = 1.0;
-      fn[127] = std::exp(-0.5 * dn * dn);
-      for (int i = 126; i >= 1; --i) {
-        dn = std::sqrt(-2.0 * std::log(vn / dn + std::exp(-0.5 * dn * dn)));
-        kn[i + 1] = static_cast<std::uint32_t>((dn / tn) * m1);
-        tn = dn;
-        fn[i] = std::exp(-0.5 * dn * dn);
-        wn[i] = dn / m1;
-      }
-    }
-  };
-  static const Ziggurat& ziggurat() {
-    static const Ziggurat z;
-    return z;
-  }
-
   std::mt19937_64 eng_;
 };
 
@@ -131,19 +137,8 @@ class HashRng {
   explicit HashRng(std::uint64_t key) : key_(mix64(key)) {}
   std::uint64_t bits() { return mix64(key_ + 0x9E3779B97F4A7C15ULL * (++n_)); }
   double uniform() { return static_cast<double>(bits() >> 11) * 0x1.0p-53; }
-  /// Standard normal (Box-Muller, pairs cached).
-  double normal() {
-    if (has_spare_) {
-      has_spare_ = false;
-      return spare_;
-    }
-    const double u = 1.0 - uniform();  // (0, 1]
-    const double v = uniform();
-    const double r = std::sqrt(-2.0 * std::log(u));
-    spare_ = r * std::sin(2.0 * std::numbers::pi * v);
-    has_spare_ = true;
-    return r * std::cos(2.0 * std::numbers::pi * v);
-  }
+  /// Standard normal (ziggurat).
+  double normal() { return ziggurat_normal(*this); }
   std::complex<double> cnormal(double variance = 1.0) {
     const double s = std::sqrt(0.5 * variance);
     const double re = normal();
@@ -154,8 +149,6 @@ class HashRng {
  private:
   std::uint64_t key_;
   std::uint64_t n_ = 0;
-  double spare_ = 0.0;
-  bool has_spare_ = false;
 };
 
 }  // namespace polmap::sim

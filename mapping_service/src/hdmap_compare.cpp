@@ -341,7 +341,11 @@ HdMapComparison compare_hdmap_metric(const std::vector<Vec>& map_points,
       offsets.push_back(p.distance_m);
     }
     out.matched_points = out.point_matches.size();
-    if (out.map_points > 0) out.point_precision = double(out.matched_points) / double(out.map_points);
+    // Without HD point features in the area the HD map says nothing about radar points:
+    // precision is undefined there, not 0.
+    if (out.map_points > 0 && out.hd_points > 0) {
+      out.point_precision = double(out.matched_points) / double(out.map_points);
+    }
     if (out.hd_points > 0) out.point_recall = double(out.matched_points) / double(out.hd_points);
     out.point_median_offset_m = median(offsets);
   }

@@ -260,6 +260,14 @@ TEST(HdMapCompare, GeodeticEntryPointAndJson) {
     EXPECT_TRUE(j.contains(k)) << k;
   }
   EXPECT_TRUE(j["point_precision"].is_null());
+  // Radar points but no HD point features: precision undefined, not 0.
+  StoredPointLandmark p;
+  p.position = f.to_geo(Vec(1.0, 2.0));
+  lm.points.push_back(p);
+  const auto r2 = compare_with_hdmap(lm, hd);
+  EXPECT_EQ(r2.map_points, 1U);
+  EXPECT_FALSE(r2.point_precision.has_value());
+  EXPECT_FALSE(r2.point_recall.has_value());
   EXPECT_GT(j["line_coverage"].get<double>(), 0.99);
 }
 

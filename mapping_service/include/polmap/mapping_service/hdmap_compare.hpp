@@ -25,7 +25,9 @@
 ///    overlap of both maps' bounding boxes (each grown by `overlap_margin_m`) count, so
 ///    HD-map areas never driven do not lower recall and radar landmarks beyond the HD
 ///    map do not lower precision.
-/// Ratios with an empty denominator and medians of empty sets are std::nullopt.
+/// Ratios with an empty denominator and medians of empty sets are std::nullopt; point
+/// precision also when the HD map has no point features in the area (it cannot judge
+/// radar points then, e.g. maps without signs or poles).
 #include <Eigen/Core>
 #include <cstdint>
 #include <filesystem>

@@ -190,6 +190,8 @@ struct CovarianceGridmap::Impl {
   /// returns false if the tile does not exist.
   virtual bool materialize(int tx, int ty, std::uint32_t* counts,
                            std::complex<float>* layers) const = 0;
+  /// Writes trace(C) of one tile (kT² floats, 0 where N = 0); false if the tile does not exist.
+  virtual bool materialize_trace(int tx, int ty, float* trace) const = 0;
   virtual std::uint32_t count(int ix, int iy) const = 0;
   virtual void cell_sums(int ix, int iy, cdouble* out) const = 0;
 
@@ -303,6 +305,29 @@ class ImplT final : public CovarianceGridmap::Impl {
           layers[l * plane + local] =
               std::complex<float>(static_cast<float>(v.real()), static_cast<float>(v.imag()));
         }
+      }
+    }
+    return true;
+  }
+
+  bool materialize_trace(int tx, int ty, float* trace) const override {
+    auto it = tiles_.find(tile_key(tx, ty));
+    if (it == tiles_.end()) return false;
+    const Tile<T>& t = *it->second;
+    std::fill(trace, trace + kCellsPerTile, 0.0F);
+    int diag[3] = {0, 0, 0};
+    for (int i = 0; i < q_; ++i) diag[i] = layer_index(q_, i, i);
+    for (int b = 0; b < kDataBlocksPerSide * kDataBlocksPerSide; ++b) {
+      const std::complex<T>* blk = t.blocks[b].get();
+      if (!blk) continue;
+      const int row0 = (b / kDataBlocksPerSide) * kD, col0 = (b % kDataBlocksPerSide) * kD;
+      for (int c = 0; c < kCellsPerDataBlock; ++c) {
+        const int local = (row0 + c / kD) * kT + col0 + c % kD;
+        const std::uint32_t n = t.count(local);
+        if (n == 0) continue;
+        T sum = 0;
+        for (int i = 0; i < q_; ++i) sum += blk[c * L_ + diag[i]].real();
+        trace[local] = static_cast<float>(sum / static_cast<T>(n));
       }
     }
     return true;
@@ -876,12 +901,21 @@ CovarianceRaster CovarianceGridmap::raster(const CellBox& box) const {
 }
 
 cv::Mat CovarianceGridmap::trace_image(const CellBox& box) const {
-  const CovarianceRaster r = raster(box);
-  cv::Mat img(box.height(), box.width(), CV_32F);
-  for (int row = 0; row < box.height(); ++row) {
-    float* p = img.ptr<float>(row);
-    for (int col = 0; col < box.width(); ++col) {
-      p[col] = r.power(static_cast<std::size_t>(row) * box.width() + col);
+  cv::Mat img = cv::Mat::zeros(box.height(), box.width(), CV_32F);
+  if (box.empty()) return img;
+  const int tx0 = box.min_ix >> 6, tx1 = (box.max_ix - 1) >> 6;
+  const int ty0 = box.min_iy >> 6, ty1 = (box.max_iy - 1) >> 6;
+  std::vector<float> trace(kCellsPerTile);
+  for (int ty = ty0; ty <= ty1; ++ty) {
+    for (int tx = tx0; tx <= tx1; ++tx) {
+      if (!impl_->materialize_trace(tx, ty, trace.data())) continue;
+      const int ixa = std::max(box.min_ix, tx * kT), ixb = std::min(box.max_ix, tx * kT + kT);
+      const int iya = std::max(box.min_iy, ty * kT), iyb = std::min(box.max_iy, ty * kT + kT);
+      for (int iy = iya; iy < iyb; ++iy) {
+        float* dst = img.ptr<float>(iy - box.min_iy) + (ixa - box.min_ix);
+        const float* src = trace.data() + (iy - ty * kT) * kT + (ixa - tx * kT);
+        std::copy(src, src + (ixb - ixa), dst);
+      }
     }
   }
   return img;

@@ -109,40 +109,36 @@ RidgeImages ridgeness(const cv::Mat& power, double cs, double noise_power, int q
   return {db, out, centre};
 }
 
-/// Value of img at a point (metres), max over the 3×3 cell neighbourhood (the
-/// skeleton and the fitted line may sit one cell apart); −1 outside the image.
-float neighbourhood_max(const cv::Mat& img, const CellBox& box, double cs,
-                        const Eigen::Vector2d& p) {
+/// Value of img at the cell containing a point (metres); −1 outside the image.
+float value_at(const cv::Mat& img, const CellBox& box, double cs, const Eigen::Vector2d& p) {
   const int col = static_cast<int>(std::floor(p.x() / cs)) - box.min_ix;
   const int row = static_cast<int>(std::floor(p.y() / cs)) - box.min_iy;
   if (col < 0 || row < 0 || col >= img.cols || row >= img.rows) return -1.0F;
-  float best = -1.0F;
-  for (int dr = -1; dr <= 1; ++dr) {
-    for (int dc = -1; dc <= 1; ++dc) {
-      const int rr = row + dr, cc = col + dc;
-      if (rr >= 0 && cc >= 0 && rr < img.rows && cc < img.cols) {
-        best = std::max(best, img.ptr<float>(rr)[cc]);
-      }
-    }
-  }
-  return best;
+  return img.ptr<float>(row)[col];
 }
 
 /// Moves the ends of a segment to where the bright structure ends: the ridge
 /// filter loses ~σ at each end (the along-line curvature of an end looks like a
 /// blob) and the skeleton breaks on speckle. Walks outward in cell steps while,
-/// within max_gap, the dB-over-floor (3×3 maximum; the median filter would erode the
-/// end by a cell) stays above end_level_fraction of the segment's median; also trims
-/// ends that fall below it.
+/// within max_gap, the dB-over-floor (maximum over ±1 cell across the line; the
+/// median filter would erode the end by a cell) stays above end_level_fraction of the
+/// segment's median; also trims ends that fall below it.
 void fit_ends(LineCandidate& l, const cv::Mat& db, const CellBox& box, double cs,
               const LineExtractorConfig& cfg) {
   const Eigen::Vector2d a = l.start_m, b = l.end_m;
   const double len = (b - a).norm();
   if (len < cs) return;
   const Eigen::Vector2d d = (b - a) / len;
+  const Eigen::Vector2d n(-d.y(), d.x());
+  // Max across the line only (±1 cell): along it, a neighbourhood would lengthen the end.
+  auto across_max = [&](const Eigen::Vector2d& p) {
+    float best = -1.0F;
+    for (int k = -1; k <= 1; ++k) best = std::max(best, value_at(db, box, cs, p + k * cs * n));
+    return best;
+  };
   std::vector<float> prof;
   for (double t = 0.0; t <= len; t += cs) {
-    const float v = neighbourhood_max(db, box, cs, a + t * d);
+    const float v = across_max(a + t * d);
     if (v >= 0.0F) prof.push_back(v);
   }
   if (prof.empty()) return;
@@ -154,7 +150,7 @@ void fit_ends(LineCandidate& l, const cv::Mat& db, const CellBox& box, double cs
     double last = -inner;
     bool seen = false;
     for (double t = -inner; t <= max_ext; t += cs) {
-      if (neighbourhood_max(db, box, cs, from + t * dir) >= level) {
+      if (across_max(from + t * dir) >= level) {
         last = t;
         seen = true;
       } else if (seen && t - last > cfg.max_gap_m) {
@@ -291,8 +287,25 @@ std::vector<LineCandidate> extract_lines(const cv::Mat& power, const CellBox& bo
   // connected skeleton. Guo–Hall: OpenCV's Zhang–Suen collapses some 3-cell diagonal
   // bands to a single pixel.
   cv::dilate(bin, bin, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(3, 3)));
-  cv::Mat skel;
-  cv::ximgproc::thinning(bin, skel, cv::ximgproc::THINNING_GUOHALL);
+  // Thinning iterates over the whole image until nothing changes; the ridges cover a
+  // small part of it, so thin each connected ridge in its own bounding box.
+  cv::Mat skel = cv::Mat::zeros(bin.size(), CV_8U);
+  {
+    cv::Mat lab, st, cen;
+    const int ncomp = cv::connectedComponentsWithStats(bin, lab, st, cen, 8, CV_32S);
+    for (int k = 1; k < ncomp; ++k) {
+      const int x = st.at<int>(k, cv::CC_STAT_LEFT), y = st.at<int>(k, cv::CC_STAT_TOP);
+      const int bw = st.at<int>(k, cv::CC_STAT_WIDTH), bh = st.at<int>(k, cv::CC_STAT_HEIGHT);
+      if (std::max(bw, bh) < 3) continue;  // too small to hold a line
+      // One-cell zero border so the thinning sees the component's outline.
+      cv::Mat roi = cv::Mat::zeros(bh + 2, bw + 2, CV_8U);
+      roi(cv::Rect(1, 1, bw, bh)).setTo(255, lab(cv::Rect(x, y, bw, bh)) == k);
+      cv::Mat thin;
+      cv::ximgproc::thinning(roi, thin, cv::ximgproc::THINNING_GUOHALL);
+      cv::Mat dst = skel(cv::Rect(x, y, bw, bh));
+      cv::bitwise_or(dst, thin(cv::Rect(1, 1, bw, bh)), dst);
+    }
+  }
   std::vector<cv::Vec4i> hough;
   const int min_votes = std::max(2, static_cast<int>(cfg.hough_min_votes_m / cs));
   cv::HoughLinesP(skel, hough, cfg.hough_rho_m / cs, cfg.hough_theta_deg * std::numbers::pi / 180.0,

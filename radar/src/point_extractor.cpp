@@ -4,7 +4,9 @@
 #include <algorithm>
 #include <cmath>
 #include <opencv2/imgproc.hpp>
+#include <numbers>
 #include <set>
+#include <unordered_map>
 
 #include "polmap/schema/errors.hpp"
 
@@ -16,51 +18,68 @@ using CMat = Eigen::Matrix<cdouble, Q, Q>;
 
 int floor_div(int a, int b) { return a >= 0 ? a / b : -((-a + b - 1) / b); }
 
-/// Ring sums of every layer (real and imaginary parts) and of the observed-cell indicator.
-struct Ring {
-  int guard = 0;
-  int train = 0;
-  double area = 0.0;                // cells of the ring
-  std::vector<cv::Mat> re, im;      // per layer, CV_32F ring sums
-  cv::Mat observed;                 // CV_32F ring count of observed cells
-};
+/// Per-cell planes of a raster used by the CFAR, interleaved per cell: plane 0 is the
+/// observed indicator (N > 0), then per covariance layer its real part and, for
+/// off-diagonal layers, its imaginary part. Sums over rectangles come from one
+/// double-precision integral image of all planes.
+struct Planes {
+  int q = 0;
+  int num = 0;                    // planes per cell
+  std::vector<int> re, im;        // plane index of layer l's real / imaginary part (−1: none)
+  int w = 0, h = 0;
+  std::vector<double> integral;   // (h+1)·(w+1)·num
 
-cv::Mat ring_sum(const cv::Mat& plane64, int guard, int train) {
-  cv::Mat outer, inner;
-  cv::boxFilter(plane64, outer, CV_64F, cv::Size(2 * train + 1, 2 * train + 1), cv::Point(-1, -1),
-                false, cv::BORDER_CONSTANT);
-  cv::boxFilter(plane64, inner, CV_64F, cv::Size(2 * guard + 1, 2 * guard + 1), cv::Point(-1, -1),
-                false, cv::BORDER_CONSTANT);
-  cv::Mat ring;
-  cv::Mat(outer - inner).convertTo(ring, CV_32F);
-  return ring;
-}
-
-Ring make_ring(const CovarianceRaster& r, int guard, int train) {
-  const int w = r.box.width(), h = r.box.height();
-  const int L = num_layers(r.q);
-  const std::size_t plane = r.plane_size();
-  Ring ring;
-  ring.guard = guard;
-  ring.train = train;
-  ring.area = double(2 * train + 1) * (2 * train + 1) - double(2 * guard + 1) * (2 * guard + 1);
-  cv::Mat obs(h, w, CV_64F);
-  for (std::size_t i = 0; i < plane; ++i) obs.ptr<double>()[i] = r.count[i] > 0 ? 1.0 : 0.0;
-  ring.observed = ring_sum(obs, guard, train);
-  cv::Mat re(h, w, CV_64F), im(h, w, CV_64F);
-  for (int l = 0; l < L; ++l) {
-    const std::complex<float>* src = r.layers.data() + l * plane;
-    bool diag = false;
-    for (int i = 0; i < r.q; ++i) diag = diag || layer_index(r.q, i, i) == l;
-    for (std::size_t i = 0; i < plane; ++i) {
-      re.ptr<double>()[i] = src[i].real();
-      im.ptr<double>()[i] = src[i].imag();
+  Planes(const CovarianceRaster& r) : q(r.q), w(r.box.width()), h(r.box.height()) {
+    const int L = num_layers(q);
+    num = 1;
+    re.resize(L);
+    im.resize(L);
+    for (int i = 0; i < q; ++i) {
+      for (int j = i; j < q; ++j) {
+        const int l = layer_index(q, i, j);
+        re[l] = num++;
+        im[l] = i == j ? -1 : num++;
+      }
     }
-    ring.re.push_back(ring_sum(re, guard, train));
-    ring.im.push_back(diag ? cv::Mat() : ring_sum(im, guard, train));
+    const std::size_t W = static_cast<std::size_t>(w) + 1;
+    integral.assign(W * (h + 1) * num, 0.0);
+    const std::size_t plane = r.plane_size();
+    std::vector<double> row(num);
+    for (int y = 0; y < h; ++y) {
+      std::fill(row.begin(), row.end(), 0.0);
+      const double* above = integral.data() + (static_cast<std::size_t>(y) * W) * num;
+      double* out = integral.data() + (static_cast<std::size_t>(y + 1) * W) * num;
+      for (int x = 0; x < w; ++x) {
+        const std::size_t idx = static_cast<std::size_t>(y) * w + x;
+        if (r.count[idx] > 0) {
+          row[0] += 1.0;
+          for (int l = 0; l < L; ++l) {
+            const std::complex<float> v = r.layers[l * plane + idx];
+            row[re[l]] += v.real();
+            if (im[l] >= 0) row[im[l]] += v.imag();
+          }
+        }
+        const double* a = above + (x + 1) * num;
+        double* o = out + (x + 1) * num;
+        for (int k = 0; k < num; ++k) o[k] = a[k] + row[k];
+      }
+    }
   }
-  return ring;
-}
+  /// Adds sign·(sum over cells [x0, x1) × [y0, y1), clipped) to acc.
+  void box(int x0, int y0, int x1, int y1, double sign, double* acc) const {
+    x0 = std::clamp(x0, 0, w);
+    x1 = std::clamp(x1, 0, w);
+    y0 = std::clamp(y0, 0, h);
+    y1 = std::clamp(y1, 0, h);
+    if (x1 <= x0 || y1 <= y0) return;
+    const std::size_t W = static_cast<std::size_t>(w) + 1;
+    const double* a = integral.data() + (y1 * W + x1) * num;
+    const double* b = integral.data() + (y0 * W + x1) * num;
+    const double* c = integral.data() + (y1 * W + x0) * num;
+    const double* d = integral.data() + (y0 * W + x0) * num;
+    for (int k = 0; k < num; ++k) acc[k] += sign * (a[k] - b[k] - c[k] + d[k]);
+  }
+};
 
 template <int Q>
 CMat<Q> cell_matrix(const CovarianceRaster& r, std::size_t idx) {
@@ -77,14 +96,16 @@ CMat<Q> cell_matrix(const CovarianceRaster& r, std::size_t idx) {
   return c;
 }
 
+/// Σ from plane sums (sums[0] = number of observed cells).
 template <int Q>
-CMat<Q> ring_matrix(const Ring& ring, std::size_t idx, double inv_n) {
+CMat<Q> mean_matrix(const Planes& p, const double* sums) {
   CMat<Q> s;
-  int l = 0;
+  const double inv = 1.0 / sums[0];
   for (int i = 0; i < Q; ++i) {
-    for (int j = i; j < Q; ++j, ++l) {
-      const double re = ring.re[l].ptr<float>()[idx] * inv_n;
-      const double im = i == j ? 0.0 : ring.im[l].ptr<float>()[idx] * inv_n;
+    for (int j = i; j < Q; ++j) {
+      const int l = layer_index(Q, i, j);
+      const double re = sums[p.re[l]] * inv;
+      const double im = p.im[l] >= 0 ? sums[p.im[l]] * inv : 0.0;
       s(i, j) = cdouble(i == j ? std::max(0.0, re) : re, im);
       s(j, i) = std::conj(s(i, j));
     }
@@ -108,6 +129,8 @@ double excess(const CMat<Q>& sigma, const CMat<Q>& c, bool& ok) {
 struct Detection {
   cv::Mat stat;  // CV_32F d_ex
   cv::Mat mask;  // CV_8U
+  /// Neighbourhood mean used for each detected cell (raster index -> upper-triangle layers).
+  std::unordered_map<std::size_t, std::vector<cdouble>> sigma;
 };
 
 /// Loading ε per component: loading·σ²; without a noise figure (synthetic rasters),
@@ -125,50 +148,116 @@ double loading_eps(const CovarianceRaster& r, const PointExtractorConfig& cfg) {
   return cfg.loading * 1e-3 * (mean > 0.0 ? mean : 1.0);
 }
 
+/// Directions of the line strips (half-plane: a strip runs both ways).
+constexpr int kStripDirections = 8;
+
 template <int Q>
-Detection detect(const CovarianceRaster& r, const Ring& ring, const PointExtractorConfig& cfg,
+Detection detect(const CovarianceRaster& r, const PointExtractorConfig& cfg, int guard, int train,
                  double eps) {
   const int w = r.box.width(), h = r.box.height();
+  const std::size_t plane = r.plane_size();
   Detection d;
   d.stat = cv::Mat::zeros(h, w, CV_32F);
   d.mask = cv::Mat::zeros(h, w, CV_8U);
   const double contrast = std::pow(10.0, cfg.min_contrast_db / 10.0);
   const double min_power =
       r.noise_power > 0.0 ? std::pow(10.0, cfg.min_snr_db / 10.0) * Q * r.noise_power : 0.0;
-  const double min_ring = cfg.min_training_fraction * ring.area;
+  const double ring_area =
+      double(2 * train + 1) * (2 * train + 1) - double(2 * guard + 1) * (2 * guard + 1);
+  const double min_ring = std::max(1.0, cfg.min_training_fraction * ring_area);
+  // Cheap pre-pass: only cells bright enough can be detections.
+  std::vector<std::size_t> cand;
+  for (std::size_t idx = 0; idx < plane; ++idx) {
+    if (r.count[idx] < std::max<std::uint32_t>(1, cfg.min_count)) continue;
+    if (r.power(idx) > min_power) cand.push_back(idx);
+  }
+  if (cand.empty()) return d;
+  const Planes p(r);
   const CMat<Q> load = CMat<Q>::Identity() * eps;
-  for (int row = 0; row < h; ++row) {
-    for (int col = 0; col < w; ++col) {
-      const std::size_t idx = static_cast<std::size_t>(row) * w + col;
-      if (r.count[idx] < std::max<std::uint32_t>(1, cfg.min_count)) continue;
-      const double tr_c = r.power(idx);
-      if (!(tr_c > min_power)) continue;
-      const double n_ring = ring.observed.ptr<float>()[idx];
-      if (n_ring < min_ring || n_ring < 1.0) continue;
-      double tr_s = 0.0;
-      for (int i = 0; i < Q; ++i) {
-        tr_s += ring.re[layer_index(Q, i, i)].ptr<float>()[idx];
-      }
-      tr_s /= n_ring;
-      if (!(tr_c > contrast * tr_s)) continue;
-      const CMat<Q> sigma = ring_matrix<Q>(ring, idx, 1.0 / n_ring) + load;
-      const CMat<Q> c = cell_matrix<Q>(r, idx) + load;
-      bool ok = false;
-      const double e = excess<Q>(sigma, c, ok);
-      if (!ok) continue;
-      d.stat.ptr<float>(row)[col] = static_cast<float>(e);
-      if (e > cfg.threshold) d.mask.ptr<std::uint8_t>(row)[col] = 1;
+  std::vector<double> sums(p.num), strip(p.num), best(p.num);
+  // Strip offsets (cells) per direction, both sides of the guard.
+  std::vector<std::vector<std::pair<int, int>>> strips(kStripDirections);
+  for (int k = 0; k < kStripDirections; ++k) {
+    const double a = std::numbers::pi * k / kStripDirections;
+    for (int t = guard + 1; t <= train; ++t) {
+      const int dx = static_cast<int>(std::lround(t * std::cos(a)));
+      const int dy = static_cast<int>(std::lround(t * std::sin(a)));
+      strips[k].push_back({dx, dy});
+      strips[k].push_back({-dx, -dy});
     }
+  }
+  for (std::size_t idx : cand) {
+    const int x = static_cast<int>(idx % w), y = static_cast<int>(idx / w);
+    std::fill(sums.begin(), sums.end(), 0.0);
+    p.box(x - train, y - train, x + train + 1, y + train + 1, 1.0, sums.data());
+    p.box(x - guard, y - guard, x + guard + 1, y + guard + 1, -1.0, sums.data());
+    if (sums[0] < min_ring) continue;
+    const double tr_c = r.power(idx);
+    double tr_s = 0.0;
+    for (int i = 0; i < Q; ++i) tr_s += sums[p.re[layer_index(Q, i, i)]];
+    tr_s /= sums[0];
+    if (!(tr_c > contrast * tr_s)) continue;
+    const CMat<Q> c = cell_matrix<Q>(r, idx) + load;
+    bool ok = false;
+    double e = excess<Q>(mean_matrix<Q>(p, sums.data()) + load, c, ok);
+    if (!ok) continue;
+    d.stat.ptr<float>(y)[x] = static_cast<float>(e);
+    if (!(e > cfg.threshold)) continue;
+    const double* chosen = sums.data();
+    if (cfg.line_aware) {
+      // Greatest-of with the brightest line strip through the cell (file comment).
+      double best_tr = tr_s;
+      for (const auto& s : strips) {
+        std::fill(strip.begin(), strip.end(), 0.0);
+        for (const auto& [dx, dy] : s) {
+          const int xx = x + dx, yy = y + dy;
+          if (xx < 0 || yy < 0 || xx >= w || yy >= h) continue;
+          const std::size_t j = static_cast<std::size_t>(yy) * w + xx;
+          if (r.count[j] == 0) continue;
+          strip[0] += 1.0;
+          for (int l = 0; l < num_layers(Q); ++l) {
+            const std::complex<float> v = r.layers[l * plane + j];
+            strip[p.re[l]] += v.real();
+            if (p.im[l] >= 0) strip[p.im[l]] += v.imag();
+          }
+        }
+        if (strip[0] < 0.5 * static_cast<double>(s.size())) continue;
+        double tr = 0.0;
+        for (int i = 0; i < Q; ++i) tr += strip[p.re[layer_index(Q, i, i)]];
+        tr /= strip[0];
+        if (tr > best_tr) {
+          best_tr = tr;
+          best = strip;
+          chosen = best.data();
+        }
+      }
+      if (chosen != sums.data()) {
+        if (!(tr_c > contrast * best_tr)) {
+          d.stat.ptr<float>(y)[x] = 0.0F;
+          continue;
+        }
+        e = excess<Q>(mean_matrix<Q>(p, chosen) + load, c, ok);
+        d.stat.ptr<float>(y)[x] = static_cast<float>(e);
+        if (!ok || !(e > cfg.threshold)) continue;
+      }
+    }
+    d.mask.ptr<std::uint8_t>(y)[x] = 1;
+    const CMat<Q> sg = mean_matrix<Q>(p, chosen);
+    std::vector<cdouble> layers(num_layers(Q));
+    for (int i = 0; i < Q; ++i) {
+      for (int j = i; j < Q; ++j) layers[layer_index(Q, i, j)] = sg(i, j);
+    }
+    d.sigma.emplace(idx, std::move(layers));
   }
   return d;
 }
 
-Detection detect_any(const CovarianceRaster& r, const Ring& ring, const PointExtractorConfig& cfg,
-                     double eps) {
+Detection detect_any(const CovarianceRaster& r, const PointExtractorConfig& cfg, int guard,
+                     int train, double eps) {
   switch (r.q) {
-    case 1: return detect<1>(r, ring, cfg, eps);
-    case 2: return detect<2>(r, ring, cfg, eps);
-    case 3: return detect<3>(r, ring, cfg, eps);
+    case 1: return detect<1>(r, cfg, guard, train, eps);
+    case 2: return detect<2>(r, cfg, guard, train, eps);
+    case 3: return detect<3>(r, cfg, guard, train, eps);
     default: throw ContractViolation("pCFAR: unsupported q");
   }
 }
@@ -205,17 +294,15 @@ double wishart_excess(const Eigen::MatrixXcd& sigma, const Eigen::MatrixXcd& c) 
 cv::Mat pcfar_statistic(const CovarianceRaster& raster, const PointExtractorConfig& cfg) {
   int guard = 0, train = 0;
   check_config(cfg, raster.cell_size_m, guard, train);
-  const Ring ring = make_ring(raster, guard, train);
-  return detect_any(raster, ring, cfg, loading_eps(raster, cfg)).stat;
+  return detect_any(raster, cfg, guard, train, loading_eps(raster, cfg)).stat;
 }
 
 std::vector<PointCandidate> extract_points(const CovarianceRaster& r,
                                            const PointExtractorConfig& cfg, const CellBox* core) {
   int guard = 0, train = 0;
   check_config(cfg, r.cell_size_m, guard, train);
-  const Ring ring = make_ring(r, guard, train);
-  const double eps = loading_eps(r, cfg);
-  const Detection det = detect_any(r, ring, cfg, eps);
+  const Detection det = detect_any(r, cfg, guard, train, loading_eps(r, cfg));
+  if (det.sigma.empty()) return {};
 
   cv::Mat labels, stats, centroids;
   const int n = cv::connectedComponentsWithStats(det.mask, labels, stats, centroids, 8, CV_32S);
@@ -226,40 +313,35 @@ std::vector<PointCandidate> extract_points(const CovarianceRaster& r,
   struct Acc {
     double wsum = 0.0, wx = 0.0, wy = 0.0, peak = 0.0;
     std::uint32_t cells = 0;
-    std::vector<cdouble> cov;  // Σ over cells of (C − Σ_ring), upper triangle
+    std::vector<cdouble> cov;  // Σ over cells of (C − Σ_neighbourhood), upper triangle
   };
   std::vector<Acc> acc(n);
   for (auto& a : acc) a.cov.assign(L, cdouble(0, 0));
-  for (int row = 0; row < labels.rows; ++row) {
-    const int* lab = labels.ptr<int>(row);
-    for (int col = 0; col < w; ++col) {
-      const int k = lab[col];
-      if (k == 0) continue;
-      const std::size_t idx = static_cast<std::size_t>(row) * w + col;
-      const double n_ring = ring.observed.ptr<float>()[idx];
-      Acc& a = acc[k];
-      double tr_s = 0.0;
-      for (int l = 0; l < L; ++l) {
-        const std::complex<float> v = r.layers[l * plane + idx];
-        const double sre = ring.re[l].ptr<float>()[idx] / n_ring;
-        const double sim = ring.im[l].empty() ? 0.0 : ring.im[l].ptr<float>()[idx] / n_ring;
-        a.cov[l] += cdouble(v.real() - sre, ring.im[l].empty() ? 0.0 : v.imag() - sim);
-      }
-      for (int i = 0; i < r.q; ++i) tr_s += ring.re[layer_index(r.q, i, i)].ptr<float>()[idx] / n_ring;
-      // Power weight with the neighbourhood level removed (the point's own power).
-      const double wgt = std::max(1e-12, r.power(idx) - tr_s);
-      const Eigen::Vector2d c = r.cell_center(idx);
-      a.wsum += wgt;
-      a.wx += wgt * c.x();
-      a.wy += wgt * c.y();
-      a.peak = std::max(a.peak, double(det.stat.ptr<float>(row)[col]));
-      a.cells += 1;
+  for (const auto& [idx, sigma] : det.sigma) {
+    const int row = static_cast<int>(idx / w), col = static_cast<int>(idx % w);
+    const int k = labels.ptr<int>(row)[col];
+    if (k <= 0) continue;
+    Acc& a = acc[k];
+    double tr_s = 0.0;
+    for (int l = 0; l < L; ++l) {
+      const std::complex<float> v = r.layers[l * plane + idx];
+      a.cov[l] += cdouble(v.real(), v.imag()) - sigma[l];
     }
+    for (int i = 0; i < r.q; ++i) tr_s += sigma[layer_index(r.q, i, i)].real();
+    // Power weight with the neighbourhood level removed (the point's own power).
+    const double wgt = std::max(1e-12, r.power(idx) - tr_s);
+    const Eigen::Vector2d c = r.cell_center(idx);
+    a.wsum += wgt;
+    a.wx += wgt * c.x();
+    a.wy += wgt * c.y();
+    a.peak = std::max(a.peak, double(det.stat.ptr<float>(row)[col]));
+    a.cells += 1;
   }
   std::vector<PointCandidate> out;
   const double cs = r.cell_size_m;
   for (int k = 1; k < n; ++k) {
     const Acc& a = acc[k];
+    if (a.cells == 0) continue;
     const double ext_w = stats.at<int>(k, cv::CC_STAT_WIDTH) * cs;
     const double ext_h = stats.at<int>(k, cv::CC_STAT_HEIGHT) * cs;
     if (std::hypot(ext_w, ext_h) > cfg.max_extent_m) continue;

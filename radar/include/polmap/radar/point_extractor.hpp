@@ -23,7 +23,9 @@
 ///
 /// Neighbourhood (CA-CFAR ring): the square of half-size training_radius_m around
 /// the cell minus the guard square of half-size guard_radius_m; only observed cells
-/// (N > 0) of the ring enter the mean.
+/// (N > 0) of the ring enter the mean (sums from one double-precision integral image
+/// of all layers; only cells brighter than min_snr_db are tested). With line_aware,
+/// detections are re-tested against line strips (PointExtractorConfig::line_aware).
 #include <Eigen/Core>
 #include <opencv2/core.hpp>
 #include <vector>
@@ -61,6 +63,13 @@ struct PointExtractorConfig {
   double loading = 1.0;
   /// Cells observed fewer times are not tested.
   std::uint32_t min_count = 1;
+  /// Line-aware neighbourhood (greatest-of): a cell that passes the ring test is
+  /// tested again against the brightest of 8 line strips through it (directions
+  /// 0°, 22.5°, ..., one cell wide, guard..training on both sides) when that strip is
+  /// brighter than the ring. A speckle maximum on a wall, curb or guardrail is then
+  /// compared with the structure it lies on, not with the empty ground beside it
+  /// (the ring mixes both); a post in a fence still differs from the fence in mechanism.
+  bool line_aware = true;
   /// Components larger than this (bounding-box diagonal) are extended objects
   /// (walls, guardrails: handled by the line extractor), not points.
   double max_extent_m = 1.5;

@@ -332,6 +332,10 @@ void Server::Impl::register_routes() {
     }
   });
 
+  // cpp-httplib tries the patterns (std::regex) in registration order: the hot tile
+  // routes go first.
+  register_tile_routes();
+
   http.Options(R"(/.*)", [](const httplib::Request&, httplib::Response& res) {
     set_route("preflight");
     res.status = 204;
@@ -401,7 +405,6 @@ void Server::Impl::register_routes() {
 
   register_drive_routes();
   register_map_routes();
-  register_tile_routes();
   register_gis_routes();
 }
 

@@ -47,16 +47,26 @@ PackageValidationError::PackageValidationError(std::string file, std::string fie
 
 // ------------------------------------------------------------------------ hashing
 
-std::string sha256_hex(std::string_view bytes) {
+detail::Sha256::Sha256() {
+  EVP_MD_CTX* ctx = EVP_MD_CTX_new();
+  if (ctx == nullptr || EVP_DigestInit_ex(ctx, EVP_sha256(), nullptr) != 1) {
+    EVP_MD_CTX_free(ctx);
+    throw Error("OpenSSL: SHA-256 initialisation failed");
+  }
+  ctx_ = ctx;
+}
+detail::Sha256::~Sha256() { EVP_MD_CTX_free(static_cast<EVP_MD_CTX*>(ctx_)); }
+void detail::Sha256::update(std::string_view bytes) {
+  if (EVP_DigestUpdate(static_cast<EVP_MD_CTX*>(ctx_), bytes.data(), bytes.size()) != 1) {
+    throw Error("OpenSSL: SHA-256 update failed");
+  }
+}
+std::string detail::Sha256::hex() {
   std::array<unsigned char, EVP_MAX_MD_SIZE> md{};
   unsigned int len = 0;
-  EVP_MD_CTX* ctx = EVP_MD_CTX_new();
-  if (ctx == nullptr) throw Error("OpenSSL: EVP_MD_CTX_new failed");
-  const bool ok = EVP_DigestInit_ex(ctx, EVP_sha256(), nullptr) == 1 &&
-                  EVP_DigestUpdate(ctx, bytes.data(), bytes.size()) == 1 &&
-                  EVP_DigestFinal_ex(ctx, md.data(), &len) == 1;
-  EVP_MD_CTX_free(ctx);
-  if (!ok) throw Error("OpenSSL: SHA-256 failed");
+  if (EVP_DigestFinal_ex(static_cast<EVP_MD_CTX*>(ctx_), md.data(), &len) != 1) {
+    throw Error("OpenSSL: SHA-256 final failed");
+  }
   static constexpr char kHex[] = "0123456789abcdef";
   std::string out;
   out.reserve(2 * len);
@@ -65,6 +75,12 @@ std::string sha256_hex(std::string_view bytes) {
     out.push_back(kHex[md[i] & 15U]);
   }
   return out;
+}
+
+std::string sha256_hex(std::string_view bytes) {
+  detail::Sha256 h;
+  h.update(bytes);
+  return h.hex();
 }
 
 namespace detail {
@@ -771,16 +787,16 @@ void write_drive_package_archive(const fs::path& dir, const fs::path& tar_path) 
 
 namespace detail {
 /// Parses the archive and checks the member set (exactly the three package files).
-std::vector<TarMember> read_package_members(std::string_view tar_bytes) {
-  std::vector<TarMember> members;
+std::vector<TarMemberView> read_package_members(std::string_view tar_bytes) {
+  std::vector<TarMemberView> members;
   try {
-    members = read_ustar(tar_bytes, "archive");
+    members = read_ustar_views(tar_bytes, "archive");
   } catch (const FormatError& e) {
-    // Keep FormatError's offset text, but as a package error naming the archive.
+    // Re-throw as a package error naming the archive, keeping the byte offset.
     std::string msg = e.what();
-    const std::string prefix = "archive at byte ";
-    if (msg.starts_with("archive ")) msg = msg.substr(std::string("archive ").size());
-    throw PackageFormatError("archive", "", msg);
+    const std::string prefix = "archive at byte " + std::to_string(e.offset()) + ": ";
+    if (msg.starts_with(prefix)) msg = msg.substr(prefix.size());
+    throw PackageFormatError("archive", "", msg + " (at byte " + std::to_string(e.offset()) + ")");
   }
   const std::vector<std::string> expected{kManifestFileName, kGridmapFileName,
                                           kCandidatesFileName};
@@ -791,7 +807,7 @@ std::vector<TarMember> read_package_members(std::string_view tar_bytes) {
   }
   for (const auto& name : expected) {
     if (std::none_of(members.begin(), members.end(),
-                     [&](const TarMember& mb) { return mb.name == name; })) {
+                     [&](const TarMemberView& mb) { return mb.name == name; })) {
       throw PackageValidationError(name, "", "missing from the archive");
     }
   }

@@ -131,6 +131,22 @@ nlohmann::json manifest_to_json(const DriveManifest& m);
 /// Strict parse; throws PackageFormatError / PackageValidationError naming manifest.json.
 DriveManifest manifest_from_json(const nlohmann::json& j);
 
+// ---------------------------------------------------------------- hashing
+/// Incremental SHA-256 (OpenSSL EVP).
+class Sha256 {
+ public:
+  Sha256();
+  ~Sha256();
+  Sha256(const Sha256&) = delete;
+  Sha256& operator=(const Sha256&) = delete;
+  void update(std::string_view bytes);
+  /// Lower-case hex digest; the object is finished afterwards.
+  std::string hex();
+
+ private:
+  void* ctx_ = nullptr;
+};
+
 // ---------------------------------------------------------------- files
 std::string read_file_bytes(const std::filesystem::path& path);
 /// Writes bytes to path (truncating). Throws IoError.

@@ -20,7 +20,7 @@ namespace fs = std::filesystem;
 using nlohmann::json;
 
 namespace detail {
-std::vector<TarMember> read_package_members(std::string_view tar_bytes);
+std::vector<TarMemberView> read_package_members(std::string_view tar_bytes);
 }
 
 namespace {
@@ -35,7 +35,9 @@ class PackageSource {
  public:
   virtual ~PackageSource() = default;
   [[nodiscard]] virtual bool has(const std::string& name) const = 0;
-  [[nodiscard]] virtual std::string bytes(const std::string& name) const = 0;
+  /// The file's bytes; `storage` holds them when they must be read (directories).
+  [[nodiscard]] virtual std::string_view bytes(const std::string& name,
+                                               std::string& storage) const = 0;
   [[nodiscard]] virtual std::string gdal_path(const std::string& name) const = 0;
 };
 
@@ -46,8 +48,10 @@ class DirSource final : public PackageSource {
     std::error_code ec;
     return fs::is_regular_file(dir_ / name, ec);
   }
-  [[nodiscard]] std::string bytes(const std::string& name) const override {
-    return detail::read_file_bytes(dir_ / name);
+  [[nodiscard]] std::string_view bytes(const std::string& name,
+                                       std::string& storage) const override {
+    storage = detail::read_file_bytes(dir_ / name);
+    return storage;
   }
   [[nodiscard]] std::string gdal_path(const std::string& name) const override {
     return (dir_ / name).string();
@@ -57,17 +61,19 @@ class DirSource final : public PackageSource {
   fs::path dir_;
 };
 
-/// Archive members exposed to GDAL through /vsimem/ (no copies, no disk).
+/// Archive members exposed to GDAL through /vsimem/ (no copies, no disk). The archive
+/// bytes must outlive the source.
 class MemSource final : public PackageSource {
  public:
-  explicit MemSource(std::vector<TarMember> members) : members_(std::move(members)) {
+  explicit MemSource(std::vector<TarMemberView> members) : members_(std::move(members)) {
     detail::ensure_gdal();
     static std::atomic<std::uint64_t> counter{0};
     prefix_ = "/vsimem/polmap_pkg_" + std::to_string(counter++) + "/";
     for (auto& m : members_) {
-      VSILFILE* f = VSIFileFromMemBuffer((prefix_ + m.name).c_str(),
-                                         reinterpret_cast<GByte*>(m.data.data()),
-                                         static_cast<vsi_l_offset>(m.data.size()), FALSE);
+      // Read-only use: GDAL never writes through a buffer it does not own.
+      VSILFILE* f = VSIFileFromMemBuffer(
+          (prefix_ + m.name).c_str(), reinterpret_cast<GByte*>(const_cast<char*>(m.data.data())),
+          static_cast<vsi_l_offset>(m.data.size()), FALSE);
       if (f != nullptr) VSIFCloseL(f);
     }
   }
@@ -78,23 +84,23 @@ class MemSource final : public PackageSource {
   MemSource& operator=(const MemSource&) = delete;
 
   [[nodiscard]] bool has(const std::string& name) const override { return find(name) != nullptr; }
-  [[nodiscard]] std::string bytes(const std::string& name) const override {
-    const TarMember* m = find(name);
-    return m == nullptr ? std::string() : m->data;
+  [[nodiscard]] std::string_view bytes(const std::string& name,
+                                       std::string& /*storage*/) const override {
+    const TarMemberView* m = find(name);
+    return m == nullptr ? std::string_view() : m->data;
   }
   [[nodiscard]] std::string gdal_path(const std::string& name) const override {
     return prefix_ + name;
   }
-  [[nodiscard]] const std::vector<TarMember>& members() const { return members_; }
 
  private:
-  [[nodiscard]] const TarMember* find(const std::string& name) const {
+  [[nodiscard]] const TarMemberView* find(const std::string& name) const {
     for (const auto& m : members_) {
       if (m.name == name) return &m;
     }
     return nullptr;
   }
-  std::vector<TarMember> members_;
+  std::vector<TarMemberView> members_;
   std::string prefix_;
 };
 
@@ -560,25 +566,34 @@ void read_candidates(const std::string& path, const DriveManifest& m,
 
 // ------------------------------------------------------------------------ whole package
 
+/// Validates everything; if `archive_hash` is given, feeds it the canonical archive
+/// (members manifest, gridmap, candidates) while each file is read once.
 DrivePackage validate(const PackageSource& src, const PackageValidationConfig& cfg,
-                      std::vector<TarMember>* collected) {
+                      detail::Sha256* archive_hash) {
   if (!src.has(kManifestFileName)) invalid(kManifestFileName, "", "missing");
-  const std::string manifest_bytes = src.bytes(kManifestFileName);
+  std::string storage;
   json j;
-  try {
-    j = json::parse(manifest_bytes);
-  } catch (const json::parse_error& e) {
-    throw PackageFormatError(kManifestFileName, "",
-                             "not valid JSON (byte " + std::to_string(e.byte) + ")");
+  {
+    const std::string_view manifest_bytes = src.bytes(kManifestFileName, storage);
+    try {
+      j = json::parse(manifest_bytes);
+    } catch (const json::parse_error& e) {
+      throw PackageFormatError(kManifestFileName, "",
+                               "not valid JSON (byte " + std::to_string(e.byte) + ")");
+    }
+    if (archive_hash != nullptr) {
+      archive_hash->update(ustar_header(kManifestFileName, manifest_bytes.size()));
+      archive_hash->update(manifest_bytes);
+      archive_hash->update(std::string(ustar_padding(manifest_bytes.size()), '\0'));
+    }
   }
   DrivePackage pkg;
   pkg.manifest = detail::manifest_from_json(j);
   const DriveManifest& m = pkg.manifest;
-  if (collected != nullptr) collected->push_back({kManifestFileName, manifest_bytes});
   for (std::size_t i = 0; i < m.files.size(); ++i) {
     const auto& f = m.files[i];
     if (!src.has(f.name)) invalid(f.name, "", "missing (listed in manifest.json files)");
-    std::string data = src.bytes(f.name);
+    const std::string_view data = src.bytes(f.name, storage);
     if (data.size() != f.size_bytes) {
       invalid(f.name, "size_bytes",
               std::to_string(data.size()) + " bytes, manifest.json files[" + std::to_string(i) +
@@ -589,8 +604,15 @@ DrivePackage validate(const PackageSource& src, const PackageValidationConfig& c
       invalid(f.name, "sha256", actual + " does not match manifest.json files[" +
                                     std::to_string(i) + "].sha256 " + f.sha256);
     }
-    if (collected != nullptr) collected->push_back({f.name, std::move(data)});
+    if (archive_hash != nullptr) {
+      archive_hash->update(ustar_header(f.name, data.size()));
+      archive_hash->update(data);
+      archive_hash->update(std::string(ustar_padding(data.size()), '\0'));
+    }
   }
+  storage.clear();
+  storage.shrink_to_fit();
+  if (archive_hash != nullptr) archive_hash->update(std::string(kUstarEndBytes, '\0'));
   const GridmapScan scan = validate_gridmap(src.gdal_path(kTif), m, cfg);
   read_candidates(src.gdal_path(kGpkg), m, cfg, scan, pkg);
   return pkg;
@@ -610,10 +632,10 @@ DrivePackage read_and_validate_package(const fs::path& dir_or_tar,
   detail::ensure_gdal();
   std::error_code ec;
   if (fs::is_directory(dir_or_tar, ec)) {
-    std::vector<TarMember> files;
-    DrivePackage pkg = validate(DirSource(dir_or_tar), cfg, &files);
+    detail::Sha256 archive_hash;
+    DrivePackage pkg = validate(DirSource(dir_or_tar), cfg, &archive_hash);
     pkg.location = dir_or_tar;
-    pkg.content_sha256 = sha256_hex(write_ustar(files));
+    pkg.content_sha256 = archive_hash.hex();
     return pkg;
   }
   if (!fs::is_regular_file(dir_or_tar, ec)) {

@@ -72,41 +72,53 @@ std::string c_string(const char* field, std::size_t len) {
 
 }  // namespace
 
+std::string ustar_header(const std::string& name, std::uint64_t size) {
+  check_name(name);
+  if (size >= (std::uint64_t{1} << 33U)) {
+    throw ContractViolation("ustar: member " + name + " exceeds 8 GiB");
+  }
+  std::string h(kBlock, '\0');
+  std::memcpy(h.data() + kNameOff, name.data(), name.size());
+  put_octal(h.data() + kModeOff, 8, 0644);
+  put_octal(h.data() + kUidOff, 8, 0);
+  put_octal(h.data() + kGidOff, 8, 0);
+  put_octal(h.data() + kSizeOff, kSizeLen, size);
+  put_octal(h.data() + kMtimeOff, 12, 0);
+  h[kTypeOff] = '0';
+  std::memcpy(h.data() + kMagicOff, "ustar", 6);  // "ustar\0"
+  std::memcpy(h.data() + kVersionOff, "00", 2);
+  const std::uint32_t sum = header_checksum(reinterpret_cast<const unsigned char*>(h.data()));
+  put_octal(h.data() + kChksumOff, 7, sum);  // 6 digits + NUL
+  h[kChksumOff + 7] = ' ';
+  return h;
+}
+
 std::string write_ustar(const std::vector<TarMember>& members) {
-  std::size_t total = 2 * kBlock;
-  for (const auto& m : members) total += kBlock + (m.data.size() + kBlock - 1) / kBlock * kBlock;
+  std::size_t total = kUstarEndBytes;
+  for (const auto& m : members) total += kBlock + m.data.size() + ustar_padding(m.data.size());
   std::string out;
   out.reserve(total);
   std::set<std::string> seen;
   for (const auto& m : members) {
-    check_name(m.name);
     if (!seen.insert(m.name).second) throw ContractViolation("ustar: duplicate member " + m.name);
-    std::array<char, kBlock> h{};
-    std::memcpy(h.data() + kNameOff, m.name.data(), m.name.size());
-    put_octal(h.data() + kModeOff, 8, 0644);
-    put_octal(h.data() + kUidOff, 8, 0);
-    put_octal(h.data() + kGidOff, 8, 0);
-    if (m.data.size() >= (std::uint64_t{1} << 33U)) {
-      throw ContractViolation("ustar: member " + m.name + " exceeds 8 GiB");
-    }
-    put_octal(h.data() + kSizeOff, kSizeLen, m.data.size());
-    put_octal(h.data() + kMtimeOff, 12, 0);
-    h[kTypeOff] = '0';
-    std::memcpy(h.data() + kMagicOff, "ustar", 6);  // "ustar\0"
-    std::memcpy(h.data() + kVersionOff, "00", 2);
-    const std::uint32_t sum = header_checksum(reinterpret_cast<const unsigned char*>(h.data()));
-    put_octal(h.data() + kChksumOff, 7, sum);  // 6 digits + NUL
-    h[kChksumOff + 7] = ' ';
-    out.append(h.data(), kBlock);
+    out += ustar_header(m.name, m.data.size());
     out.append(m.data);
-    out.append((kBlock - m.data.size() % kBlock) % kBlock, '\0');
+    out.append(ustar_padding(m.data.size()), '\0');
   }
-  out.append(2 * kBlock, '\0');
+  out.append(kUstarEndBytes, '\0');
   return out;
 }
 
 std::vector<TarMember> read_ustar(std::string_view bytes, const std::string& source) {
   std::vector<TarMember> members;
+  for (auto& v : read_ustar_views(bytes, source)) {
+    members.push_back({std::move(v.name), std::string(v.data)});
+  }
+  return members;
+}
+
+std::vector<TarMemberView> read_ustar_views(std::string_view bytes, const std::string& source) {
+  std::vector<TarMemberView> members;
   std::set<std::string> seen;
   std::size_t off = 0;
   const auto fail = [&](std::size_t at, const std::string& what) -> FormatError {
@@ -156,7 +168,7 @@ std::vector<TarMember> read_ustar(std::string_view bytes, const std::string& sou
                                std::to_string(bytes.size() - data_off) + " present");
     }
     if (!seen.insert(name).second) throw fail(off, "duplicate member '" + name + "'");
-    members.push_back({name, std::string(bytes.substr(data_off, size))});
+    members.push_back({name, bytes.substr(data_off, size)});
     const std::uint64_t padded = (size + kBlock - 1) / kBlock * kBlock;
     if (padded > bytes.size() - data_off) {
       throw fail(bytes.size(), "truncated archive: padding of member '" + name + "' missing");

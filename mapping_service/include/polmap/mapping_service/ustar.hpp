@@ -20,6 +20,22 @@ struct TarMember {
   std::string data;
 };
 
+/// A member of a parsed archive, viewing the archive's bytes (valid while they are).
+struct TarMemberView {
+  std::string name;
+  std::string_view data;
+};
+
+/// The 512-byte header write_ustar emits for a member (for streaming writers/hashers:
+/// an archive is, per member, header + data + zero padding to 512, then 1024 zero bytes).
+[[nodiscard]] std::string ustar_header(const std::string& name, std::uint64_t size);
+/// Zero bytes that pad `size` bytes of member data to a 512-byte boundary.
+[[nodiscard]] inline std::size_t ustar_padding(std::uint64_t size) {
+  return static_cast<std::size_t>((512 - size % 512) % 512);
+}
+/// Bytes of the end-of-archive marker (two zero blocks).
+inline constexpr std::size_t kUstarEndBytes = 1024;
+
 /// Writes the members into one ustar archive. Throws ContractViolation on an invalid name.
 [[nodiscard]] std::string write_ustar(const std::vector<TarMember>& members);
 
@@ -29,5 +45,8 @@ struct TarMember {
 /// a name with a directory part, duplicate names, or a missing end-of-archive marker.
 [[nodiscard]] std::vector<TarMember> read_ustar(std::string_view bytes,
                                                 const std::string& source = "archive");
+/// Same checks as read_ustar, without copying member data.
+[[nodiscard]] std::vector<TarMemberView> read_ustar_views(std::string_view bytes,
+                                                         const std::string& source = "archive");
 
 }  // namespace polmap::mapping

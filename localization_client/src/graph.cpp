@@ -106,6 +106,10 @@ void SlidingWindowGraph::add_pose_prior(PoseKey pose, const Pose2& T_map_vehicle
   it->second.priors.push_back({T_map_vehicle, sqrt_information_from_covariance(covariance)});
 }
 
+void SlidingWindowGraph::clear_pose_priors() {
+  for (auto& [k, n] : poses_) n.priors.clear();
+}
+
 void SlidingWindowGraph::truncate_before(double time_s) {
   std::set<PoseKey> removed;
   for (auto it = poses_.begin(); it != poses_.end() && it->second.time_s < time_s;) {

@@ -135,6 +135,18 @@ void LocalMap::clear() {
 
 void LocalMap::add(double time_s, std::span<const PointCandidate> points_odom,
                    std::span<const LineCandidate> lines_odom) {
+  add_impl(time_s, nullptr, points_odom, lines_odom);
+}
+
+void LocalMap::add(double time_s, const Pose2& T_odom_vehicle,
+                   std::span<const PointCandidate> points_odom,
+                   std::span<const LineCandidate> lines_odom) {
+  add_impl(time_s, &T_odom_vehicle, points_odom, lines_odom);
+}
+
+void LocalMap::add_impl(double time_s, const Pose2* T_odom_vehicle,
+                        std::span<const PointCandidate> points_odom,
+                        std::span<const LineCandidate> lines_odom) {
   const std::uint64_t extraction = next_extraction_++;
   // Remember cluster ids before truncation so ids survive.
   for (std::size_t i = 0; i < points_.size(); ++i) {
@@ -159,7 +171,9 @@ void LocalMap::add(double time_s, std::span<const PointCandidate> points_odom,
   truncate(points_, point_prev_id_);
   truncate(lines_, line_prev_id_);
   for (const auto& p : points_odom) {
-    points_.push_back({time_s, extraction, p.position_m, p.scattering, p.strength});
+    const double range =
+        T_odom_vehicle ? (p.position_m - T_odom_vehicle->translation()).norm() : 0.0;
+    points_.push_back({time_s, extraction, p.position_m, range, p.scattering, p.strength});
     point_prev_id_.push_back(0);
   }
   for (const auto& l : lines_odom) {
@@ -179,19 +193,24 @@ void LocalMap::recluster() {
     const int k =
         point_label_.empty() ? 0 : *std::max_element(point_label_.begin(), point_label_.end()) + 1;
     point_clusters_.assign(k, {});
+    std::vector<double> wsum(k, 0.0);
+    const double s0 = cfg_.centroid_sigma0_m * cfg_.centroid_sigma0_m;
+    const double saz = cfg_.centroid_sigma_azimuth_rad * cfg_.centroid_sigma_azimuth_rad;
     for (std::size_t i = 0; i < points_.size(); ++i) {
       PointCluster& c = point_clusters_[point_label_[i]];
       const PointObservation& o = points_[i];
       if (c.members.empty()) c.first_time_s = c.last_time_s = o.time_s;
       c.members.push_back(i);
-      c.centroid_odom_m += o.position_odom_m;
+      const double w = 1.0 / (s0 + saz * o.range_m * o.range_m);
+      c.centroid_odom_m += w * o.position_odom_m;
+      wsum[point_label_[i]] += w;
       c.first_time_s = std::min(c.first_time_s, o.time_s);
       c.last_time_s = std::max(c.last_time_s, o.time_s);
       c.observed_latest = c.observed_latest || o.extraction_index == latest;
     }
-    for (auto& c : point_clusters_) {
-      c.num_observations = static_cast<int>(c.members.size());
-      c.centroid_odom_m /= static_cast<double>(c.num_observations);
+    for (int c = 0; c < k; ++c) {
+      point_clusters_[c].num_observations = static_cast<int>(point_clusters_[c].members.size());
+      point_clusters_[c].centroid_odom_m /= wsum[c];
     }
     assign_stable_ids(point_clusters_, point_prev_id_, next_cluster_id_);
   }

@@ -135,10 +135,44 @@ class Scorer {
   Scorer(std::span<const PointCluster> points, std::span<const LineCluster> lines,
          const MapIndex& map, const MatchPrior& prior, const MatcherConfig& cfg)
       : points_(points), lines_(lines), map_(map), prior_(prior), cfg_(cfg) {
-    for (const auto& c : points_) weights_.push_back(std::min(1.0, c.num_observations / 3.0));
+    std::vector<Eigen::Vector2d> centroids;
+    for (const auto& c : points_) {
+      weights_.push_back(std::min(1.0, c.num_observations / 3.0));
+      centroids.push_back(c.centroid_odom_m);
+    }
     for (const auto& c : lines_) {
       line_weights_.push_back(cfg_.line_weight * std::min(1.0, c.num_observations / 3.0));
     }
+    clusters_tree_ = std::make_unique<detail::KdTree2>(std::move(centroids));
+  }
+
+  /// Fixes the map points of the map -> local term: those with a cluster
+  /// within coverage_radius_m + gate_radius_m under the prior transform.
+  void set_region(const Pose2& T_prior, double gate_radius_m, double view_radius_m) {
+    region_.clear();
+    if (points_.empty() || cfg_.map_to_local_weight <= 0.0) return;
+    const Pose2 inv = T_prior.inverse();
+    std::vector<std::size_t> near;
+    const Eigen::Vector2d v = T_prior * prior_.T_odom_vehicle.translation();
+    map_.points_within(v, view_radius_m, near);
+    for (std::size_t m : near) {
+      const auto nn = clusters_tree_->nearest(inv * map_.points()[m].position_m);
+      if (nn.second <= cfg_.coverage_radius_m + gate_radius_m) region_.push_back(m);
+    }
+  }
+
+  /// Map -> local term (see file comment).
+  [[nodiscard]] double map_cost(const Pose2& T) const {
+    if (region_.empty()) return 0.0;
+    const Pose2 inv = T.inverse();
+    const double itr = 1.0 / cfg_.point_truncation_m;
+    double cost = 0.0;
+    for (std::size_t m : region_) {
+      const double d =
+          std::min(clusters_tree_->nearest(inv * map_.points()[m].position_m).second * itr, 1.0);
+      cost += d * d;
+    }
+    return cfg_.map_to_local_weight * cost;
   }
 
   [[nodiscard]] double point_cost(const Pose2& T) const {
@@ -179,19 +213,7 @@ class Scorer {
         cost += line_weights_[j] * d * d;
       }
     }
-    if (cfg_.unmatched_map_penalty > 0.0) {
-      std::set<std::size_t> near, matched;
-      std::vector<std::size_t> buf;
-      for (const auto& c : points_) {
-        const Eigen::Vector2d p = T * c.centroid_odom_m;
-        map_.points_within(p, cfg_.coverage_radius_m, buf);
-        near.insert(buf.begin(), buf.end());
-        const auto nn = map_.nearest_point(p);
-        if (nn && nn->second <= cfg_.association_distance_m) matched.insert(nn->first);
-      }
-      cost += cfg_.unmatched_map_penalty * static_cast<double>(near.size() - matched.size());
-    }
-    return cost;
+    return cost + map_cost(T);
   }
 
   /// ICP-style Gauss-Newton on point-to-point and end-point-to-line residuals,
@@ -213,6 +235,22 @@ class Scorer {
         H += weights_[i] * J.transpose() * J;
         g += weights_[i] * J.transpose() * r;
         ++n;
+      }
+      if (!region_.empty()) {
+        const Pose2 inv = T.inverse();
+        for (std::size_t m : region_) {
+          const Eigen::Vector2d& pm = map_.points()[m].position_m;
+          const auto nn = clusters_tree_->nearest(inv * pm);
+          if (nn.second > cfg_.point_truncation_m) continue;
+          const Eigen::Vector2d p = T * points_[nn.first].centroid_odom_m;
+          const Eigen::Vector2d r = p - pm;
+          Eigen::Matrix<double, 2, 3> J;
+          J << 1, 0, perp(p - c_map).x(), 0, 1, perp(p - c_map).y();
+          const double w = cfg_.map_to_local_weight * weights_[nn.first];
+          H += w * J.transpose() * J;
+          g += w * J.transpose() * r;
+          ++n;
+        }
       }
       if (cfg_.use_lines) {
         for (std::size_t j = 0; j < lines_.size(); ++j) {
@@ -246,18 +284,16 @@ class Scorer {
   }
 
   void associations(const Pose2& T, MatchResult& out) const {
-    // Points: nearest map point within the association distance, injective
-    // by keeping the closest cluster per landmark.
-    std::map<std::size_t, PointMatch> by_landmark;
-    for (const auto& c : points_) {
-      const auto nn = map_.nearest_point(T * c.centroid_odom_m);
-      if (!nn || nn->second > cfg_.association_distance_m) continue;
-      const PointMatch m{c.id, map_.points()[nn->first].id, nn->second};
-      auto [it, inserted] = by_landmark.try_emplace(nn->first, m);
-      if (!inserted && m.distance_m < it->second.distance_m) it->second = m;
-    }
+    // Points: mutual nearest neighbours within the association distance.
     out.points.clear();
-    for (const auto& [k, m] : by_landmark) out.points.push_back(m);
+    const Pose2 inv = T.inverse();
+    for (std::size_t i = 0; i < points_.size(); ++i) {
+      const auto nn = map_.nearest_point(T * points_[i].centroid_odom_m);
+      if (!nn || nn->second > cfg_.association_distance_m) continue;
+      const auto back = clusters_tree_->nearest(inv * map_.points()[nn->first].position_m);
+      if (back.first != i) continue;
+      out.points.push_back({points_[i].id, map_.points()[nn->first].id, nn->second});
+    }
     out.lines.clear();
     if (!cfg_.use_lines) return;
     for (const auto& c : lines_) {
@@ -275,6 +311,8 @@ class Scorer {
   const MatchPrior& prior_;
   const MatcherConfig& cfg_;
   std::vector<double> weights_, line_weights_;
+  std::unique_ptr<detail::KdTree2> clusters_tree_;
+  std::vector<std::size_t> region_;  ///< map points of the map -> local term
   mutable std::vector<std::size_t> edge_buf_;
 };
 
@@ -302,7 +340,13 @@ MatchResult match_local_map(std::span<const PointCluster> points_odom,
     return d.dot(info * d) <= cfg.gate_chi2;
   };
 
-  const Scorer scorer(points_odom, lines_odom, map, prior, cfg);
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> es(prior.covariance.topLeftCorner<2, 2>());
+  const double var_xy = std::max(es.eigenvalues().maxCoeff(), 0.0);
+  const double var_yaw = std::max(prior.covariance(2, 2), 0.0);
+  const double k = std::sqrt(cfg.gate_chi2);
+  Scorer scorer(points_odom, lines_odom, map, prior, cfg);
+  // Map points near the observed area (radar range plus margin around the vehicle).
+  scorer.set_region(prior.T_map_odom, k * std::sqrt(var_xy + var_yaw * 60.0 * 60.0), 90.0);
   std::vector<Candidate> candidates;
   std::unordered_set<std::uint64_t> seen;
   auto consider = [&](const Pose2& T) {
@@ -315,7 +359,7 @@ MatchResult match_local_map(std::span<const PointCluster> points_odom,
     const std::uint64_t key =
         (q(Tv.x_m, 0.1) << 42) | (q(Tv.y_m, 0.1) << 21) | q(Tv.yaw_rad, 0.001);
     if (!seen.insert(key).second) return;
-    candidates.push_back({T, Tv, scorer.point_cost(T)});
+    candidates.push_back({T, Tv, scorer.point_cost(T) + scorer.map_cost(T)});
   };
   consider(prior.T_map_odom);
 
@@ -331,10 +375,6 @@ MatchResult match_local_map(std::span<const PointCluster> points_odom,
     anchors.resize(cfg.max_anchor_clusters);
   }
   // Map candidates per anchor inside its predicted position's gate radius.
-  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> es(prior.covariance.topLeftCorner<2, 2>());
-  const double var_xy = std::max(es.eigenvalues().maxCoeff(), 0.0);
-  const double var_yaw = std::max(prior.covariance(2, 2), 0.0);
-  const double k = std::sqrt(cfg.gate_chi2);
   std::vector<std::vector<std::size_t>> cand(anchors.size());
   for (std::size_t a = 0; a < anchors.size(); ++a) {
     const Eigen::Vector2d p = prior.T_map_odom * points_odom[anchors[a]].centroid_odom_m;
@@ -359,6 +399,93 @@ MatchResult match_local_map(std::span<const PointCluster> points_odom,
           if (static_cast<int>(candidates.size()) >= cfg.max_candidates) capped = true;
         }
       }
+    }
+  }
+  if (cfg.use_voting && !capped && !points_odom.empty() && !map.points().empty()) {
+    // Correlative generator: per yaw hypothesis, clusters vote for translations.
+    const double yaw_half = k * std::sqrt(var_yaw);
+    int n_yaw = static_cast<int>(std::floor(yaw_half / cfg.yaw_step_rad));
+    const int max_half = std::max(0, (cfg.max_yaw_hypotheses - 1) / 2);
+    const double step = n_yaw > max_half ? yaw_half / std::max(max_half, 1) : cfg.yaw_step_rad;
+    n_yaw = std::min(n_yaw, max_half);
+    const Eigen::Vector2d v = prior_vehicle.translation();
+    std::vector<Eigen::Vector2d> predicted;
+    std::vector<double> lever;
+    for (const auto& c : points_odom) {
+      predicted.push_back(prior.T_map_odom * c.centroid_odom_m);
+      lever.push_back((predicted.back() - v).norm());
+    }
+    struct Peak {
+      double votes;
+      double dyaw;
+      Eigen::Vector2d dt;
+    };
+    std::vector<Peak> peaks;
+    std::unordered_map<std::uint64_t, double> hist;
+    std::vector<std::size_t> near;
+    const double inv_cell = 1.0 / cfg.vote_cell_m;
+    auto bin_key = [](std::int64_t ix, std::int64_t iy) {
+      return (static_cast<std::uint64_t>(ix + (1 << 30)) << 32) |
+             static_cast<std::uint64_t>(iy + (1 << 30));
+    };
+    for (int iy = -n_yaw; iy <= n_yaw; ++iy) {
+      const double dyaw = iy * step;
+      const Eigen::Matrix2d R = Pose2{0, 0, dyaw}.rotation();
+      hist.clear();
+      for (std::size_t i = 0; i < points_odom.size(); ++i) {
+        const Eigen::Vector2d p = R * (predicted[i] - v) + v;
+        // Gate radius of the translation (rotation is fixed per hypothesis).
+        const double r = k * std::sqrt(var_xy) + cfg.pair_distance_tolerance_m;
+        map.points_within(p, r, near);
+        const double w = std::min(1.0, points_odom[i].num_observations / 3.0);
+        for (std::size_t m : near) {
+          const Eigen::Vector2d dt = map.points()[m].position_m - p;
+          hist[bin_key(static_cast<std::int64_t>(std::floor(dt.x() * inv_cell)),
+                       static_cast<std::int64_t>(std::floor(dt.y() * inv_cell)))] += w;
+        }
+      }
+      // Peaks of the 3×3 neighbourhood sums (an offset may straddle bins);
+      // the best few distinct ones per yaw, so a second mode (a repetitive
+      // post row) survives as a runner-up.
+      constexpr int kPeaksPerYaw = 3;
+      std::vector<Peak> best;
+      for (const auto& [key, n] : hist) {
+        const std::int64_t bx = static_cast<std::int64_t>(key >> 32) - (1 << 30);
+        const std::int64_t by = static_cast<std::int64_t>(key & 0xFFFFFFFFULL) - (1 << 30);
+        double sum = 0.0;
+        for (int dx = -1; dx <= 1; ++dx) {
+          for (int dy = -1; dy <= 1; ++dy) {
+            const auto it = hist.find(bin_key(bx + dx, by + dy));
+            if (it != hist.end()) sum += it->second;
+          }
+        }
+        if (best.size() == kPeaksPerYaw && sum <= best.back().votes) continue;
+        const Peak pk{sum, dyaw,
+                      Eigen::Vector2d((bx + 0.5) * cfg.vote_cell_m, (by + 0.5) * cfg.vote_cell_m)};
+        // Replace a weaker peak nearby, else insert.
+        bool merged = false;
+        for (auto& b : best) {
+          if ((b.dt - pk.dt).norm() <= cfg.distinct_translation_m) {
+            if (pk.votes > b.votes) b = pk;
+            merged = true;
+            break;
+          }
+        }
+        if (!merged) best.push_back(pk);
+        std::sort(best.begin(), best.end(),
+                  [](const Peak& a, const Peak& b) { return a.votes > b.votes; });
+        if (best.size() > kPeaksPerYaw) best.resize(kPeaksPerYaw);
+      }
+      peaks.insert(peaks.end(), best.begin(), best.end());
+    }
+    std::sort(peaks.begin(), peaks.end(),
+              [](const Peak& a, const Peak& b) { return a.votes > b.votes; });
+    if (peaks.size() > static_cast<std::size_t>(cfg.vote_peaks)) peaks.resize(cfg.vote_peaks);
+    for (const Peak& pk : peaks) {
+      // p -> R(dyaw) (p - v) + v + dt, composed onto the prior.
+      const Pose2 D{0.0, 0.0, pk.dyaw};
+      const Eigen::Vector2d t = v + pk.dt - D.rotation() * v;
+      consider(Pose2{t.x(), t.y(), pk.dyaw} * prior.T_map_odom);
     }
   }
   result.candidates_scored = static_cast<int>(candidates.size());

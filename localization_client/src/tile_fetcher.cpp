@@ -13,7 +13,6 @@
 #include <thread>
 
 #include "polmap/schema/errors.hpp"
-#include "polmap/tiles/local_frame.hpp"
 
 namespace polmap::loc {
 namespace {
@@ -454,17 +453,5 @@ TileFetcherStats TileFetcher::stats() const {
 }
 
 const TileFetcherConfig& TileFetcher::config() const { return impl_->cfg; }
-
-std::vector<tiles::TileKey> tiles_around(const GeoPoint& p, double radius_m, int z) {
-  const tiles::LocalFrame f(p);
-  const GeoPoint sw = f.to_geo({-radius_m, -radius_m});
-  const GeoPoint ne = f.to_geo({radius_m, radius_m});
-  tiles::GeoBox box;
-  box.min_lat_deg = std::min(sw.lat_deg, ne.lat_deg);
-  box.max_lat_deg = std::max(sw.lat_deg, ne.lat_deg);
-  box.min_lon_deg = sw.lon_deg;
-  box.max_lon_deg = ne.lon_deg;  // min > max across the antimeridian: handled by tiles_covering
-  return tiles::tiles_covering(box, z);
-}
 
 }  // namespace polmap::loc

@@ -112,6 +112,10 @@ class SlidingWindowGraph {
   /// Unary prior on a pose (covariance in x_m, y_m, yaw_rad).
   void add_pose_prior(PoseKey pose, const Pose2& T_map_vehicle, const Eigen::Matrix3d& covariance);
 
+  /// Removes every pose prior in the window (the Localizer keeps one prior at
+  /// most: priors derived from one dead-reckoning chain are not independent).
+  void clear_pose_priors();
+
   /// Drops poses older than time_s with their factors and orphaned nodes.
   void truncate_before(double time_s);
   void clear();

@@ -19,6 +19,7 @@
 
 #include "polmap/localization_client/line_geometry.hpp"
 #include "polmap/schema/landmark.hpp"
+#include "polmap/schema/pose2.hpp"
 
 namespace polmap::loc {
 
@@ -47,6 +48,11 @@ struct LocalMapConfig {
   /// a sliding-window gridmap jitter by a cell or two plus odometry drift.
   double point_link_distance_m = 0.5;
   LineLinkConfig line_link;
+  /// Centroids weight each observation by 1 / (σ0² + (σ_az · range)²): far
+  /// candidates are laterally less precise (azimuth resolution ~3°) and far
+  /// point targets sometimes split into two candidates ~0.5 m apart.
+  double centroid_sigma0_m = 0.05;
+  double centroid_sigma_azimuth_rad = 0.01;
 };
 
 /// One point candidate as observed at one extraction time, odometry frame.
@@ -54,6 +60,7 @@ struct PointObservation {
   double time_s = 0.0;
   std::uint64_t extraction_index = 0;  ///< which add() call produced it
   Eigen::Vector2d position_odom_m = Eigen::Vector2d::Zero();
+  double range_m = 0.0;  ///< distance from the vehicle at extraction (0 if unknown)
   ScatteringClass scattering = ScatteringClass::Unknown;
   double strength = 0.0;
 };
@@ -69,6 +76,7 @@ struct LineObservation {
 /// A group of point observations believed to be one landmark.
 struct PointCluster {
   std::uint64_t id = 0;  ///< stable across re-clustering (see file comment)
+  /// Precision-weighted mean of the members (LocalMapConfig).
   Eigen::Vector2d centroid_odom_m = Eigen::Vector2d::Zero();
   int num_observations = 0;
   double first_time_s = 0.0;
@@ -108,8 +116,12 @@ class LocalMap {
  public:
   explicit LocalMap(LocalMapConfig cfg = {});
 
-  /// Adds one extraction's candidates (odometry frame) taken at time_s, drops
+  /// Adds one extraction's candidates (odometry frame) taken at time_s with
+  /// the vehicle at T_odom_vehicle (for the observations' ranges), drops
   /// observations older than time_s - window_s and re-clusters.
+  void add(double time_s, const Pose2& T_odom_vehicle, std::span<const PointCandidate> points_odom,
+           std::span<const LineCandidate> lines_odom);
+  /// Same without a vehicle pose: all observations weigh the same.
   void add(double time_s, std::span<const PointCandidate> points_odom,
            std::span<const LineCandidate> lines_odom);
   /// Drops everything (e.g. after the odometry was reset).
@@ -126,6 +138,9 @@ class LocalMap {
   [[nodiscard]] const LocalMapConfig& config() const { return cfg_; }
 
  private:
+  void add_impl(double time_s, const Pose2* T_odom_vehicle,
+                std::span<const PointCandidate> points_odom,
+                std::span<const LineCandidate> lines_odom);
   void recluster();
 
   LocalMapConfig cfg_;

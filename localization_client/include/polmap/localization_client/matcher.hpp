@@ -16,6 +16,14 @@
 ///     rigid transform mapping l1 -> m1, l2 -> m2 is a candidate if its vehicle
 ///     pose passes the Mahalanobis gate. The prior itself is always a candidate.
 ///     Near-duplicates (same pose within a quantum) are scored once.
+///     Second generator (robust when most clusters have no map counterpart,
+///     where random anchor pairs rarely hit two real landmarks): for yaw
+///     hypotheses across the gate (yaw_step_rad apart, rotating the predicted
+///     local map about the predicted vehicle position), every cluster votes for
+///     the translations that would put it onto each map point inside its gate
+///     (2-D histogram, vote_cell_m bins, 3×3 peak sum); the strongest peaks
+///     over all yaws become candidates. A correlative scan in the spirit of
+///     Olson's, costing clusters × gated map points per yaw.
 ///  3. Score = Σ_points w_i min(d_i / d_trunc, 1)², d_i the distance to the
 ///     nearest map point, w_i = min(1, observations / 3): a local cluster
 ///     without a map counterpart costs the full penalty 1 whatever the
@@ -23,15 +31,20 @@
 ///     pull the optimum; matching few clusters well cannot beat matching many.
 ///  4. The best distinct candidates (non-maximum suppression) are refined by
 ///     ICP-style Gauss-Newton on point-to-point and line end-point-to-line
-///     residuals, then rescored with lines (Σ w_line min((hull + projection) /
-///     d_line_trunc, 1)²) and the unmatched-map-landmark penalty (map points
-///     close to observed clusters but not matched, paper: "additional cost for
-///     unmatched landmarks").
+///     residuals in both directions, then rescored with lines (Σ w_line
+///     min((hull + projection) / d_line_trunc, 1)²) and the unmatched map
+///     landmarks (paper: "additional cost for unmatched landmarks"): every map
+///     point near the observed area costs its truncated distance to the
+///     nearest cluster. This map -> local term is what keeps clutter (speckle
+///     of foliage around a tree trunk, parts of parked cars: candidates that
+///     are in no map) from pulling the transform: clutter near landmarks can
+///     lower the local -> map cost of a wrong transform, never the map -> local
+///     cost, which is smallest when every landmark sits on a cluster.
 ///  5. The best refined candidate wins; the runner-up distinct candidate's cost
 ///     measures ambiguity (repetitive post rows).
-/// Associations of the winner: each cluster with its nearest map landmark
-/// within the association distance, made injective by keeping the closest
-/// cluster per landmark.
+/// Associations of the winner: mutual nearest neighbours (the cluster's
+/// nearest map point has that cluster as its nearest cluster) within the
+/// association distance, hence injective.
 #include <Eigen/Core>
 #include <cstdint>
 #include <memory>
@@ -104,17 +117,29 @@ struct MatchPrior {
 /// Parameters of the matcher; defaults for the paper's radar and map density.
 struct MatcherConfig {
   double gate_chi2 = 16.0;  ///< Mahalanobis² gate of a candidate's vehicle pose (3 DoF ≈ 99.9 %)
-  double pair_distance_tolerance_m = 0.5;    ///< |d(l1,l2) - d(m1,m2)|: cluster noise + drift
-  double min_pair_baseline_m = 3.0;          ///< short baselines give unstable yaw
-  int max_anchor_clusters = 14;              ///< most-observed clusters used to make candidates
-  int min_anchor_observations = 2;           ///< single sightings are too often noise
-  int max_candidates = 20000;                ///< hard cap on scored candidates per call
-  double point_truncation_m = 1.0;           ///< d_trunc: beyond it a cluster counts as unmatched
-  double line_truncation_m = 1.0;            ///< for hull + projection distance
-  double line_weight = 1.0;                  ///< weight of one line cluster vs one point cluster
-  double unmatched_map_penalty = 0.2;        ///< per unmatched map point near the local map
-  double coverage_radius_m = 3.0;            ///< "near": within this of a matched/observed cluster
-  double association_distance_m = 0.6;       ///< point association after refinement
+  double pair_distance_tolerance_m = 0.5;  ///< |d(l1,l2) - d(m1,m2)|: cluster noise + drift
+  double min_pair_baseline_m = 3.0;        ///< short baselines give unstable yaw
+  int max_anchor_clusters = 14;            ///< most-observed clusters used to make candidates
+  int min_anchor_observations = 2;         ///< single sightings are too often noise
+  int max_candidates = 20000;              ///< hard cap on scored candidates per call
+  bool use_voting = true;                  ///< the correlative generator (see file comment)
+  double yaw_step_rad = 0.005;             ///< ≈ 0.3°: 0.15 m lateral at 30 m range
+  int max_yaw_hypotheses = 81;             ///< the step widens beyond this many
+  double vote_cell_m = 0.25;               ///< translation histogram bin
+  int vote_peaks = 24;                     ///< best (yaw, translation) peaks kept as candidates
+  /// d_trunc. Small on purpose: clutter (foliage speckle, car parts) sits
+  /// 0.3-2 m from real landmarks; a true match is within ~0.1 m.
+  double point_truncation_m = 0.5;
+  double line_truncation_m = 1.0;  ///< for hull + projection distance
+  double line_weight = 1.0;        ///< weight of one line cluster vs one point cluster
+  /// Weight of the map -> local term (see file comment, step 4): each map point
+  /// near the observed area costs min(d / d_trunc, 1)², d = distance to its
+  /// nearest transformed cluster. 0 disables it.
+  double map_to_local_weight = 1.0;
+  /// "Near the observed area": a cluster within this distance of the map point
+  /// under the prior transform, plus the gate radius.
+  double coverage_radius_m = 3.0;
+  double association_distance_m = 0.4;       ///< point association after refinement
   double line_association_distance_m = 0.6;  ///< hull + projection, line association
   int refine_top_k = 6;
   int refine_iterations = 6;

@@ -113,8 +113,4 @@ class TileFetcher final : public TileSource {
   std::unique_ptr<Impl> impl_;
 };
 
-/// Tiles (zoom z) within radius_m of a geodetic point (their bounding box test).
-[[nodiscard]] std::vector<tiles::TileKey> tiles_around(const GeoPoint& p, double radius_m,
-                                                       int z = tiles::kLocalizationZoom);
-
 }  // namespace polmap::loc

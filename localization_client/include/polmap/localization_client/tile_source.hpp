@@ -8,7 +8,9 @@
 #include <mutex>
 #include <optional>
 #include <span>
+#include <vector>
 
+#include "polmap/schema/geo.hpp"
 #include "polmap/tiles/localization_tile.hpp"
 #include "polmap/tiles/tile_key.hpp"
 
@@ -28,6 +30,10 @@ class TileSource {
   /// Non-blocking; default: ignored.
   virtual void prefetch(std::span<const tiles::TileKey> keys) { (void)keys; }
 };
+
+/// Tiles of zoom z intersecting the square of half-size radius_m around p.
+[[nodiscard]] std::vector<tiles::TileKey> tiles_around(const GeoPoint& p, double radius_m,
+                                                       int z = tiles::kLocalizationZoom);
 
 /// A TileSource over tiles held in memory (tests, benchmarks, offline use
 /// with tiles built in-process). Thread-safe; put() replaces a tile, e.g. to

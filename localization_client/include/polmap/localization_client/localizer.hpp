@@ -1,0 +1,175 @@
+#pragma once
+/// @file localizer.hpp
+/// Radar-only map-based localization (paper §III, DESIGN.md §3), the facade
+/// of the client library. Per sensor frame:
+///
+///   ego-motion (radar::EgoMotionEstimator) -> integrated odometry
+///   (radar::Odometry, defines the odometry frame) -> sliding-window covariance
+///   gridmap in the odometry frame -> every `extract_every_n_cycles` radar
+///   cycles (at the last-triggered sensor's frame): pCFAR point candidates
+///   (lines when a line extractor is available: every 10th extraction or
+///   when fewer than 5 points matched) -> local-map clustering -> map
+///   landmarks from tiles around the predicted pose (non-blocking
+///   TileSource) -> matching -> temporal smoothing -> sliding-window graph
+///   -> pose + covariance.
+///
+/// Frames. The client's map frame is tiles::LocalFrame at the position of the
+/// first initial pose (set_initial_pose); tile-frame landmark positions are
+/// converted into it through geodetic coordinates. Outputs carry both
+/// T_map_vehicle and the WGS84 GeoPose.
+///
+/// Status.
+///  - Initializing: no confident match yet. Matching searches the wide gate
+///    of the initial pose (σ given to set_initial_pose, grown with the
+///    distance driven); a match is accepted after `init_confirmations`
+///    consecutive unambiguous matches with at least init_min_point_matches
+///    associations that agree with each other. The output meanwhile is the
+///    initial pose moved by odometry.
+///  - Tracking: landmark observations entered the graph within degraded_after_s.
+///  - Degraded: none for longer (landmark-poor road, map gap, outside the
+///    map): the graph integrates odometry from a pose prior, the covariance grows.
+///  - Lost: the position σ exceeded lost_sigma_m or no landmark was associated
+///    for lost_after_s. The graph and smoothing are reset and initialization
+///    restarts around the current estimate with a gate widened to at least the
+///    initial σ; the status stays Lost until a confident match.
+///
+/// Ground truth is never read. Not thread-safe (one instance per vehicle).
+#include <Eigen/Core>
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string_view>
+#include <vector>
+
+#include "polmap/localization_client/graph.hpp"
+#include "polmap/localization_client/local_map.hpp"
+#include "polmap/localization_client/matcher.hpp"
+#include "polmap/localization_client/smoothing.hpp"
+#include "polmap/localization_client/tile_source.hpp"
+#include "polmap/radar/covariance_gridmap.hpp"
+#include "polmap/radar/egomotion.hpp"
+#include "polmap/radar/odometry.hpp"
+#include "polmap/radar/point_extractor.hpp"
+#include "polmap/schema/geo.hpp"
+#include "polmap/schema/pose2.hpp"
+#include "polmap/schema/radar_spec.hpp"
+#include "polmap/schema/recording.hpp"
+#include "polmap/tiles/local_frame.hpp"
+
+namespace polmap::loc {
+
+/// All parameters of the pipeline; defaults are the paper's where it gives
+/// them (DESIGN.md §4), otherwise documented choices.
+struct LocalizerConfig {
+  radar::EgoMotionConfig egomotion;
+  radar::OdometryConfig odometry;
+  /// Sliding-window gridmap (window_s > 0 = localization mode). 2 s: ~20 m of
+  /// driving at 10 m/s and 60 sensor frames per cell, long enough for stable
+  /// pCFAR statistics, short enough that odometry drift stays below a cell.
+  radar::GridmapConfig gridmap{0.1, PolLevel::Full, 2.0, 0.0};
+  radar::PointExtractorConfig points;
+  LocalMapConfig local_map;
+  MatcherConfig matcher;
+  SmoothingConfig smoothing;
+  GraphConfig graph;
+  /// Candidates are extracted every this many radar cycles (at the frame of
+  /// the last-triggered sensor). 2 cycles = 5 Hz: the gridmap changes little
+  /// within 0.2 s, and extraction dominates the per-frame cost.
+  int extract_every_n_cycles = 2;
+  /// Lines every this many extractions, or whenever fewer than
+  /// lines_below_point_matches points matched (paper §IV-B: 10th frame / < 5).
+  int lines_every_n_extractions = 10;
+  int lines_below_point_matches = 5;
+  /// Map landmarks within this radius of the predicted position are matched
+  /// (radar range 80 m + margin for the gate).
+  double map_radius_m = 120.0;
+  /// Tiles around the position predicted this far ahead are prefetched.
+  double prefetch_lookahead_s = 20.0;
+  /// Below this many distinct point landmarks in the graph window (lines
+  /// count half) the last pose gets a prior (paper: PriorFactorPose2 when
+  /// under-constrained).
+  double min_landmarks_without_pose_prior = 3.0;
+  /// Gate floor added to the predicted covariance while tracking: the graph's
+  /// covariance can be optimistic, matching must still find its landmarks.
+  double tracking_gate_floor_xy_m = 0.5;
+  double tracking_gate_floor_yaw_rad = 0.02;
+  /// Initialization: unambiguous matches needed, and how many must agree
+  /// (within 1 m, 1.5°) in a row.
+  int init_min_point_matches = 6;
+  int init_confirmations = 2;
+  /// Covariance of the first graph pose after a confident initialization.
+  double init_pose_sigma_xy_m = 0.3;
+  double init_pose_sigma_yaw_rad = 0.01;
+  /// Status thresholds (see file comment).
+  double degraded_after_s = 2.0;
+  double lost_after_s = 30.0;
+  double lost_sigma_m = 3.0;
+  /// Prediction noise between graph solutions, per metre driven (dead
+  /// reckoning from radar odometry: ~1 % of distance, ~0.1°/m).
+  double prediction_sigma_per_m = 0.01;
+  double prediction_sigma_yaw_per_m = 0.002;
+};
+
+/// Output of one process() call.
+struct LocalizationOutput {
+  enum class Status { Initializing, Tracking, Degraded, Lost };
+  double time_s = 0.0;
+  Status status = Status::Initializing;
+  /// False until both an initial pose and odometry exist; then the pose
+  /// fields below are valid (in Initializing they are the odometry-moved
+  /// initial pose with its wide covariance).
+  bool has_pose = false;
+  Pose2 T_map_vehicle;                                   ///< client map frame (see file comment)
+  GeoPose pose;                                          ///< WGS84, ENU yaw
+  Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();  ///< (x_m, y_m, yaw_rad), map frame
+  bool extracted = false;      ///< candidates were extracted at this frame
+  bool graph_updated = false;  ///< the graph was solved at this frame
+  int matched_points = 0;      ///< point observations entered into the graph at this frame
+  int matched_lines = 0;
+  double graph_update_time_s = 0.0;  ///< Ceres solve + covariance (wall time), if updated
+  double processing_time_s = 0.0;    ///< whole process() call (wall time)
+  double extraction_time_s = 0.0;    ///< candidate extraction (wall time), if extracted
+  double matching_time_s = 0.0;      ///< local map + tiles + matching (wall time)
+  int candidates = 0;                ///< point candidates extracted at this frame
+  int local_point_clusters = 0;
+  int map_points = 0;  ///< map point landmarks loaded around the vehicle
+  std::optional<MatchResult::Status> match_status;  ///< when matching ran at this frame
+  int match_point_associations = 0;                 ///< point associations of that matching result
+  /// Ego-motion of this frame (radar::MotionEstimate::Status::Ok when valid).
+  radar::MotionEstimate::Status motion_status = radar::MotionEstimate::Status::TooFewDetections;
+  double speed_mps = 0.0;         ///< latest accepted ego-motion speed
+  std::uint64_t map_version = 0;  ///< newest map version among the loaded tiles
+};
+
+[[nodiscard]] std::string_view to_string(LocalizationOutput::Status s);
+
+/// The localization pipeline (see file comment).
+class Localizer {
+ public:
+  /// mounts: every sensor whose frames will be passed to process().
+  Localizer(LocalizerConfig cfg, std::vector<SensorMount> mounts, TileSource& tiles);
+  ~Localizer();
+  Localizer(const Localizer&) = delete;
+  Localizer& operator=(const Localizer&) = delete;
+
+  /// Coarse initial pose (e.g. GNSS) with its 1-σ uncertainty. Must be called
+  /// before the first frame can produce a pose; calling it again later
+  /// restarts initialization around the new pose (the map frame stays).
+  void set_initial_pose(GeoPose coarse, double sigma_xy_m, double sigma_yaw_rad);
+
+  /// Processes one sensor frame (time order, any sensor). Never blocks on I/O.
+  LocalizationOutput process(const SensorFrame& frame);
+
+  [[nodiscard]] const LocalizerConfig& config() const;
+  /// The client's map frame (valid after set_initial_pose).
+  [[nodiscard]] const std::optional<tiles::LocalFrame>& map_frame() const;
+  /// Read-only views for diagnostics and tests.
+  [[nodiscard]] const LocalMap& local_map() const;
+  [[nodiscard]] const MapIndex& map_index() const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace polmap::loc

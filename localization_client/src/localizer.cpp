@@ -1,0 +1,544 @@
+#include "polmap/localization_client/localizer.hpp"
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <map>
+#include <numbers>
+#include <set>
+#include <unordered_map>
+
+#include "polmap/schema/errors.hpp"
+
+namespace polmap::loc {
+
+std::string_view to_string(LocalizationOutput::Status s) {
+  switch (s) {
+    case LocalizationOutput::Status::Initializing:
+      return "initializing";
+    case LocalizationOutput::Status::Tracking:
+      return "tracking";
+    case LocalizationOutput::Status::Degraded:
+      return "degraded";
+    case LocalizationOutput::Status::Lost:
+      return "lost";
+  }
+  return "unknown";
+}
+
+namespace {
+
+using Status = LocalizationOutput::Status;
+using Clock = std::chrono::steady_clock;
+
+double seconds_since(Clock::time_point t0) {
+  return std::chrono::duration<double>(Clock::now() - t0).count();
+}
+
+Eigen::Matrix3d diag3(double sxy, double syaw) {
+  return Eigen::Vector3d(sxy * sxy, sxy * sxy, syaw * syaw).asDiagonal();
+}
+
+double position_sigma_m(const Eigen::Matrix3d& cov) {
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> es(cov.topLeftCorner<2, 2>());
+  return std::sqrt(std::max(0.0, es.eigenvalues().maxCoeff()));
+}
+
+/// Map landmarks of one tile converted into the client's map frame.
+struct ConvertedTile {
+  std::uint64_t map_version = 0;
+  std::size_t num_points = 0;
+  std::size_t num_lines = 0;
+  std::vector<PointLandmark> points;
+  std::vector<LineLandmark> lines;
+};
+
+}  // namespace
+
+struct Localizer::Impl {
+  Impl(LocalizerConfig c, std::vector<SensorMount> m, TileSource& t)
+      : cfg(std::move(c)),
+        mounts(std::move(m)),
+        tiles(t),
+        ego(mounts, cfg.egomotion),
+        odo(cfg.odometry),
+        gridmap(cfg.gridmap),
+        local_map(cfg.local_map),
+        point_smoother(cfg.smoothing),
+        line_smoother(cfg.smoothing),
+        graph(cfg.graph) {
+    POLMAP_EXPECT(!mounts.empty());
+    POLMAP_EXPECT(cfg.gridmap.window_s > 0.0);
+    POLMAP_EXPECT(cfg.extract_every_n_cycles >= 1);
+    // Extraction runs at the frame of the sensor that triggers last in a cycle,
+    // so the gridmap holds the complete cycle.
+    const auto last = std::max_element(
+        mounts.begin(), mounts.end(),
+        [](const auto& a, const auto& b) { return a.trigger_offset_s < b.trigger_offset_s; });
+    last_sensor_id = last->sensor_id;
+    for (const auto& mt : mounts) mount_by_id[mt.sensor_id] = mt;
+  }
+
+  LocalizerConfig cfg;
+  std::vector<SensorMount> mounts;
+  TileSource& tiles;
+  radar::EgoMotionEstimator ego;
+  radar::Odometry odo;
+  radar::CovarianceGridmap gridmap;
+  LocalMap local_map;
+  AssociationSmoother point_smoother;
+  AssociationSmoother line_smoother;
+  SlidingWindowGraph graph;
+  MapIndex map;
+  std::optional<tiles::LocalFrame> frame;
+  std::map<std::uint8_t, SensorMount> mount_by_id;
+  std::uint8_t last_sensor_id = 0;
+
+  // Initial pose (map frame) until anchored to the odometry.
+  std::optional<Pose2> pending_initial;
+  Eigen::Matrix3d initial_cov = Eigen::Matrix3d::Identity();
+
+  // Estimate: T_map_odom with the covariance of the vehicle pose at the anchor.
+  bool anchored = false;
+  Pose2 T_map_odom;
+  Eigen::Matrix3d anchor_cov = Eigen::Matrix3d::Identity();
+  double anchor_distance_m = 0.0;
+  Status status = Status::Initializing;
+  bool searching = true;  ///< Initializing or Lost: wide-gate matching, no graph
+
+  // Initialization confirmations.
+  int init_streak = 0;
+  Pose2 init_last_T_map_odom;
+
+  // Graph bookkeeping.
+  std::optional<SlidingWindowGraph::PoseKey> last_key;
+  double last_key_time_s = 0.0;
+  double last_assoc_time_s = -std::numeric_limits<double>::infinity();
+  double tracking_since_s = 0.0;
+  std::uint64_t extractions = 0;
+  int last_point_matches = 0;
+
+  // Tiles.
+  std::map<tiles::TileKey, ConvertedTile> converted;
+  std::vector<tiles::TileKey> index_keys;  ///< tiles the MapIndex was built from
+  std::map<tiles::TileKey, std::uint64_t> index_versions;
+  std::uint64_t map_version = 0;
+  double last_v_mps = 0.0;
+  double last_motion_time_s = std::numeric_limits<double>::infinity();
+
+  // ---------------------------------------------------------------- prediction
+
+  /// Covariance of the predicted vehicle pose: the anchor's, grown with the
+  /// distance driven since (odometry noise per metre, and the anchor's yaw
+  /// uncertainty acting through the lever arm).
+  [[nodiscard]] Eigen::Matrix3d predicted_cov() const {
+    const double d = std::max(0.0, odo.distance_m() - anchor_distance_m);
+    Eigen::Matrix3d c = anchor_cov;
+    const double s2 = std::pow(cfg.prediction_sigma_per_m * d, 2) + anchor_cov(2, 2) * d * d;
+    c(0, 0) += s2;
+    c(1, 1) += s2;
+    c(2, 2) += std::pow(cfg.prediction_sigma_yaw_per_m * d, 2);
+    return c;
+  }
+
+  void anchor(const Pose2& T_map_vehicle, const Pose2& T_odom_vehicle, const Eigen::Matrix3d& cov) {
+    T_map_odom = T_map_vehicle * T_odom_vehicle.inverse();
+    anchor_cov = cov;
+    anchor_distance_m = odo.distance_m();
+    anchored = true;
+  }
+
+  // ---------------------------------------------------------------- map
+
+  ConvertedTile convert(const tiles::LocalizationTile& t) const {
+    const tiles::LocalFrame tf(tiles::tile_center(t.key));
+    auto to_map = [&](const Eigen::Vector2d& p) { return frame->to_local(tf.to_geo(p)); };
+    ConvertedTile c;
+    c.map_version = t.map_version;
+    c.num_points = t.points.size();
+    c.num_lines = t.lines.size();
+    c.points = t.points;
+    for (auto& p : c.points) p.position_m = to_map(p.position_m);
+    c.lines = t.lines;
+    for (auto& l : c.lines) {
+      for (auto& v : l.polyline_m) v = to_map(v);
+    }
+    return c;
+  }
+
+  /// Loads the tiles around the predicted pose (non-blocking) and rebuilds the
+  /// MapIndex when the set of tiles or their content changed.
+  void update_map(const Pose2& T_map_vehicle_pred) {
+    const GeoPoint here = frame->to_geo(T_map_vehicle_pred.translation());
+    const std::vector<tiles::TileKey> keys = tiles_around(here, cfg.map_radius_m);
+    // Prefetch ahead along the heading (at least one tile radius ahead).
+    const double ahead_m = std::max(cfg.map_radius_m, last_v_mps * cfg.prefetch_lookahead_s);
+    const GeoPoint ahead = frame->to_geo(T_map_vehicle_pred * Eigen::Vector2d(ahead_m, 0.0));
+    const auto ahead_keys = tiles_around(ahead, cfg.map_radius_m);
+    tiles.prefetch(ahead_keys);
+
+    bool changed = keys != index_keys;
+    for (const auto& k : keys) {
+      const auto t = tiles.tile(k);
+      if (!t) continue;  // not available yet: try again at the next extraction
+      const auto it = converted.find(k);
+      if (it == converted.end() || it->second.map_version != t->map_version ||
+          it->second.num_points != t->points.size() || it->second.num_lines != t->lines.size()) {
+        converted[k] = convert(*t);
+      }
+      const auto vit = index_versions.find(k);
+      if (vit == index_versions.end() || vit->second != converted[k].map_version) changed = true;
+      map_version = std::max(map_version, t->map_version);
+    }
+    if (!changed) return;
+    // Rebuild from the available tiles; landmarks crossing tile borders are
+    // stored in every tile they touch (same id): keep one copy.
+    std::vector<PointLandmark> points;
+    std::vector<LineLandmark> lines;
+    std::set<std::int64_t> seen_points, seen_lines;
+    index_versions.clear();
+    for (const auto& k : keys) {
+      const auto it = converted.find(k);
+      if (it == converted.end()) continue;
+      index_versions[k] = it->second.map_version;
+      for (const auto& p : it->second.points) {
+        if (seen_points.insert(p.id).second) points.push_back(p);
+      }
+      for (const auto& l : it->second.lines) {
+        if (seen_lines.insert(l.id).second) lines.push_back(l);
+      }
+    }
+    index_keys = keys;
+    map = MapIndex(std::move(points), std::move(lines));
+    // Forget converted tiles far behind (keep a generous working set).
+    if (converted.size() > 64) {
+      for (auto it = converted.begin(); it != converted.end();) {
+        it = std::find(keys.begin(), keys.end(), it->first) == keys.end() &&
+                     std::find(ahead_keys.begin(), ahead_keys.end(), it->first) == ahead_keys.end()
+                 ? converted.erase(it)
+                 : std::next(it);
+      }
+    }
+  }
+
+  // ---------------------------------------------------------------- states
+
+  void reset_tracking() {
+    graph.clear();
+    point_smoother.clear();
+    line_smoother.clear();
+    last_key.reset();
+    init_streak = 0;
+  }
+
+  void go_lost(double time_s) {
+    status = Status::Lost;
+    searching = true;
+    reset_tracking();
+    // Widen the gate to at least the initial uncertainty.
+    for (int i = 0; i < 3; ++i) anchor_cov(i, i) = std::max(anchor_cov(i, i), initial_cov(i, i));
+    (void)time_s;
+  }
+
+  /// Initialization / recovery: wide-gate matching until confident.
+  void search(const MatchResult& match, double time_s, const Pose2& T_odom_vehicle) {
+    const bool confident = match.status == MatchResult::Status::Ok &&
+                           static_cast<int>(match.points.size()) >= cfg.init_min_point_matches;
+    if (!confident) {
+      init_streak = 0;
+      point_smoother.clear();
+      return;
+    }
+    // Agreement of consecutive matches: both transforms applied to the
+    // current vehicle pose in the odometry frame.
+    const Pose2 T = match.T_map_odom * T_odom_vehicle;
+    const Pose2 T_prev = init_last_T_map_odom * T_odom_vehicle;
+    const bool agrees =
+        init_streak > 0 && (T.translation() - T_prev.translation()).norm() < 1.0 &&
+        std::abs(wrap_angle_rad(T.yaw_rad - T_prev.yaw_rad)) < 1.5 * std::numbers::pi / 180.0;
+    if (!agrees) point_smoother.clear();
+    init_streak = agrees ? init_streak + 1 : 1;
+    init_last_T_map_odom = match.T_map_odom;
+    std::vector<std::pair<std::uint64_t, std::int64_t>> votes;
+    for (const auto& m : match.points) votes.emplace_back(m.cluster_id, m.landmark_id);
+    point_smoother.add_votes(votes);
+    if (init_streak < cfg.init_confirmations) return;
+
+    // Confident: start tracking from the matched pose.
+    const Eigen::Matrix3d cov = diag3(cfg.init_pose_sigma_xy_m, cfg.init_pose_sigma_yaw_rad);
+    anchor(T, T_odom_vehicle, cov);
+    searching = false;
+    status = Status::Tracking;
+    tracking_since_s = time_s;
+    graph.clear();
+    last_key.reset();
+    const auto key = graph.add_pose(time_s, T, std::nullopt);
+    graph.add_pose_prior(key, T, cov);
+    last_key = key;
+    last_key_time_s = time_s;
+    last_assoc_time_s = time_s;
+  }
+
+  /// Observed position (odometry frame) of a cluster at the latest
+  /// extraction: of its latest observations the one closest to where the
+  /// prediction puts the associated landmark (a far point target can split
+  /// into two candidates ~0.5 m apart; averaging them would bias the bearing).
+  [[nodiscard]] Eigen::Vector2d latest_observation(const PointCluster& c,
+                                                   const Eigen::Vector2d& predicted_odom) const {
+    const auto latest = local_map.latest_extraction_index();
+    std::optional<Eigen::Vector2d> best;
+    for (std::size_t i : c.members) {
+      const auto& o = local_map.point_observations()[i];
+      if (o.extraction_index != latest) continue;
+      if (!best || (o.position_odom_m - predicted_odom).norm() < (*best - predicted_odom).norm()) {
+        best = o.position_odom_m;
+      }
+    }
+    return best.value_or(c.centroid_odom_m);
+  }
+
+  /// Tracking: smoothing + graph update. Returns the solution if solved.
+  std::optional<GraphSolution> track(const MatchResult& match, double time_s,
+                                     const Pose2& T_odom_vehicle, bool use_lines,
+                                     LocalizationOutput& out) {
+    // Votes from matches whose transform is trustworthy (the gate is tight
+    // while tracking; an ambiguous or empty result casts no votes).
+    if (match.status == MatchResult::Status::Ok ||
+        match.status == MatchResult::Status::TooFewMatches) {
+      std::vector<std::pair<std::uint64_t, std::int64_t>> votes;
+      for (const auto& m : match.points) votes.emplace_back(m.cluster_id, m.landmark_id);
+      point_smoother.add_votes(votes);
+      votes.clear();
+      for (const auto& m : match.lines) votes.emplace_back(m.cluster_id, m.landmark_id);
+      line_smoother.add_votes(votes);
+    }
+    std::vector<std::uint64_t> alive;
+    for (const auto& c : local_map.point_clusters()) alive.push_back(c.id);
+    point_smoother.retain_clusters(alive);
+    alive.clear();
+    for (const auto& c : local_map.line_clusters()) alive.push_back(c.id);
+    line_smoother.retain_clusters(alive);
+
+    const Pose2 guess = T_map_odom * T_odom_vehicle;
+    std::optional<Pose2> delta;
+    if (last_key) {
+      const auto prev = odo.try_T_odom_vehicle(last_key_time_s);
+      if (prev) delta = prev->inverse() * T_odom_vehicle;
+    }
+    if (!delta) graph.clear();  // odometry cannot link: restart the window
+    const auto key = graph.add_pose(time_s, guess, delta);
+    last_key = key;
+    last_key_time_s = time_s;
+
+    std::unordered_map<std::uint64_t, const PointCluster*> cluster_by_id;
+    for (const auto& c : local_map.point_clusters()) cluster_by_id[c.id] = &c;
+    const Pose2 T_vehicle_odom = T_odom_vehicle.inverse();
+    const Pose2 T_vehicle_map = guess.inverse();
+    const double assoc_gate_m = 1.0 + 3.0 * position_sigma_m(predicted_cov());
+    int n_points = 0;
+    for (const auto& a : point_smoother.smoothed()) {
+      const auto it = cluster_by_id.find(a.cluster_id);
+      if (it == cluster_by_id.end() || !it->second->observed_latest) continue;
+      const PointLandmark* lm = map.find_point(a.landmark_id);
+      if (lm == nullptr) continue;
+      const Eigen::Vector2d predicted_odom = T_map_odom.inverse() * lm->position_m;
+      const Eigen::Vector2d obs_vehicle =
+          T_vehicle_odom * latest_observation(*it->second, predicted_odom);
+      // A smoothed association far from where the prediction puts the
+      // landmark would only be rejected by the robust loss; skip it.
+      if ((T_vehicle_map * lm->position_m - obs_vehicle).norm() > assoc_gate_m) continue;
+      graph.add_point_observation(key, lm->id, lm->position_m, obs_vehicle);
+      ++n_points;
+    }
+    int n_lines = 0;
+    if (use_lines) {
+      const auto smoothed_lines = line_smoother.smoothed();
+      std::unordered_map<std::uint64_t, std::int64_t> line_assoc;
+      for (const auto& a : smoothed_lines) line_assoc[a.cluster_id] = a.landmark_id;
+      std::unordered_map<std::uint64_t, const LineCluster*> line_by_id;
+      for (const auto& c : local_map.line_clusters()) line_by_id[c.id] = &c;
+      for (const auto& m : match.lines) {
+        const auto la = line_assoc.find(m.cluster_id);
+        if (la == line_assoc.end() || la->second != m.landmark_id) continue;
+        const auto lc = line_by_id.find(m.cluster_id);
+        if (lc == line_by_id.end() || !lc->second->observed_latest) continue;
+        const LineLandmark* lm = map.find_line(m.landmark_id);
+        if (lm == nullptr || m.edge_index + 1 >= static_cast<int>(lm->polyline_m.size())) continue;
+        // The latest observations of the cluster, merged, in the vehicle frame.
+        std::vector<Segment2> segs;
+        for (std::size_t i : lc->second->members) {
+          const auto& o = local_map.line_observations()[i];
+          if (o.extraction_index == local_map.latest_extraction_index()) {
+            segs.push_back(
+                {T_vehicle_odom * o.segment_odom_m.a_m, T_vehicle_odom * o.segment_odom_m.b_m});
+          }
+        }
+        if (segs.empty()) continue;
+        const Segment2 map_seg{lm->polyline_m[m.edge_index], lm->polyline_m[m.edge_index + 1]};
+        graph.add_line_observation(key, lm->id, merge_segments(segs), map_seg);
+        ++n_lines;
+      }
+    }
+    out.matched_points = n_points;
+    out.matched_lines = n_lines;
+    last_point_matches = n_points;
+    if (n_points > 0 || n_lines > 0) last_assoc_time_s = time_s;
+
+    graph.truncate_before(time_s - cfg.graph.window_s);
+    const double constraint =
+        graph.num_point_landmarks() + 0.5 * std::min(graph.num_line_observations(), 6);
+    if (constraint < cfg.min_landmarks_without_pose_prior) {
+      graph.clear_pose_priors();
+      graph.add_pose_prior(key, guess, predicted_cov());
+    }
+    const GraphSolution sol = graph.solve();
+    out.graph_updated = true;
+    out.graph_update_time_s = sol.solve_time_s;
+    if (sol.status != GraphSolution::Status::Ok) return std::nullopt;
+    anchor(sol.T_map_vehicle, T_odom_vehicle,
+           sol.covariance_valid ? sol.covariance : predicted_cov());
+    return sol;
+  }
+
+  // ---------------------------------------------------------------- per frame
+
+  LocalizationOutput process(const SensorFrame& f) {
+    const auto t0 = Clock::now();
+    LocalizationOutput out;
+    out.time_s = f.time_s;
+    const auto mit = mount_by_id.find(f.sensor_id);
+    POLMAP_EXPECT(mit != mount_by_id.end());
+
+    const radar::MotionEstimate m = ego.process(f);
+    out.motion_status = m.status;
+    if (m.status == radar::MotionEstimate::Status::Ok) {
+      // An outage of the ego-motion longer than the odometry's hold time is
+      // bridged by one arc, which can be far off: widen the gate by the
+      // outage (1 m/s, 0.02 rad/s) and search again.
+      const double gap_s = m.time_s - last_motion_time_s;
+      if (anchored && !searching && gap_s > cfg.odometry.max_hold_s) {
+        anchor_cov(0, 0) += gap_s * gap_s;
+        anchor_cov(1, 1) += gap_s * gap_s;
+        anchor_cov(2, 2) += std::pow(0.02 * gap_s, 2);
+        go_lost(m.time_s);
+      }
+      last_motion_time_s = m.time_s;
+      last_v_mps = m.v_mps;
+    }
+    odo.add(m);
+    if (odo.empty()) {
+      out.status = status;
+      out.processing_time_s = seconds_since(t0);
+      return out;
+    }
+    if (pending_initial) {
+      // Anchor the coarse initial pose at the current odometry pose.
+      anchor(*pending_initial, odo.T_odom_vehicle(odo.latest_time_s()), initial_cov);
+      pending_initial.reset();
+      searching = true;
+      if (status != Status::Lost) status = Status::Initializing;
+      reset_tracking();
+    }
+    const std::optional<Pose2> T_odom_vehicle = odo.try_T_odom_vehicle(f.time_s);
+    if (T_odom_vehicle && f.spectrum.azimuth_bins_rad.size() >= 2) {
+      gridmap.add(f.spectrum, *T_odom_vehicle * mit->second.T_vehicle_sensor, f.time_s);
+    }
+
+    const bool extract =
+        anchored && T_odom_vehicle && f.sensor_id == last_sensor_id &&
+        f.cycle_index % static_cast<std::uint32_t>(cfg.extract_every_n_cycles) == 0;
+    std::optional<GraphSolution> sol;
+    if (extract) {
+      out.extracted = true;
+      ++extractions;
+      const auto t_extract = Clock::now();
+      const std::vector<PointCandidate> points = radar::extract_points(gridmap, cfg.points);
+      out.extraction_time_s = seconds_since(t_extract);
+      out.candidates = static_cast<int>(points.size());
+      const auto t_match = Clock::now();
+      const bool use_lines = extractions % cfg.lines_every_n_extractions == 0 ||
+                             last_point_matches < cfg.lines_below_point_matches;
+      // No line extractor in radar/ yet: line observations stay empty.
+      const std::vector<LineCandidate> lines;
+      (void)use_lines;
+      local_map.add(f.time_s, *T_odom_vehicle, points, lines);
+
+      const Pose2 pred = T_map_odom * *T_odom_vehicle;
+      update_map(pred);
+      MatchPrior prior;
+      prior.T_map_odom = T_map_odom;
+      prior.T_odom_vehicle = *T_odom_vehicle;
+      prior.covariance = predicted_cov();
+      if (!searching) {
+        prior.covariance += diag3(cfg.tracking_gate_floor_xy_m, cfg.tracking_gate_floor_yaw_rad);
+      }
+      MatcherConfig mcfg = cfg.matcher;
+      mcfg.use_lines = mcfg.use_lines && use_lines;
+      const MatchResult match =
+          match_local_map(local_map.point_clusters(), local_map.line_clusters(), map, prior, mcfg);
+      out.match_status = match.status;
+      out.match_point_associations = static_cast<int>(match.points.size());
+      out.matching_time_s = seconds_since(t_match);
+      if (searching) {
+        search(match, f.time_s, *T_odom_vehicle);
+      } else {
+        sol = track(match, f.time_s, *T_odom_vehicle, use_lines, out);
+        status = f.time_s - last_assoc_time_s <= cfg.degraded_after_s ? Status::Tracking
+                                                                      : Status::Degraded;
+        if (position_sigma_m(predicted_cov()) > cfg.lost_sigma_m ||
+            f.time_s - last_assoc_time_s > cfg.lost_after_s) {
+          go_lost(f.time_s);
+        }
+      }
+    }
+
+    out.status = status;
+    out.speed_mps = last_v_mps;
+    out.local_point_clusters = static_cast<int>(local_map.point_clusters().size());
+    out.map_points = static_cast<int>(map.points().size());
+    out.map_version = map_version;
+    if (anchored && T_odom_vehicle) {
+      out.has_pose = true;
+      out.T_map_vehicle = T_map_odom * *T_odom_vehicle;
+      out.covariance = predicted_cov();
+      const Eigen::Vector2d xy = out.T_map_vehicle.translation();
+      out.pose.position = frame->to_geo(xy);
+      out.pose.yaw_enu_rad = wrap_angle_rad(out.T_map_vehicle.yaw_rad - frame->convergence_rad(xy));
+    }
+    out.processing_time_s = seconds_since(t0);
+    return out;
+  }
+};
+
+Localizer::Localizer(LocalizerConfig cfg, std::vector<SensorMount> mounts, TileSource& tiles)
+    : impl_(std::make_unique<Impl>(std::move(cfg), std::move(mounts), tiles)) {}
+
+Localizer::~Localizer() = default;
+
+void Localizer::set_initial_pose(GeoPose coarse, double sigma_xy_m, double sigma_yaw_rad) {
+  POLMAP_EXPECT(sigma_xy_m > 0.0 && sigma_yaw_rad > 0.0);
+  auto& I = *impl_;
+  if (!I.frame) I.frame.emplace(coarse.position);
+  const Eigen::Vector2d xy = I.frame->to_local(coarse.position);
+  const Pose2 T{xy.x(), xy.y(), wrap_angle_rad(coarse.yaw_enu_rad + I.frame->convergence_rad(xy))};
+  I.initial_cov = diag3(sigma_xy_m, sigma_yaw_rad);
+  if (I.odo.empty()) {
+    I.pending_initial = T;
+  } else {
+    I.anchor(T, I.odo.T_odom_vehicle(I.odo.latest_time_s()), I.initial_cov);
+    I.searching = true;
+    I.status = Status::Initializing;
+    I.reset_tracking();
+  }
+}
+
+LocalizationOutput Localizer::process(const SensorFrame& frame) { return impl_->process(frame); }
+
+const LocalizerConfig& Localizer::config() const { return impl_->cfg; }
+const std::optional<tiles::LocalFrame>& Localizer::map_frame() const { return impl_->frame; }
+const LocalMap& Localizer::local_map() const { return impl_->local_map; }
+const MapIndex& Localizer::map_index() const { return impl_->map; }
+
+}  // namespace polmap::loc

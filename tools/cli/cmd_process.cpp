@@ -74,7 +74,10 @@ void run(const ProcessOptions& o) {
   mapping::PackageWriteOptions wopts;
   wopts.overwrite = o.overwrite;
   wopts.mantissa_bits = o.mantissa_bits;
-  wopts.producer = "polmap process 0.1.0 (pol " + o.pol + ", cell " + std::to_string(o.cell_size_m) + " m)";
+  char producer[128];
+  std::snprintf(producer, sizeof(producer), "polmap process 0.1.0 (pol %s, cell %g m)",
+                o.pol.c_str(), o.cell_size_m);
+  wopts.producer = producer;
   std::uint64_t package_bytes = 0;
   mapping::DriveManifest manifest;
   if (o.tar) {

@@ -1,6 +1,11 @@
 // Benchmark of the covariance gridmap (radar/covariance_gridmap.hpp): time per
 // sensor frame in mapping mode (full history) and localization mode (sliding
-// window), on a synthetic drive of three default front sensors at 10 Hz each.
+// window), and of point/line extraction, on a drive of three default front
+// sensors at 10 Hz each.
+//
+// --world urban|industrial|rural (default urban): frames from the simulator
+// (tools/sim, generated before timing, poses exact); --world synthetic: the
+// built-in generator below.
 //
 // Spectra (generated outside the timed region): 81 beams over ±60°, 1067 range
 // bins (80 m), noise σ = 1, a 3σ storage floor like the simulator's; a static
@@ -9,18 +14,23 @@
 // Static: consecutive frames hit the same map cells, as in a real drive.
 // Times are CPU time of the benchmark thread (the machine is shared).
 //
-//   bench_gridmap [--seconds 60] [--window-s 2] [--speed 10] [--level full]
+//   bench_gridmap [--world urban] [--seconds 60] [--window-s 2] [--speed 10] [--level full]
 #include <CLI/CLI.hpp>
 #include <time.h>
 
 #include <chrono>
 #include <cstdio>
 #include <numbers>
+#include <map>
 #include <random>
 
 #include <Eigen/Geometry>
 
 #include "polmap/radar/covariance_gridmap.hpp"
+#include "polmap/radar/line_extractor.hpp"
+#include "polmap/radar/point_extractor.hpp"
+#include "polmap/sim/drive_simulator.hpp"
+#include "polmap/sim/world.hpp"
 #include "polmap/schema/radar_spec.hpp"
 
 using namespace polmap;
@@ -132,40 +142,83 @@ double thread_cpu_ms() {
   return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
 }
 
-struct Result {
-  double ms_per_frame;
-  double max_ms;
-  double bins_per_frame;
-  std::size_t tiles;
-  std::size_t bytes;
+struct Frame {
+  PolSpectrum spectrum;
+  Pose2 T_map_sensor;
+  double time_s;
 };
 
-Result run(const World& world, const GridmapConfig& cfg, double seconds, double speed_mps) {
-  CovarianceGridmap map(cfg);
-  const auto mounts = default_front_mounts();
-  const int cycles = static_cast<int>(seconds * 10.0);
-  double total_ms = 0.0, max_ms = 0.0, bins = 0.0;
-  std::mt19937 rng(3);
+std::vector<Frame> synthetic_frames(double seconds, double speed_mps) {
+  std::mt19937 rng(1);
+  const World world = make_world(rng, speed_mps * seconds);
+  std::vector<Frame> frames;
   std::vector<std::array<cfloat, 4>> polar;
   std::vector<std::uint8_t> on;
-  for (int cycle = 0; cycle < cycles; ++cycle) {
+  const auto mounts = default_front_mounts();
+  for (int cycle = 0; cycle < static_cast<int>(seconds * 10.0); ++cycle) {
     for (const auto& m : mounts) {
       const double t = cycle * 0.1 + m.trigger_offset_s;
       const double s = speed_mps * t;
       const Eigen::Vector2d p = path(s), d = path(s + 0.01) - p;
       const Pose2 T_map_vehicle{p.x(), p.y(), std::atan2(d.y(), d.x())};
       const Pose2 T_map_sensor = T_map_vehicle * m.T_vehicle_sensor;
-      const PolSpectrum spectrum = observe(world, T_map_sensor, rng, polar, on);
-      bins += spectrum.cells.size();
-      const double t0 = thread_cpu_ms();
-      map.add(spectrum, T_map_sensor, t);
-      const double ms = thread_cpu_ms() - t0;
-      total_ms += ms;
-      max_ms = std::max(max_ms, ms);
+      frames.push_back({observe(world, T_map_sensor, rng, polar, on), T_map_sensor, t});
     }
   }
-  const double frames = cycles * 3.0;
-  return {total_ms / frames, max_ms, bins / frames, map.num_tiles(), map.memory_bytes()};
+  return frames;
+}
+
+/// Frames of a simulated drive with exact poses (the drive frame = world frame).
+std::vector<Frame> simulated_frames(const std::string& preset, double seconds) {
+  sim::SimConfig cfg;
+  cfg.duration_s = seconds;
+  sim::WorldSpec spec;
+  spec.preset = preset;
+  spec.length_m = 20.0 * seconds + 200.0;
+  auto world = sim::make_world(spec, cfg);
+  sim::DriveSimulator drive(world, cfg, 0);
+  std::map<std::uint8_t, Pose2> mounts;
+  for (const auto& m : drive.header().sensors) mounts[m.sensor_id] = m.T_vehicle_sensor;
+  std::vector<Frame> frames;
+  while (auto rec = drive.next()) {
+    if (auto* f = std::get_if<SensorFrame>(&*rec)) {
+      const sim::ExactState st = drive.plan().state(f->time_s);
+      const Pose2 T_map_vehicle{st.x_m, st.y_m, st.yaw_rad};
+      frames.push_back({std::move(f->spectrum), T_map_vehicle * mounts[f->sensor_id], f->time_s});
+    }
+  }
+  return frames;
+}
+
+struct Result {
+  double ms_per_frame;
+  double max_ms;
+  std::size_t tiles;
+  std::size_t bytes;
+  double points_ms;
+  double lines_ms;
+  std::size_t points;
+  std::size_t lines;
+};
+
+Result run(const std::vector<Frame>& frames, const GridmapConfig& cfg) {
+  CovarianceGridmap map(cfg);
+  double total_ms = 0.0, max_ms = 0.0;
+  for (const Frame& f : frames) {
+    const double t0 = thread_cpu_ms();
+    map.add(f.spectrum, f.T_map_sensor, f.time_s);
+    const double ms = thread_cpu_ms() - t0;
+    total_ms += ms;
+    max_ms = std::max(max_ms, ms);
+  }
+  Result r{total_ms / frames.size(), max_ms, map.num_tiles(), map.memory_bytes(), 0, 0, 0, 0};
+  double t0 = thread_cpu_ms();
+  r.points = extract_points(map).size();
+  r.points_ms = thread_cpu_ms() - t0;
+  t0 = thread_cpu_ms();
+  r.lines = extract_lines(map).size();
+  r.lines_ms = thread_cpu_ms() - t0;
+  return r;
 }
 
 }  // namespace
@@ -173,10 +226,11 @@ Result run(const World& world, const GridmapConfig& cfg, double seconds, double 
 int main(int argc, char** argv) {
   CLI::App app{"covariance gridmap benchmark"};
   double seconds = 60.0, window_s = 2.0, speed = 10.0;
-  std::string level_name = "full";
-  app.add_option("--seconds", seconds, "simulated drive length (mapping mode)");
+  std::string level_name = "full", world = "urban";
+  app.add_option("--world", world, "urban | industrial | rural (simulator) | synthetic");
+  app.add_option("--seconds", seconds, "drive length");
   app.add_option("--window-s", window_s, "localization window");
-  app.add_option("--speed", speed, "vehicle speed, m/s");
+  app.add_option("--speed", speed, "vehicle speed of the synthetic drive, m/s");
   app.add_option("--level", level_name, "polarimetric level");
   CLI11_PARSE(app, argc, argv);
   const auto level = parse_pol_level(level_name);
@@ -184,24 +238,34 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "unknown level %s\n", level_name.c_str());
     return 2;
   }
-  std::mt19937 rng(1);
-  const World world = make_world(rng, speed * seconds);
+  const std::vector<Frame> frames =
+      world == "synthetic" ? synthetic_frames(seconds, speed) : simulated_frames(world, seconds);
+  double bins = 0.0, dist = 0.0;
+  for (std::size_t i = 0; i < frames.size(); ++i) {
+    bins += frames[i].spectrum.cells.size();
+    if (i >= 3) dist += (frames[i].T_map_sensor.translation() - frames[i - 3].T_map_sensor.translation()).norm() / 3.0;
+  }
+  std::printf("%s drive: %zu sensor frames (%.0f s, ~%.0f m), %.0f stored bins per frame (of %d), "
+              "level %s, cell 0.1 m; CPU time of this thread\n",
+              world.c_str(), frames.size(), frames.size() / 30.0, dist, bins / frames.size(),
+              kBeams * kBins, level_name.c_str());
 
   GridmapConfig map_cfg;
   map_cfg.level = *level;
-  const Result m = run(world, map_cfg, seconds, speed);
-  std::printf("stored bins per sensor frame: %.0f (of %d), level %s, cell 0.1 m, %.0f m/s\n",
-              m.bins_per_frame, kBeams * kBins, level_name.c_str(), speed);
-  std::printf("mapping      : %.3f ms/sensor frame (max %.2f), %zu tiles, %.1f MB after %.0f s "
-              "-> 10-min drive (18000 frames) = %.1f s\n",
-              m.ms_per_frame, m.max_ms, m.tiles, m.bytes / 1e6, seconds, m.ms_per_frame * 18.0);
+  const Result m = run(frames, map_cfg);
+  std::printf("mapping      : %.3f ms/sensor frame (max %.2f) -> 10-min drive (18000 frames) %.1f s; "
+              "%zu tiles, %.1f MB; extraction: points %.0f ms (%zu), lines %.0f ms (%zu)\n",
+              m.ms_per_frame, m.max_ms, m.ms_per_frame * 18.0, m.tiles, m.bytes / 1e6, m.points_ms,
+              m.points, m.lines_ms, m.lines);
 
   GridmapConfig loc_cfg;
   loc_cfg.level = *level;
   loc_cfg.window_s = window_s;
-  const Result l = run(world, loc_cfg, std::min(seconds, 30.0), speed);
+  const Result l = run(frames, loc_cfg);
   std::printf("localization : %.3f ms/sensor frame incl. expiry (max %.2f) = %.2f ms per "
-              "three-sensor cycle, window %.1f s, %zu tiles, %.1f MB\n",
-              l.ms_per_frame, l.max_ms, 3.0 * l.ms_per_frame, window_s, l.tiles, l.bytes / 1e6);
+              "three-sensor cycle, window %.1f s, %zu tiles, %.1f MB; extraction on the last "
+              "window: points %.0f ms (%zu), lines %.0f ms (%zu)\n",
+              l.ms_per_frame, l.max_ms, 3.0 * l.ms_per_frame, window_s, l.tiles, l.bytes / 1e6,
+              l.points_ms, l.points, l.lines_ms, l.lines);
   return 0;
 }

@@ -111,6 +111,28 @@ SpectrumSynthesizer::SpectrumSynthesizer(const RadarSimConfig& cfg, const RadarS
     exceed_cdf_[i] = acc;
   }
   exceed_total_ = acc;
+  // Detection reference level per ring (CFAR-like: thermal noise, optionally + ring clutter)
+  // and the rate of ground-clutter peaks over the threshold. Ground cell power (noise
+  // included) is exponential with mean mu = (sigma^2 + g)/ref; a cell is a detection if it
+  // exceeds T and is the maximum of its N-cell suppression neighbourhood. For N i.i.d.
+  // exponentials P(centre is the max and max > T) = (1 - (1 - e^{-T/mu})^N) / N.
+  ref_.resize(num_range_);
+  ground_det_cdf_.assign(num_range_, 0.0);
+  const double thr_g = std::pow(10.0, cfg.ground_detection_threshold_db / 10.0);
+  const int nnb = (2 * std::max(0, cfg.detection_suppress_range_bins) + 1) *
+                  (2 * std::max(0, cfg.detection_suppress_beams) + 1);
+  double gacc = 0;
+  for (int i = 0; i < num_range_; ++i) {
+    ref_[i] = s2 + (cfg.detection_reference_includes_clutter ? clutter_[i] : 0.0);
+    if (cfg.ground_clutter && cfg.ground_detections && clutter_[i] > 0) {
+      const double mu = (s2 + clutter_[i]) / ref_[i];
+      const double p = std::exp(-thr_g / mu);
+      gacc += (1.0 - std::pow(1.0 - p, nnb)) / nnb * num_beams_;
+    }
+    ground_det_cdf_[i] = gacc;
+  }
+  ground_det_total_ = gacc;
+  thr_ground_ = thr_g;
   image_.assign(static_cast<std::size_t>(num_range_) * num_beams_, {});
   touched_flag_.assign(image_.size(), 0);
   static_vr_beam_.assign(num_beams_, 0.0);
@@ -210,9 +232,8 @@ void SpectrumSynthesizer::add_echo(const Echo& e) {
   if (e.range_m < cfg_.min_range_m || e.range_m > cfg_.max_range_m + 3 * dr_) return;
   const double x = e.range_m / dr_;
   const int ri = std::clamp(static_cast<int>(std::lround(x)), 0, num_range_ - 1);
-  const double s2 = cfg_.noise_sigma * cfg_.noise_sigma;
   cands_.push_back({e.range_m, e.azimuth_rad, e.radial_velocity_mps,
-                    half_span(e.amplitude) / (s2 + clutter_[ri]), false});
+                    half_span(e.amplitude) / ref_[ri], false});
   const double sp = std::sin(e.azimuth_rad);
   add_psf(e.amplitude, x, sp, e.radial_velocity_mps, cfg_.point_psf_range_half_taps,
           cfg_.point_psf_beam_half_taps);
@@ -223,8 +244,7 @@ void SpectrumSynthesizer::add_echo(const Echo& e) {
 
 void SpectrumSynthesizer::add_cell(int i, int b, const ScatteringVector& a) {
   if (i < 0 || i >= num_range_ || b < 0 || b >= num_beams_) return;
-  const double s2 = cfg_.noise_sigma * cfg_.noise_sigma;
-  cands_.push_back({i * dr_, beam_az_[b], static_vr_beam_[b], half_span(a) / (s2 + clutter_[i]), true});
+  cands_.push_back({i * dr_, beam_az_[b], static_vr_beam_[b], half_span(a) / ref_[i], true});
   add_psf(a, i, beam_sin_[b], static_vr_beam_[b], cfg_.cell_psf_range_half_taps,
           cfg_.cell_psf_beam_half_taps);
   if (with_cube_) {
@@ -360,24 +380,55 @@ void SpectrumSynthesizer::finish(Rng& rng, SensorFrame& out) {
 }
 
 void SpectrumSynthesizer::make_detections(Rng& rng, SensorFrame& out) {
-  const double thr = std::pow(10.0, cfg_.detection_snr_db / 10.0);
-  const double dv_sep = 2.0 * (2.0 * v_ua_ / cfg_.num_chirps);
+  const double thr = std::pow(10.0, cfg_.detection_threshold_db / 10.0);
+  const double dv_sep = cfg_.detection_suppress_doppler_bins * (2.0 * v_ua_ / cfg_.num_chirps);
+  const int sr = std::max(0, cfg_.detection_suppress_range_bins);
+  const int sb = std::max(0, cfg_.detection_suppress_beams);
+  const double s2 = cfg_.noise_sigma * cfg_.noise_sigma;
   struct Pick {
     double snr;
     std::size_t cand;
   };
   std::vector<Pick> picks;
-  for (std::size_t k = 0; k < cands_.size(); ++k) {
-    // Measured power: the echo plus one unit of noise (Rician fluctuation near threshold).
-    const auto z = std::sqrt(cands_[k].snr) + rng.cnormal(1.0);
+  const std::size_t num_echo_cands = cands_.size();
+  for (std::size_t k = 0; k < num_echo_cands; ++k) {
+    // Measured power: the echo plus the cell's noise and ground clutter (Rician near threshold).
+    const int ri = std::clamp(static_cast<int>(std::lround(cands_[k].range_m / dr_)), 0, num_range_ - 1);
+    const auto z = std::sqrt(cands_[k].snr) + rng.cnormal((s2 + clutter_[ri]) / ref_[ri]);
     const double snr = std::norm(z);
     if (snr >= thr) picks.push_back({snr, k});
+  }
+  // Ground-clutter peaks over the threshold (cells without echoes, statistically): Poisson
+  // count, ring by its rate, beam uniform, power T + mu Exp(1) (memoryless tail), static
+  // Doppler of the beam centre. They go through the same peak suppression as the rest.
+  // Drawn from the scene-keyed generator: ground speckle is frozen while the sensor stands
+  // still, so are its peaks (thermal noise, ~20 dB below them, is neglected here).
+  if (ground_det_total_ > 0) {
+    HashRng grng(seed_of(scene_key_, 0x6764657473ULL));
+    int ng = 0;
+    if (ground_det_total_ > 50) {
+      ng = std::max(0, static_cast<int>(std::lround(ground_det_total_ +
+                                                    std::sqrt(ground_det_total_) * grng.normal())));
+    } else {
+      for (double p = grng.uniform(), l = std::exp(-ground_det_total_); p > l; p *= grng.uniform()) ++ng;
+    }
+    for (int n = 0; n < ng; ++n) {
+      const double u = grng.uniform() * ground_det_total_;
+      const int i = std::min(num_range_ - 1, static_cast<int>(std::lower_bound(ground_det_cdf_.begin(),
+                                                                    ground_det_cdf_.end(), u) -
+                                                   ground_det_cdf_.begin()));
+      const int b = std::min(num_beams_ - 1, static_cast<int>(grng.uniform() * num_beams_));
+      const double mu = (s2 + clutter_[i]) / ref_[i];
+      const double snr = thr_ground_ - mu * std::log1p(-grng.uniform());
+      picks.push_back({snr, cands_.size()});
+      cands_.push_back({i * dr_, beam_az_[b], static_vr_beam_[b], snr, true});
+    }
   }
   std::sort(picks.begin(), picks.end(), [](const Pick& a, const Pick& b) {
     return a.snr > b.snr || (a.snr == b.snr && a.cand < b.cand);
   });
-  // Local maxima in (range, azimuth, Doppler): suppress weaker candidates within one range
-  // bin, one beam and two Doppler bins of an accepted one.
+  // Local maxima in (range, azimuth, Doppler): suppress weaker candidates within sr range
+  // bins, sb beams and the Doppler separation of an accepted one.
   struct Acc {
     int rb, bb;
     double v;
@@ -393,8 +444,8 @@ void SpectrumSynthesizer::make_detections(Rng& rng, SensorFrame& out) {
     const int bb = nearest_beam(c.azimuth_rad);
     const double va = alias(c.radial_velocity_mps);
     bool suppressed = false;
-    for (int dr = -1; dr <= 1 && !suppressed; ++dr) {
-      for (int db = -1; db <= 1 && !suppressed; ++db) {
+    for (int dr = -sr; dr <= sr && !suppressed; ++dr) {
+      for (int db = -sb; db <= sb && !suppressed; ++db) {
         auto it = grid.find((bb + db) * 70000 + rb + dr);
         if (it == grid.end()) continue;
         for (int a : it->second) {
@@ -427,7 +478,7 @@ void SpectrumSynthesizer::make_detections(Rng& rng, SensorFrame& out) {
     d.range_m = static_cast<float>(rng.uniform(cfg_.min_range_m, cfg_.max_range_m));
     d.azimuth_rad = static_cast<float>(rng.uniform(-cfg_.fov_half_deg, cfg_.fov_half_deg) * kDeg);
     d.radial_velocity_mps = static_cast<float>(rng.uniform(-v_ua_, v_ua_));
-    d.snr_db = static_cast<float>(cfg_.detection_snr_db + 2.0 * rng.exponential());
+    d.snr_db = static_cast<float>(cfg_.detection_threshold_db + 2.0 * rng.exponential());
     dets.push_back(d);
   }
   std::stable_sort(dets.begin(), dets.end(),

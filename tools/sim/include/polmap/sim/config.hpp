@@ -74,14 +74,39 @@ struct RadarSimConfig {
   double sensor_height_m = 0.5;
   double elevation_beamwidth_deg = 20.0;
 
-  // --- detection list -----------------------------------------------------
-  double detection_snr_db = 12.0;  ///< relative to noise + clutter of the ring
+  // --- detection list (CFAR-like peak detector; README "Detection list") ---
+  /// Detection threshold over the local reference level (CA-CFAR-like). The reference is the
+  /// thermal noise sigma^2 by default: ground clutter at short range is what a real CFAR
+  /// detects there (static returns ego-motion relies on). THE density knob: lower -> more
+  /// detections (each dB roughly +10-15 % in urban scenes, mostly ground and walls).
+  double detection_threshold_db = 12.0;
+  /// Reference level includes the expected ring clutter g(r) (the old, much sparser model:
+  /// ground never crosses, near walls need g + 12 dB). Off = noise-referenced (default).
+  bool detection_reference_includes_clutter = false;
+  /// Peak (local-maximum) neighbourhood: a candidate is suppressed if a stronger accepted one
+  /// lies within +-range bins, +-beams AND +-Doppler bins (aliased). 1/1/2 = one peak per
+  /// resolution cell (range -3 dB width 1.44 bins, beam 2.3 beams), as a 3x3 peak search.
+  int detection_suppress_range_bins = 1;
+  int detection_suppress_beams = 1;
+  int detection_suppress_doppler_bins = 2;
+  /// Ground clutter produces detections (speckle peaks of the ground, static Doppler of the
+  /// beam centre), drawn statistically per range ring (cells without other echoes).
+  bool ground_detections = true;
+  /// Threshold of ground-clutter peaks over the noise. The ground is 15-22 dB above the noise
+  /// at 2-8 m (sigma0 = -25 dB, 7.5 cm x 1.5 deg cells), so over detection_threshold_db it
+  /// would give ~1500 peaks per frame (every near cell), more than the cap; a real sensor's
+  /// list holds the strongest ground peaks (CFAR reference windows that contain clutter, list
+  /// limits). 25 dB gives ~210 ground peaks per frame (~165 after suppression; 20 dB: 630,
+  /// 28 dB: 30), mostly at
+  /// 2-10 m and all azimuths -- the second density knob.
+  double ground_detection_threshold_db = 25.0;
   double det_sigma_range_m = 0.03;
   double det_sigma_azimuth_deg = 0.5;
   double det_sigma_vr_mps = 0.05;  ///< before aliasing
   /// Mean false alarms per frame (Poisson), uniform in range/azimuth/Doppler,
   /// SNR = threshold + exponential(mean 2 dB).
   double false_alarms_per_frame = 2.0;
+  /// Cap per frame: the strongest (by SNR) are kept, as a sensor's detection-list limit.
   int max_detections = 800;
 
   // --- occlusion ----------------------------------------------------------

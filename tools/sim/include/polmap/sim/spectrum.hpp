@@ -34,7 +34,7 @@ struct DetectionCandidate {
   double range_m = 0.0;
   double azimuth_rad = 0.0;
   double radial_velocity_mps = 0.0;
-  double snr = 0.0;  ///< linear, relative to noise + ring clutter
+  double snr = 0.0;  ///< linear, relative to the detection reference (noise by default)
   bool distributed = false;  ///< aggregated cell sample (position known to a cell only)
 };
 
@@ -115,6 +115,10 @@ class SpectrumSynthesizer {
   std::vector<double> floor_;          ///< per range bin, threshold on |s_c|^2
   std::vector<double> exceed_cdf_;     ///< per range bin cumulative exceedance rate
   double exceed_total_ = 0.0;
+  std::vector<double> ref_;             ///< per range bin, detection reference level
+  std::vector<double> ground_det_cdf_;  ///< per range bin cumulative ground-peak rate
+  double ground_det_total_ = 0.0;
+  double thr_ground_ = 0.0;  ///< linear ground-peak threshold over the reference
 
   // frame state
   Eigen::Vector2d vs_ = Eigen::Vector2d::Zero();

@@ -113,8 +113,8 @@ DriveProcessingResult process_drive(RecordSource& source, const DriveProcessingC
     }
     const Pose2 T_frame_sensor = *T * mit->second.T_vehicle_sensor;
     const auto t0 = Clock::now();
-    if (cfg.use_cube && f.cube) {
-      const auto vw = traj.motion(f.time_s);
+    const auto vw = traj.motion(f.time_s);
+    if (cfg.use_cube && f.cube && vw) {
       StaticReductionConfig sr = cfg.static_reduction;
       if (sr.azimuth_bins_rad.empty()) sr.azimuth_bins_rad = f.spectrum.azimuth_bins_rad;
       if (!(sr.noise_sigma > 0.0) && f.spectrum.noise_sigma > 0.0F) sr.noise_sigma = f.spectrum.noise_sigma;
@@ -123,7 +123,7 @@ DriveProcessingResult process_drive(RecordSource& source, const DriveProcessingC
       ++st.frames_from_cube;
     } else {
       if (f.spectrum.azimuth_bins_rad.size() < 2) {
-        ++st.frames_without_pose;  // nothing to map
+        ++st.frames_without_spectrum;
         return;
       }
       res.gridmap.add(f.spectrum, T_frame_sensor, f.time_s);

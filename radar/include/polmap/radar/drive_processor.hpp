@@ -55,6 +55,7 @@ struct DriveProcessingStats {
   std::size_t frames_from_cube = 0;     ///< of which re-reduced from a data cube
   std::size_t frames_without_pose = 0;  ///< skipped: no pose (see file comment)
   std::size_t frames_unknown_sensor = 0;
+  std::size_t frames_without_spectrum = 0;  ///< fewer than 2 beams and no usable cube
   double start_time_s = 0.0;            ///< first trajectory sample
   double end_time_s = 0.0;              ///< last trajectory sample
   double distance_m = 0.0;              ///< path length of the trajectory (drive frame)

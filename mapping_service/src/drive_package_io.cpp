@@ -773,11 +773,38 @@ std::string pack_drive_package(const fs::path& dir) {
 }
 
 void write_drive_package_archive(const fs::path& dir, const fs::path& tar_path) {
-  const std::string bytes = pack_drive_package(dir);
+  // Streams the same bytes pack_drive_package returns (memory: one 1 MiB buffer).
   fs::path tmp = tar_path;
   tmp += ".tmp-" + std::to_string(::getpid());
-  detail::write_file_bytes(tmp, bytes);
   std::error_code ec;
+  {
+    std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
+    if (!out) throw IoError(tmp.string() + ": cannot open for writing");
+    std::string buf(1 << 20, '\0');
+    for (const char* name : {kManifestFileName, kGridmapFileName, kCandidatesFileName}) {
+      const fs::path src = dir / name;
+      const auto size = fs::file_size(src, ec);
+      if (ec) throw IoError(src.string() + ": " + ec.message());
+      out << ustar_header(name, size);
+      std::ifstream in(src, std::ios::binary);
+      if (!in) throw IoError(src.string() + ": cannot open for reading");
+      std::uint64_t copied = 0;
+      while (in) {
+        in.read(buf.data(), static_cast<std::streamsize>(buf.size()));
+        const auto got = in.gcount();
+        out.write(buf.data(), got);
+        copied += static_cast<std::uint64_t>(got);
+      }
+      if (copied != size) throw IoError(src.string() + ": changed while being archived");
+      out << std::string(ustar_padding(size), '\0');
+    }
+    out << std::string(kUstarEndBytes, '\0');
+    out.flush();
+    if (!out) {
+      fs::remove(tmp, ec);
+      throw IoError(tmp.string() + ": write failed");
+    }
+  }
   fs::rename(tmp, tar_path, ec);
   if (ec) {
     fs::remove(tmp, ec);

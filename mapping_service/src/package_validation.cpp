@@ -5,6 +5,8 @@
 #include <ogrsf_frmts.h>
 
 #include <atomic>
+#include <fstream>
+#include <functional>
 #include <cmath>
 #include <map>
 #include <optional>
@@ -38,6 +40,10 @@ class PackageSource {
   /// The file's bytes; `storage` holds them when they must be read (directories).
   [[nodiscard]] virtual std::string_view bytes(const std::string& name,
                                                std::string& storage) const = 0;
+  [[nodiscard]] virtual std::uint64_t size(const std::string& name) const = 0;
+  /// Passes the file's bytes to fn in pieces (memory: one piece).
+  virtual void for_each_chunk(const std::string& name,
+                              const std::function<void(std::string_view)>& fn) const = 0;
   [[nodiscard]] virtual std::string gdal_path(const std::string& name) const = 0;
 };
 
@@ -52,6 +58,24 @@ class DirSource final : public PackageSource {
                                        std::string& storage) const override {
     storage = detail::read_file_bytes(dir_ / name);
     return storage;
+  }
+  [[nodiscard]] std::uint64_t size(const std::string& name) const override {
+    std::error_code ec;
+    const auto n = fs::file_size(dir_ / name, ec);
+    if (ec) throw IoError((dir_ / name).string() + ": " + ec.message());
+    return n;
+  }
+  void for_each_chunk(const std::string& name,
+                      const std::function<void(std::string_view)>& fn) const override {
+    std::ifstream in(dir_ / name, std::ios::binary);
+    if (!in) throw IoError((dir_ / name).string() + ": cannot open for reading");
+    std::string buf(1 << 20, '\0');
+    while (in) {
+      in.read(buf.data(), static_cast<std::streamsize>(buf.size()));
+      const auto got = in.gcount();
+      if (got > 0) fn(std::string_view(buf.data(), static_cast<std::size_t>(got)));
+    }
+    if (in.bad()) throw IoError((dir_ / name).string() + ": read failed");
   }
   [[nodiscard]] std::string gdal_path(const std::string& name) const override {
     return (dir_ / name).string();
@@ -88,6 +112,15 @@ class MemSource final : public PackageSource {
                                        std::string& /*storage*/) const override {
     const TarMemberView* m = find(name);
     return m == nullptr ? std::string_view() : m->data;
+  }
+  [[nodiscard]] std::uint64_t size(const std::string& name) const override {
+    const TarMemberView* m = find(name);
+    return m == nullptr ? 0 : m->data.size();
+  }
+  void for_each_chunk(const std::string& name,
+                      const std::function<void(std::string_view)>& fn) const override {
+    const TarMemberView* m = find(name);
+    if (m != nullptr) fn(m->data);
   }
   [[nodiscard]] std::string gdal_path(const std::string& name) const override {
     return prefix_ + name;
@@ -593,21 +626,27 @@ DrivePackage validate(const PackageSource& src, const PackageValidationConfig& c
   for (std::size_t i = 0; i < m.files.size(); ++i) {
     const auto& f = m.files[i];
     if (!src.has(f.name)) invalid(f.name, "", "missing (listed in manifest.json files)");
-    const std::string_view data = src.bytes(f.name, storage);
-    if (data.size() != f.size_bytes) {
+    const std::uint64_t size = src.size(f.name);
+    if (size != f.size_bytes) {
       invalid(f.name, "size_bytes",
-              std::to_string(data.size()) + " bytes, manifest.json files[" + std::to_string(i) +
+              std::to_string(size) + " bytes, manifest.json files[" + std::to_string(i) +
                   "].size_bytes says " + std::to_string(f.size_bytes));
     }
-    const std::string actual = sha256_hex(data);
+    // One pass over the file feeds its own hash and the archive hash.
+    detail::Sha256 file_hash;
+    if (archive_hash != nullptr) archive_hash->update(ustar_header(f.name, size));
+    std::uint64_t seen = 0;
+    src.for_each_chunk(f.name, [&](std::string_view chunk) {
+      seen += chunk.size();
+      file_hash.update(chunk);
+      if (archive_hash != nullptr) archive_hash->update(chunk);
+    });
+    if (seen != size) invalid(f.name, "size_bytes", "file changed while being read");
+    if (archive_hash != nullptr) archive_hash->update(std::string(ustar_padding(size), '\0'));
+    const std::string actual = file_hash.hex();
     if (actual != f.sha256) {
       invalid(f.name, "sha256", actual + " does not match manifest.json files[" +
                                     std::to_string(i) + "].sha256 " + f.sha256);
-    }
-    if (archive_hash != nullptr) {
-      archive_hash->update(ustar_header(f.name, data.size()));
-      archive_hash->update(data);
-      archive_hash->update(std::string(ustar_padding(data.size()), '\0'));
     }
   }
   storage.clear();

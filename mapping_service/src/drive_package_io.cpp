@@ -126,37 +126,36 @@ json manifest_to_json(const DriveManifest& m) {
     files.push_back({{"name", f.name}, {"size_bytes", f.size_bytes}, {"sha256", f.sha256}});
   }
   const int q = pol_dimension(m.pol_level);
-  return json{
-      {"format", "polmap.drive_package"},
-      {"format_version", m.format_version},
-      {"drive_id", m.drive_id},
-      {"vehicle_id", m.vehicle_id},
-      {"world", m.world},
-      {"producer", m.producer},
-      {"start_time_s", m.start_time_s},
-      {"end_time_s", m.end_time_s},
-      {"distance_m", m.distance_m},
-      {"origin", m.origin},
-      {"crs_proj", m.crs_proj},
-      {"sensors", m.sensors},
-      {"pol_level", std::string(to_string(m.pol_level))},
-      {"q", q},
-      {"cell_size_m", m.cell_size_m},
-      {"gridmap",
-       {{"file", kGridmapFileName},
-        {"width", m.gridmap.width},
-        {"height", m.gridmap.height},
-        {"origin_x_m", m.gridmap.origin_x_m},
-        {"origin_y_m", m.gridmap.origin_y_m},
-        {"num_bands", m.gridmap.num_bands},
-        {"block_size", m.gridmap.block_size},
-        {"mantissa_bits", m.gridmap.mantissa_bits},
-        {"bands", gridmap_band_names(m.pol_level)}}},
-      {"counts",
-       {{"points", m.counts.points},
-        {"lines", m.counts.lines},
-        {"trajectory_samples", m.counts.trajectory_samples}}},
-      {"files", files}};
+  return json{{"format", "polmap.drive_package"},
+              {"format_version", m.format_version},
+              {"drive_id", m.drive_id},
+              {"vehicle_id", m.vehicle_id},
+              {"world", m.world},
+              {"producer", m.producer},
+              {"start_time_s", m.start_time_s},
+              {"end_time_s", m.end_time_s},
+              {"distance_m", m.distance_m},
+              {"origin", m.origin},
+              {"crs_proj", m.crs_proj},
+              {"sensors", m.sensors},
+              {"pol_level", std::string(to_string(m.pol_level))},
+              {"q", q},
+              {"cell_size_m", m.cell_size_m},
+              {"gridmap",
+               {{"file", kGridmapFileName},
+                {"width", m.gridmap.width},
+                {"height", m.gridmap.height},
+                {"origin_x_m", m.gridmap.origin_x_m},
+                {"origin_y_m", m.gridmap.origin_y_m},
+                {"num_bands", m.gridmap.num_bands},
+                {"block_size", m.gridmap.block_size},
+                {"mantissa_bits", m.gridmap.mantissa_bits},
+                {"bands", gridmap_band_names(m.pol_level)}}},
+              {"counts",
+               {{"points", m.counts.points},
+                {"lines", m.counts.lines},
+                {"trajectory_samples", m.counts.trajectory_samples}}},
+              {"files", files}};
 }
 
 namespace {
@@ -197,8 +196,7 @@ class Fields {
     if (!v.is_number_integer()) {
       throw PackageFormatError(kManifest, path(key), type_error("integer", v));
     }
-    if (v.is_number_unsigned() &&
-        v.get<std::uint64_t>() > static_cast<std::uint64_t>(INT64_MAX)) {
+    if (v.is_number_unsigned() && v.get<std::uint64_t>() > static_cast<std::uint64_t>(INT64_MAX)) {
       throw PackageValidationError(kManifest, path(key), "integer out of range");
     }
     return v.get<std::int64_t>();
@@ -233,8 +231,8 @@ class Fields {
 bool valid_id(const std::string& s) {
   if (s.empty() || s.size() > 128 || s.front() == '.') return false;
   return std::all_of(s.begin(), s.end(), [](char c) {
-    return (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') ||
-           c == '.' || c == '_' || c == '-';
+    return (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') || c == '.' ||
+           c == '_' || c == '-';
   });
 }
 
@@ -248,8 +246,8 @@ bool is_hex64(const std::string& s) {
 
 DriveManifest manifest_from_json(const json& j) {
   if (!j.is_object()) {
-    throw PackageFormatError(kManifest, "", std::string("expected a JSON object, got ") +
-                                                j.type_name());
+    throw PackageFormatError(kManifest, "",
+                             std::string("expected a JSON object, got ") + j.type_name());
   }
   const Fields f(j, "");
   DriveManifest m;
@@ -277,8 +275,9 @@ DriveManifest manifest_from_json(const json& j) {
   }
   m.vehicle_id = f.string("vehicle_id");
   if (!valid_id(m.vehicle_id)) {
-    throw PackageValidationError(kManifest, "vehicle_id",
-                                 "'" + m.vehicle_id + "' is not 1..128 characters of [A-Za-z0-9._-]");
+    throw PackageValidationError(
+        kManifest, "vehicle_id",
+        "'" + m.vehicle_id + "' is not 1..128 characters of [A-Za-z0-9._-]");
   }
   m.world = f.string("world", false);
   m.producer = f.string("producer", false);
@@ -304,9 +303,9 @@ DriveManifest manifest_from_json(const json& j) {
   }
   m.crs_proj = f.string("crs_proj");
   if (!same_crs(m.crs_proj, tiles::LocalFrame(m.origin).proj_string())) {
-    throw PackageValidationError(kManifest, "crs_proj",
-                                 "'" + m.crs_proj +
-                                     "' is not the drive frame (LocalFrame) of 'origin'");
+    throw PackageValidationError(
+        kManifest, "crs_proj",
+        "'" + m.crs_proj + "' is not the drive frame (LocalFrame) of 'origin'");
   }
 
   {
@@ -316,8 +315,8 @@ DriveManifest manifest_from_json(const json& j) {
     for (std::size_t i = 0; i < sensors.size(); ++i) {
       const std::string p = "sensors[" + std::to_string(i) + "]";
       if (!sensors[i].is_object()) {
-        throw PackageFormatError(kManifest, p, std::string("expected object, got ") +
-                                                   sensors[i].type_name());
+        throw PackageFormatError(kManifest, p,
+                                 std::string("expected object, got ") + sensors[i].type_name());
       }
       const Fields s(sensors[i], p);
       s.integer("sensor_id");
@@ -369,8 +368,8 @@ DriveManifest manifest_from_json(const json& j) {
     const auto w = g.integer("width");
     const auto h = g.integer("height");
     if (w < 1 || h < 1 || w > 1'000'000 || h > 1'000'000) {
-      throw PackageValidationError(kManifest, w < 1 || w > 1'000'000 ? "gridmap.width"
-                                                                      : "gridmap.height",
+      throw PackageValidationError(kManifest,
+                                   w < 1 || w > 1'000'000 ? "gridmap.width" : "gridmap.height",
                                    "outside [1, 1000000] cells");
     }
     m.gridmap.width = static_cast<int>(w);
@@ -402,9 +401,9 @@ DriveManifest manifest_from_json(const json& j) {
     }
     const json& names = g.array("bands");
     if (names != json(gridmap_band_names(m.pol_level))) {
-      throw PackageValidationError(kManifest, "gridmap.bands",
-                                   "band names do not match pol_level '" +
-                                       std::string(to_string(m.pol_level)) + "'");
+      throw PackageValidationError(
+          kManifest, "gridmap.bands",
+          "band names do not match pol_level '" + std::string(to_string(m.pol_level)) + "'");
     }
   }
   {
@@ -419,8 +418,8 @@ DriveManifest manifest_from_json(const json& j) {
     for (std::size_t i = 0; i < files.size(); ++i) {
       const std::string p = "files[" + std::to_string(i) + "]";
       if (!files[i].is_object()) {
-        throw PackageFormatError(kManifest, p, std::string("expected object, got ") +
-                                                   files[i].type_name());
+        throw PackageFormatError(kManifest, p,
+                                 std::string("expected object, got ") + files[i].type_name());
       }
       const Fields fe(files[i], p);
       PackageFileEntry e;
@@ -428,8 +427,7 @@ DriveManifest manifest_from_json(const json& j) {
       e.size_bytes = fe.count("size_bytes");
       e.sha256 = fe.string("sha256");
       if (!is_hex64(e.sha256)) {
-        throw PackageValidationError(kManifest, p + ".sha256",
-                                     "not 64 lower-case hex digits");
+        throw PackageValidationError(kManifest, p + ".sha256", "not 64 lower-case hex digits");
       }
       m.files.push_back(std::move(e));
     }
@@ -438,11 +436,11 @@ DriveManifest manifest_from_json(const json& j) {
         throw PackageValidationError(kManifest, "files", "entry for '" + expected[i] + "' missing");
       }
       if (i >= expected.size() || m.files[i].name != expected[i]) {
-        throw PackageValidationError(kManifest, "files[" + std::to_string(i) + "].name",
-                                     "unexpected file '" + m.files[i].name + "' (expected " +
-                                         (i < expected.size() ? "'" + expected[i] + "'"
-                                                              : std::string("no more entries")) +
-                                         ")");
+        throw PackageValidationError(
+            kManifest, "files[" + std::to_string(i) + "].name",
+            "unexpected file '" + m.files[i].name + "' (expected " +
+                (i < expected.size() ? "'" + expected[i] + "'" : std::string("no more entries")) +
+                ")");
       }
     }
   }
@@ -715,7 +713,8 @@ DriveManifest write_drive_package(const DrivePackage& pkg, const GridmapRaster& 
                           std::to_string(q));
   }
   if (std::abs(raster.cell_size_m - m.cell_size_m) > 1e-9 * m.cell_size_m) {
-    throw ValidationError("write_drive_package: raster cell size differs from manifest.cell_size_m");
+    throw ValidationError(
+        "write_drive_package: raster cell size differs from manifest.cell_size_m");
   }
   const std::size_t cells = static_cast<std::size_t>(std::max(raster.width, 0)) *
                             static_cast<std::size_t>(std::max(raster.height, 0));
@@ -723,7 +722,8 @@ DriveManifest write_drive_package(const DrivePackage& pkg, const GridmapRaster& 
       raster.layers.size() != static_cast<std::size_t>(raster.num_layers()) ||
       std::any_of(raster.layers.begin(), raster.layers.end(),
                   [&](const auto& l) { return l.size() != cells; })) {
-    throw ValidationError("write_drive_package: raster buffers do not match width x height x layers");
+    throw ValidationError(
+        "write_drive_package: raster buffers do not match width x height x layers");
   }
   check_empty_or_absent(dir, options.overwrite);
   // An empty drive still gets a valid 1x1 raster (N = 0).
@@ -736,11 +736,15 @@ DriveManifest write_drive_package(const DrivePackage& pkg, const GridmapRaster& 
     empty.layers.assign(static_cast<std::size_t>(raster.num_layers()), std::vector<cdouble>(1));
     r = &empty;
   }
-  m.gridmap = {r->width, r->height, r->origin_x_m, r->origin_y_m, 1 + q * q,
-               detail::kGridmapBlockSize, std::clamp(options.mantissa_bits, 1, 23)};
+  m.gridmap = {r->width,
+               r->height,
+               r->origin_x_m,
+               r->origin_y_m,
+               1 + q * q,
+               detail::kGridmapBlockSize,
+               std::clamp(options.mantissa_bits, 1, 23)};
 
-  const fs::path tmp =
-      detail::make_unique_dir(parent_for_temp(dir), hidden_stem(dir, ".tmp"));
+  const fs::path tmp = detail::make_unique_dir(parent_for_temp(dir), hidden_stem(dir, ".tmp"));
   try {
     GridmapTiffSpec spec;
     spec.width = r->width;
@@ -825,8 +829,7 @@ std::vector<TarMemberView> read_package_members(std::string_view tar_bytes) {
     if (msg.starts_with(prefix)) msg = msg.substr(prefix.size());
     throw PackageFormatError("archive", "", msg + " (at byte " + std::to_string(e.offset()) + ")");
   }
-  const std::vector<std::string> expected{kManifestFileName, kGridmapFileName,
-                                          kCandidatesFileName};
+  const std::vector<std::string> expected{kManifestFileName, kGridmapFileName, kCandidatesFileName};
   for (const auto& mb : members) {
     if (std::find(expected.begin(), expected.end(), mb.name) == expected.end()) {
       throw PackageValidationError("archive", "", "unexpected member '" + mb.name + "'");

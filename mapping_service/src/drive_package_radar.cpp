@@ -41,8 +41,13 @@ DriveManifest write_drive_package(const DrivePackage& pkg, const radar::Covarian
   if (bounds.empty()) bounds = {0, 0, 1, 1};  // an empty drive: one empty cell at the origin
   const int width = bounds.width();
   const int height = bounds.height();
-  m.gridmap = {width,     height, bounds.min_ix * cs, bounds.max_iy * cs, 1 + q * q,
-               detail::kGridmapBlockSize, std::clamp(options.mantissa_bits, 1, 23)};
+  m.gridmap = {width,
+               height,
+               bounds.min_ix * cs,
+               bounds.max_iy * cs,
+               1 + q * q,
+               detail::kGridmapBlockSize,
+               std::clamp(options.mantissa_bits, 1, 23)};
 
   // GeoTIFF blocks touched by allocated tiles, in row-major block order (deterministic).
   std::set<std::pair<int, int>> blocks;  // (by, bx)
@@ -85,8 +90,8 @@ DriveManifest write_drive_package(const DrivePackage& pkg, const radar::Covarian
       for (int iy = box.min_iy; iy < box.max_iy; ++iy) {
         const int row = box.max_iy - 1 - iy;
         for (int ix = box.min_ix; ix < box.max_ix; ++ix) {
-          const std::size_t src = static_cast<std::size_t>(iy - box.min_iy) * box.width() +
-                                  (ix - box.min_ix);
+          const std::size_t src =
+              static_cast<std::size_t>(iy - box.min_iy) * box.width() + (ix - box.min_ix);
           const std::size_t dst = static_cast<std::size_t>(row) * bs + (ix - box.min_ix);
           const std::uint32_t n = r.count[src];
           if (n == 0) continue;

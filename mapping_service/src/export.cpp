@@ -22,10 +22,14 @@ namespace fs = std::filesystem;
 
 std::string_view to_string(ExportFormat f) {
   switch (f) {
-    case ExportFormat::GeoPackage: return "gpkg";
-    case ExportFormat::GeoJson: return "geojson";
-    case ExportFormat::Shapefile: return "shp";
-    case ExportFormat::GeoTiff: return "gtiff";
+    case ExportFormat::GeoPackage:
+      return "gpkg";
+    case ExportFormat::GeoJson:
+      return "geojson";
+    case ExportFormat::Shapefile:
+      return "shp";
+    case ExportFormat::GeoTiff:
+      return "gtiff";
   }
   return "gpkg";
 }
@@ -40,20 +44,28 @@ std::optional<ExportFormat> parse_export_format(std::string_view s) {
 
 std::string_view export_content_type(ExportFormat f) {
   switch (f) {
-    case ExportFormat::GeoPackage: return "application/geopackage+sqlite3";
-    case ExportFormat::GeoJson: return "application/geo+json";
-    case ExportFormat::Shapefile: return "application/zip";
-    case ExportFormat::GeoTiff: return "image/tiff";
+    case ExportFormat::GeoPackage:
+      return "application/geopackage+sqlite3";
+    case ExportFormat::GeoJson:
+      return "application/geo+json";
+    case ExportFormat::Shapefile:
+      return "application/zip";
+    case ExportFormat::GeoTiff:
+      return "image/tiff";
   }
   return "application/octet-stream";
 }
 
 std::string_view export_file_extension(ExportFormat f) {
   switch (f) {
-    case ExportFormat::GeoPackage: return ".gpkg";
-    case ExportFormat::GeoJson: return ".geojson";
-    case ExportFormat::Shapefile: return ".zip";
-    case ExportFormat::GeoTiff: return ".tif";
+    case ExportFormat::GeoPackage:
+      return ".gpkg";
+    case ExportFormat::GeoJson:
+      return ".geojson";
+    case ExportFormat::Shapefile:
+      return ".zip";
+    case ExportFormat::GeoTiff:
+      return ".tif";
   }
   return "";
 }
@@ -107,7 +119,8 @@ OGRSpatialReference wgs84_lonlat() {
   return srs;
 }
 
-void add_fields(OGRLayer* layer, bool points, bool lines, bool layer_field, const std::string& out) {
+void add_fields(OGRLayer* layer, bool points, bool lines, bool layer_field,
+                const std::string& out) {
   std::vector<std::pair<const char*, OGRFieldType>> fields;
   if (layer_field) fields.push_back({"layer", OFTString});
   fields.insert(fields.end(), {{"id", OFTInteger64},
@@ -184,7 +197,8 @@ GDALDriver* driver(const char* name) {
   return d;
 }
 
-void close_dataset(GDALDatasetUniquePtr ds, const GdalErrorCapture& capture, const std::string& out) {
+void close_dataset(GDALDatasetUniquePtr ds, const GdalErrorCapture& capture,
+                   const std::string& out) {
   CPLErrorReset();
   GDALClose(ds.release());
   if (CPLGetLastErrorType() >= CE_Failure) {
@@ -209,7 +223,8 @@ std::vector<fs::path> write_shapefiles(const LandmarkSet& lm, const fs::path& di
   }
   GdalErrorCapture capture;
   const std::string out = dir.string();
-  GDALDatasetUniquePtr ds(driver("ESRI Shapefile")->Create(out.c_str(), 0, 0, 0, GDT_Unknown, nullptr));
+  GDALDatasetUniquePtr ds(
+      driver("ESRI Shapefile")->Create(out.c_str(), 0, 0, 0, GDT_Unknown, nullptr));
   if (!ds) throw IoError(out + ": cannot create Shapefile dataset: " + capture.last_message());
   OGRSpatialReference srs = wgs84_lonlat();
   const char* opts[] = {"ENCODING=UTF-8", nullptr};
@@ -331,8 +346,9 @@ ExportSummary export_landmarks(const LandmarkSet& lm, ExportFormat format, const
       break;
     }
     case ExportFormat::GeoTiff:
-      throw ValidationError("export_landmarks: landmarks cannot be written as GeoTIFF "
-                            "(use export_mercator_gridmap_geotiff for the gridmap)");
+      throw ValidationError(
+          "export_landmarks: landmarks cannot be written as GeoTIFF "
+          "(use export_mercator_gridmap_geotiff for the gridmap)");
   }
   summary.bytes = total_size(summary.files);
   return summary;
@@ -366,9 +382,8 @@ ExportSummary export_mercator_gridmap_geotiff(
   remove_file(out);
   GdalErrorCapture capture;
   detail::ScopedGdalConfig no_pam("GDAL_PAM_ENABLED", "NO");
-  const char* opts[] = {"TILED=YES",        "BLOCKXSIZE=256",   "BLOCKYSIZE=256",
-                        "COMPRESS=DEFLATE", "PREDICTOR=3",      "SPARSE_OK=TRUE",
-                        "BIGTIFF=IF_SAFER", nullptr};
+  const char* opts[] = {"TILED=YES",   "BLOCKXSIZE=256", "BLOCKYSIZE=256",   "COMPRESS=DEFLATE",
+                        "PREDICTOR=3", "SPARSE_OK=TRUE", "BIGTIFF=IF_SAFER", nullptr};
   const std::string path = out.string();
   GDALDatasetUniquePtr ds(driver("GTiff")->Create(path.c_str(), static_cast<int>(w),
                                                   static_cast<int>(h), 1, GDT_Float32,
@@ -448,8 +463,8 @@ ExportSummary export_map(const MapStore& store, std::int64_t version, ExportForm
     keys.push_back(t.key);
   }
   if (keys.empty()) {
-    throw NotFoundError("map version " + std::to_string(version) +
-                        " has no fleet gridmap tiles" + (bbox ? " in the box" : ""));
+    throw NotFoundError("map version " + std::to_string(version) + " has no fleet gridmap tiles" +
+                        (bbox ? " in the box" : ""));
   }
   FleetGridmapConfig cfg;
   const auto& stats = info->statistics;

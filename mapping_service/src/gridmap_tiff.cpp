@@ -3,8 +3,8 @@
 #include <ogr_spatialref.h>
 
 #include <algorithm>
-#include <cstring>
 #include <cmath>
+#include <cstring>
 #include <mutex>
 
 #include "package_internal.hpp"
@@ -14,12 +14,18 @@ namespace polmap::mapping {
 
 std::vector<std::string> pol_component_names(PolLevel level) {
   switch (level) {
-    case PolLevel::Full: return {"LL", "LR", "RR"};
-    case PolLevel::DualLLLR: return {"LL", "LR"};
-    case PolLevel::DualHHVV: return {"HH", "VV"};
-    case PolLevel::SingleLR: return {"LR"};
-    case PolLevel::SingleRR: return {"RR"};
-    case PolLevel::SingleHH: return {"HH"};
+    case PolLevel::Full:
+      return {"LL", "LR", "RR"};
+    case PolLevel::DualLLLR:
+      return {"LL", "LR"};
+    case PolLevel::DualHHVV:
+      return {"HH", "VV"};
+    case PolLevel::SingleLR:
+      return {"LR"};
+    case PolLevel::SingleRR:
+      return {"RR"};
+    case PolLevel::SingleHH:
+      return {"HH"};
   }
   return {};
 }
@@ -110,9 +116,9 @@ GridmapTiffWriter::GridmapTiffWriter(const std::string& path, const GridmapTiffS
   const std::string zlevel = "ZLEVEL=" + std::to_string(std::clamp(spec.deflate_level, 1, 9));
   const std::string bx = "BLOCKXSIZE=" + std::to_string(kGridmapBlockSize);
   const std::string by = "BLOCKYSIZE=" + std::to_string(kGridmapBlockSize);
-  const char* opts[] = {"TILED=YES",          bx.c_str(),       by.c_str(),
-                        "COMPRESS=DEFLATE",   zlevel.c_str(),   "PREDICTOR=3",
-                        "INTERLEAVE=BAND",    "SPARSE_OK=TRUE", "BIGTIFF=IF_SAFER",
+  const char* opts[] = {"TILED=YES",           bx.c_str(),       by.c_str(),
+                        "COMPRESS=DEFLATE",    zlevel.c_str(),   "PREDICTOR=3",
+                        "INTERLEAVE=BAND",     "SPARSE_OK=TRUE", "BIGTIFF=IF_SAFER",
                         "GEOTIFF_VERSION=1.1", nullptr};
   ds_ = drv->Create(path.c_str(), spec.width, spec.height, num_bands_, GDT_Float32,
                     const_cast<char**>(opts));

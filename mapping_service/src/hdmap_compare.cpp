@@ -1,12 +1,11 @@
 // HD-map comparison: Lanelet2 OSM reader (pugixml) and the point/line metrics.
 #include "polmap/mapping_service/hdmap_compare.hpp"
 
-#include <pugixml.hpp>
-
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <limits>
+#include <pugixml.hpp>
 #include <unordered_map>
 
 #include "polmap/tiles/local_frame.hpp"
@@ -307,7 +306,8 @@ HdMapComparison compare_hdmap_metric(const std::vector<Vec>& map_points,
                        static_cast<std::int64_t>(std::floor(p.y() / r))};
     };
     const auto pack = [](std::int64_t x, std::int64_t y) {
-      return (static_cast<std::uint64_t>(x) << 32U) ^ (static_cast<std::uint64_t>(y) & 0xffffffffULL);
+      return (static_cast<std::uint64_t>(x) << 32U) ^
+             (static_cast<std::uint64_t>(y) & 0xffffffffULL);
     };
     for (std::size_t j : hp) {
       const auto [x, y] = cell(hd_points[j]);

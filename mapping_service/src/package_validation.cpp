@@ -5,9 +5,9 @@
 #include <ogrsf_frmts.h>
 
 #include <atomic>
+#include <cmath>
 #include <fstream>
 #include <functional>
-#include <cmath>
 #include <map>
 #include <optional>
 
@@ -95,9 +95,9 @@ class MemSource final : public PackageSource {
     prefix_ = "/vsimem/polmap_pkg_" + std::to_string(counter++) + "/";
     for (auto& m : members_) {
       // Read-only use: GDAL never writes through a buffer it does not own.
-      VSILFILE* f = VSIFileFromMemBuffer(
-          (prefix_ + m.name).c_str(), reinterpret_cast<GByte*>(const_cast<char*>(m.data.data())),
-          static_cast<vsi_l_offset>(m.data.size()), FALSE);
+      VSILFILE* f = VSIFileFromMemBuffer((prefix_ + m.name).c_str(),
+                                         reinterpret_cast<GByte*>(const_cast<char*>(m.data.data())),
+                                         static_cast<vsi_l_offset>(m.data.size()), FALSE);
       if (f != nullptr) VSIFCloseL(f);
     }
   }
@@ -171,39 +171,45 @@ GridmapScan validate_gridmap(const std::string& path, const DriveManifest& m,
   auto ds = open_raster(path, kTif);
   const GridmapInfo& g = m.gridmap;
   if (ds->GetRasterXSize() != g.width) {
-    invalid(kTif, "width", std::to_string(ds->GetRasterXSize()) + " columns, manifest.json says " +
-                               std::to_string(g.width));
+    invalid(kTif, "width",
+            std::to_string(ds->GetRasterXSize()) + " columns, manifest.json says " +
+                std::to_string(g.width));
   }
   if (ds->GetRasterYSize() != g.height) {
-    invalid(kTif, "height", std::to_string(ds->GetRasterYSize()) + " rows, manifest.json says " +
-                                std::to_string(g.height));
+    invalid(kTif, "height",
+            std::to_string(ds->GetRasterYSize()) + " rows, manifest.json says " +
+                std::to_string(g.height));
   }
   if (static_cast<std::int64_t>(g.width) * g.height > cfg.max_raster_cells) {
-    invalid(kTif, "width", "raster of " + std::to_string(g.width) + " x " +
-                               std::to_string(g.height) + " cells exceeds the limit");
+    invalid(kTif, "width",
+            "raster of " + std::to_string(g.width) + " x " + std::to_string(g.height) +
+                " cells exceeds the limit");
   }
   const auto names = gridmap_band_names(m.pol_level);
   if (ds->GetRasterCount() != static_cast<int>(names.size())) {
-    invalid(kTif, "bands", "has " + std::to_string(ds->GetRasterCount()) + " bands, pol_level '" +
-                               std::string(to_string(m.pol_level)) + "' needs " +
-                               std::to_string(names.size()));
+    invalid(kTif, "bands",
+            "has " + std::to_string(ds->GetRasterCount()) + " bands, pol_level '" +
+                std::string(to_string(m.pol_level)) + "' needs " + std::to_string(names.size()));
   }
   for (int b = 0; b < ds->GetRasterCount(); ++b) {
     GDALRasterBand* band = ds->GetRasterBand(b + 1);
     const std::string bname = "band " + std::to_string(b + 1);
     if (band->GetRasterDataType() != GDT_Float32) {
-      invalid(kTif, bname, std::string("data type ") +
-                               GDALGetDataTypeName(band->GetRasterDataType()) + ", expected Float32");
+      invalid(kTif, bname,
+              std::string("data type ") + GDALGetDataTypeName(band->GetRasterDataType()) +
+                  ", expected Float32");
     }
     if (names[b] != band->GetDescription()) {
-      invalid(kTif, bname, std::string("description '") + band->GetDescription() +
-                               "', expected '" + names[b] + "'");
+      invalid(
+          kTif, bname,
+          std::string("description '") + band->GetDescription() + "', expected '" + names[b] + "'");
     }
     int bx = 0, by = 0;
     band->GetBlockSize(&bx, &by);
     if (bx != detail::kGridmapBlockSize || by != detail::kGridmapBlockSize) {
-      invalid(kTif, bname, "block size " + std::to_string(bx) + "x" + std::to_string(by) +
-                               ", expected 256x256 tiles");
+      invalid(kTif, bname,
+              "block size " + std::to_string(bx) + "x" + std::to_string(by) +
+                  ", expected 256x256 tiles");
     }
   }
   double gt[6];
@@ -224,8 +230,8 @@ GridmapScan validate_gridmap(const std::string& path, const DriveManifest& m,
       std::abs(g.origin_y_m) > cfg.max_abs_coordinate_m ||
       std::abs(g.origin_x_m + g.width * cs) > cfg.max_abs_coordinate_m ||
       std::abs(g.origin_y_m - g.height * cs) > cfg.max_abs_coordinate_m) {
-    invalid(kTif, "geotransform", "extent reaches beyond " + fmt(cfg.max_abs_coordinate_m) +
-                                      " m from the drive origin");
+    invalid(kTif, "geotransform",
+            "extent reaches beyond " + fmt(cfg.max_abs_coordinate_m) + " m from the drive origin");
   }
   const OGRSpatialReference* srs = ds->GetSpatialRef();
   if (srs == nullptr) invalid(kTif, "crs", "missing");
@@ -288,7 +294,8 @@ GridmapScan validate_gridmap(const std::string& path, const DriveManifest& m,
           };
           const float n = block.band(0)[k];
           if (!std::isfinite(n) || n < 0.0F || n != std::floor(n)) {
-            invalid(kTif, "N", "count " + fmt(n) + " " + where() + " is not a non-negative integer");
+            invalid(kTif, "N",
+                    "count " + fmt(n) + " " + where() + " is not a non-negative integer");
           }
           for (int b = 1; b < nb; ++b) {
             const float v = block.band(b)[k];
@@ -334,9 +341,9 @@ OGRLayer* require_layer(GDALDataset& ds, const char* name, OGRwkbGeometryType ge
   OGRLayer* layer = ds.GetLayerByName(name);
   if (layer == nullptr) invalid(kGpkg, name, "layer missing");
   if (wkbFlatten(layer->GetGeomType()) != geom) {
-    invalid(kGpkg, name, std::string("geometry type ") +
-                             OGRGeometryTypeToName(layer->GetGeomType()) + ", expected " +
-                             OGRGeometryTypeToName(geom));
+    invalid(kGpkg, name,
+            std::string("geometry type ") + OGRGeometryTypeToName(layer->GetGeomType()) +
+                ", expected " + OGRGeometryTypeToName(geom));
   }
   const OGRSpatialReference* srs = layer->GetSpatialRef();
   OGRSpatialReference wgs84;
@@ -379,8 +386,9 @@ class FeatureReader {
   [[nodiscard]] double coordinate(const char* name, double limit) const {
     const double v = real(name);
     if (std::abs(v) > limit) {
-      invalid(kGpkg, field_path(name), where() + ": " + fmt(v) + " m is more than " + fmt(limit) +
-                                           " m from the drive origin");
+      invalid(
+          kGpkg, field_path(name),
+          where() + ": " + fmt(v) + " m is more than " + fmt(limit) + " m from the drive origin");
     }
     return v;
   }
@@ -437,12 +445,12 @@ std::optional<GnssSolution> parse_solution(const std::string& s) {
 void check_count(const char* layer, OGRLayer* l, std::uint64_t expected, std::uint64_t limit) {
   const GIntBig n = l->GetFeatureCount(TRUE);
   if (n < 0 || static_cast<std::uint64_t>(n) != expected) {
-    invalid(kGpkg, layer, std::to_string(n) + " features, manifest.json counts say " +
-                              std::to_string(expected));
+    invalid(kGpkg, layer,
+            std::to_string(n) + " features, manifest.json counts say " + std::to_string(expected));
   }
   if (static_cast<std::uint64_t>(n) > limit) {
-    invalid(kGpkg, layer, std::to_string(n) + " features exceed the plausible maximum " +
-                              std::to_string(limit));
+    invalid(kGpkg, layer,
+            std::to_string(n) + " features exceed the plausible maximum " + std::to_string(limit));
   }
 }
 
@@ -454,15 +462,18 @@ void read_candidates(const std::string& path, const DriveManifest& m,
   GDALDatasetUniquePtr ds(GDALDataset::FromHandle(
       GDALOpenEx(path.c_str(), GDAL_OF_VECTOR | GDAL_OF_READONLY, drivers, nullptr, nullptr)));
   if (!ds) {
-    throw PackageFormatError(kGpkg, "", "not a readable GeoPackage (" + capture.last_message() + ")");
+    throw PackageFormatError(kGpkg, "",
+                             "not a readable GeoPackage (" + capture.last_message() + ")");
   }
   const tiles::LocalFrame frame(m.origin);
   const double lim = cfg.max_abs_coordinate_m;
   const GridmapInfo& g = m.gridmap;
   const double margin = cfg.extent_margin_m;
   const auto inside_gridmap = [&](const Eigen::Vector2d& p) {
-    return p.x() >= g.origin_x_m - margin && p.x() <= g.origin_x_m + g.width * m.cell_size_m + margin &&
-           p.y() <= g.origin_y_m + margin && p.y() >= g.origin_y_m - g.height * m.cell_size_m - margin;
+    return p.x() >= g.origin_x_m - margin &&
+           p.x() <= g.origin_x_m + g.width * m.cell_size_m + margin &&
+           p.y() <= g.origin_y_m + margin &&
+           p.y() >= g.origin_y_m - g.height * m.cell_size_m - margin;
   };
 
   OGRLayer* lp = require_layer(*ds, "points", wkbPoint,
@@ -508,8 +519,9 @@ void read_candidates(const std::string& path, const DriveManifest& m,
     p.power_db = r.real("power_db");
     const auto sc = parse_scattering(r.string("scattering"));
     if (!sc) {
-      invalid(kGpkg, "points.scattering", r.where() + ": unknown class '" + r.string("scattering") +
-                                              "' (expected unknown, odd, even, mixed)");
+      invalid(kGpkg, "points.scattering",
+              r.where() + ": unknown class '" + r.string("scattering") +
+                  "' (expected unknown, odd, even, mixed)");
     }
     p.scattering = *sc;
     const std::int64_t nc = r.integer("num_cells");
@@ -524,8 +536,9 @@ void read_candidates(const std::string& path, const DriveManifest& m,
     const auto* pt = geom->toPoint();
     r.check_vertex(pt->getX(), pt->getY(), p.position_m, frame, "x_m");
     if (!inside_gridmap(p.position_m)) {
-      invalid(kGpkg, "points.x_m", r.where() + ": (" + fmt(p.position_m.x()) + ", " +
-                                       fmt(p.position_m.y()) + ") outside the gridmap extent");
+      invalid(kGpkg, "points.x_m",
+              r.where() + ": (" + fmt(p.position_m.x()) + ", " + fmt(p.position_m.y()) +
+                  ") outside the gridmap extent");
     }
     out.points.push_back(p);
   }
@@ -563,15 +576,16 @@ void read_candidates(const std::string& path, const DriveManifest& m,
     s.std_north_m = static_cast<float>(r.real("std_north_m"));
     s.std_yaw_rad = static_cast<float>(r.real("std_yaw_rad"));
     if (std::abs(s.speed_mps) > cfg.max_speed_mps) {
-      invalid(kGpkg, "trajectory.speed_mps", r.where() + ": " + fmt(s.speed_mps) + " m/s implausible");
+      invalid(kGpkg, "trajectory.speed_mps",
+              r.where() + ": " + fmt(s.speed_mps) + " m/s implausible");
     }
     if (s.std_east_m < 0 || s.std_north_m < 0 || s.std_yaw_rad < 0) {
       invalid(kGpkg, "trajectory.std_east_m", r.where() + ": negative standard deviation");
     }
     const auto sol = parse_solution(r.string("solution"));
     if (!sol) {
-      invalid(kGpkg, "trajectory.solution", r.where() + ": unknown solution '" +
-                                                r.string("solution") + "'");
+      invalid(kGpkg, "trajectory.solution",
+              r.where() + ": unknown solution '" + r.string("solution") + "'");
     }
     s.solution = *sol;
     const Eigen::Vector2d xy{r.coordinate("x_m", lim), r.coordinate("y_m", lim)};
@@ -590,8 +604,8 @@ void read_candidates(const std::string& path, const DriveManifest& m,
     }
     if (s.time_s < m.start_time_s - cfg.time_span_tolerance_s ||
         s.time_s > m.end_time_s + cfg.time_span_tolerance_s) {
-      invalid(kGpkg, "trajectory.time_s", r.where() + ": time " + fmt(s.time_s) +
-                                              " s outside the manifest time span");
+      invalid(kGpkg, "trajectory.time_s",
+              r.where() + ": time " + fmt(s.time_s) + " s outside the manifest time span");
     }
     out.trajectory.push_back(s);
   }
@@ -645,8 +659,9 @@ DrivePackage validate(const PackageSource& src, const PackageValidationConfig& c
     if (archive_hash != nullptr) archive_hash->update(std::string(ustar_padding(size), '\0'));
     const std::string actual = file_hash.hex();
     if (actual != f.sha256) {
-      invalid(f.name, "sha256", actual + " does not match manifest.json files[" +
-                                    std::to_string(i) + "].sha256 " + f.sha256);
+      invalid(f.name, "sha256",
+              actual + " does not match manifest.json files[" + std::to_string(i) + "].sha256 " +
+                  f.sha256);
     }
   }
   storage.clear();
@@ -685,7 +700,8 @@ DrivePackage read_and_validate_package(const fs::path& dir_or_tar,
   return pkg;
 }
 
-DrivePackage validate_package_bytes(std::string_view tar_bytes, const PackageValidationConfig& cfg) {
+DrivePackage validate_package_bytes(std::string_view tar_bytes,
+                                    const PackageValidationConfig& cfg) {
   const MemSource src(detail::read_package_members(tar_bytes));
   DrivePackage pkg = validate(src, cfg, nullptr);
   pkg.content_sha256 = sha256_hex(tar_bytes);
@@ -799,8 +815,8 @@ GridmapRaster empty_raster(int q, int w, int h, double x0, double y0, double cs)
 GridmapRaster read_gridmap(const std::string& gdal_path) {
   auto ds = open_raster(gdal_path, kTif);
   const RasterLayout l = raster_layout(*ds, kTif);
-  GridmapRaster out = empty_raster(l.q, ds->GetRasterXSize(), ds->GetRasterYSize(), l.gt[0],
-                                   l.gt[3], l.gt[1]);
+  GridmapRaster out =
+      empty_raster(l.q, ds->GetRasterXSize(), ds->GetRasterYSize(), l.gt[0], l.gt[3], l.gt[1]);
   const int bs = detail::kGridmapBlockSize;
   detail::GridmapBlockBuffer block(ds->GetRasterCount());
   for (int by = 0; by * bs < out.height; ++by) {
@@ -837,8 +853,8 @@ void for_each_gridmap_block(const DrivePackage& pkg,
       if (!read_block(*ds, bx, by, block, kTif)) continue;
       const int cols = std::min(bs, w - bx * bs);
       const int rows = std::min(bs, h - by * bs);
-      GridmapRaster r = empty_raster(l.q, cols, rows, l.gt[0] + bx * bs * cs,
-                                     l.gt[3] - by * bs * cs, cs);
+      GridmapRaster r =
+          empty_raster(l.q, cols, rows, l.gt[0] + bx * bs * cs, l.gt[3] - by * bs * cs, cs);
       block_to_raster(block, l.q, cols, rows, r, 0, 0);
       fn(r);
     }

@@ -66,9 +66,7 @@ bool parse_octal(const char* field, std::size_t len, std::uint64_t& out) {
   return any;
 }
 
-std::string c_string(const char* field, std::size_t len) {
-  return {field, strnlen(field, len)};
-}
+std::string c_string(const char* field, std::size_t len) { return {field, strnlen(field, len)}; }
 
 }  // namespace
 
@@ -150,7 +148,8 @@ std::vector<TarMemberView> read_ustar_views(std::string_view bytes, const std::s
     const std::string prefix = c_string(hc + kPrefixOff, kPrefixLen);
     if (!prefix.empty()) name = prefix + "/" + name;
     if (type != '0' && type != '\0') {
-      throw fail(off + kTypeOff, std::string("member '") + name + "': unsupported tar entry type '" +
+      throw fail(off + kTypeOff, std::string("member '") + name +
+                                     "': unsupported tar entry type '" +
                                      (type >= 32 && type < 127 ? std::string(1, type) : "?") +
                                      "' (only regular files)");
     }

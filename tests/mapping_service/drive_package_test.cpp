@@ -1,8 +1,8 @@
 // Drive package: write -> read round trips, determinism, GDAL/OGR readability, archive form.
 #include <gdal_priv.h>
+#include <gtest/gtest.h>
 #include <ogr_spatialref.h>
 #include <ogrsf_frmts.h>
-#include <gtest/gtest.h>
 
 #include <filesystem>
 #include <fstream>
@@ -164,8 +164,8 @@ TEST_F(DrivePackageTest, Sha256MatchesKnownVectors) {
 TEST_F(DrivePackageTest, GdalOpensGridmapWithCrsBandsAndTiling) {
   const auto d = make_synthetic_drive();
   write_drive_package(d.pkg, d.raster, root_ / "pkg");
-  GDALDatasetUniquePtr ds(
-      GDALDataset::Open((root_ / "pkg" / "gridmap.tif").c_str(), GDAL_OF_RASTER | GDAL_OF_READONLY));
+  GDALDatasetUniquePtr ds(GDALDataset::Open((root_ / "pkg" / "gridmap.tif").c_str(),
+                                            GDAL_OF_RASTER | GDAL_OF_READONLY));
   ASSERT_TRUE(ds);
   EXPECT_STREQ(ds->GetDriver()->GetDescription(), "GTiff");
   EXPECT_EQ(ds->GetRasterCount(), 10);
@@ -174,9 +174,9 @@ TEST_F(DrivePackageTest, GdalOpensGridmapWithCrsBandsAndTiling) {
   const OGRSpatialReference* srs = ds->GetSpatialRef();
   ASSERT_NE(srs, nullptr);
   OGRSpatialReference frame_srs;
-  ASSERT_EQ(frame_srs.SetFromUserInput(
-                tiles::LocalFrame(d.pkg.manifest.origin).proj_string().c_str()),
-            OGRERR_NONE);
+  ASSERT_EQ(
+      frame_srs.SetFromUserInput(tiles::LocalFrame(d.pkg.manifest.origin).proj_string().c_str()),
+      OGRERR_NONE);
   EXPECT_TRUE(OSRIsSame(OGRSpatialReference::ToHandle(const_cast<OGRSpatialReference*>(srs)),
                         OGRSpatialReference::ToHandle(&frame_srs)));
   double gt[6];
@@ -307,8 +307,8 @@ TEST_F(DrivePackageTest, ArchiveRoundTripThroughVsitarAndUnpack) {
   fs::remove_all(tmp);
   // The system tar lists the archive too (if present on this machine).
   if (std::system("command -v tar >/dev/null 2>&1") == 0) {
-    const std::string cmd = "tar -tf " + (root_ / "pkg.tar").string() + " > " +
-                            (root_ / "list.txt").string();
+    const std::string cmd =
+        "tar -tf " + (root_ / "pkg.tar").string() + " > " + (root_ / "list.txt").string();
     ASSERT_EQ(std::system(cmd.c_str()), 0);
     EXPECT_EQ(slurp(root_ / "list.txt"), "manifest.json\ngridmap.tif\ncandidates.gpkg\n");
   }
@@ -332,8 +332,8 @@ TEST_F(DrivePackageTest, UstarWriterAndReader) {
   EXPECT_THROW((void)write_ustar({{std::string(101, 'n'), "1"}}), ContractViolation);
   EXPECT_THROW((void)write_ustar({{"a", "1"}, {"a", "2"}}), ContractViolation);
   // Truncations anywhere are format errors naming the byte offset.
-  for (std::size_t cut : {std::size_t{0}, std::size_t{100}, std::size_t{512}, std::size_t{700},
-                          tar.size() - 1024}) {
+  for (std::size_t cut :
+       {std::size_t{0}, std::size_t{100}, std::size_t{512}, std::size_t{700}, tar.size() - 1024}) {
     try {
       (void)read_ustar(std::string_view(tar).substr(0, cut), "x.tar");
       ADD_FAILURE() << "cut " << cut;
@@ -499,7 +499,8 @@ TEST_F(DrivePackageTest, MantissaRoundingBoundsTheRelativeError) {
       const cdouble want = d.raster.layers[l][k];
       const cdouble got = g.layers[l][k];
       // Per component: float rounding (2^-24) then 10-bit rounding (2^-11).
-      for (const auto& [w, v] : {std::pair{want.real(), got.real()}, std::pair{want.imag(), got.imag()}}) {
+      for (const auto& [w, v] :
+           {std::pair{want.real(), got.real()}, std::pair{want.imag(), got.imag()}}) {
         if (w == 0.0) {
           ASSERT_EQ(v, 0.0);
           continue;

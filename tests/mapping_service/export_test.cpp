@@ -2,9 +2,9 @@
 #include "polmap/mapping_service/export.hpp"
 
 #include <gdal_priv.h>
+#include <gtest/gtest.h>
 #include <ogr_spatialref.h>
 #include <ogrsf_frmts.h>
-#include <gtest/gtest.h>
 
 #include <cmath>
 #include <filesystem>
@@ -227,8 +227,8 @@ TEST_F(ExportTest, MercatorGridmapGeoTiffBlocksAreXyzTiles) {
   EXPECT_NEAR(y, box.max_lat_deg, 1e-9);
   // Values: diagonal of tile a = 0.5, of tile b = 2.5; elsewhere NaN (nodata).
   std::vector<float> v(3 * 256 * 2 * 256);
-  ASSERT_EQ(ds->GetRasterBand(1)->RasterIO(GF_Read, 0, 0, 768, 512, v.data(), 768, 512,
-                                           GDT_Float32, 0, 0),
+  ASSERT_EQ(ds->GetRasterBand(1)->RasterIO(GF_Read, 0, 0, 768, 512, v.data(), 768, 512, GDT_Float32,
+                                           0, 0),
             CE_None);
   EXPECT_FLOAT_EQ(v[10 * 768 + 10], 0.5F);
   EXPECT_FLOAT_EQ(v[(256 + 10) * 768 + 512 + 10], 2.5F);

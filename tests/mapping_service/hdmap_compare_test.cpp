@@ -23,8 +23,8 @@ const fs::path kIntersection = fs::path(POLMAP_DATA_DIR) / "hdmaps" / "autoware_
 
 tiles::LocalFrame frame_of(const HdMap& hd) {
   const auto b = hdmap_bounds(hd);
-  return tiles::LocalFrame({0.5 * (b->min_lat_deg + b->max_lat_deg),
-                            0.5 * (b->min_lon_deg + b->max_lon_deg), 0.0});
+  return tiles::LocalFrame(
+      {0.5 * (b->min_lat_deg + b->max_lat_deg), 0.5 * (b->min_lon_deg + b->max_lon_deg), 0.0});
 }
 
 std::vector<std::vector<Vec>> hd_lines_local(const HdMap& hd, const tiles::LocalFrame& f) {
@@ -38,13 +38,14 @@ std::vector<std::vector<Vec>> hd_lines_local(const HdMap& hd, const tiles::Local
 
 double seg_dist(const Vec& p, const Vec& a, const Vec& b) {
   const Vec d = b - a;
-  const double t = d.squaredNorm() > 0 ? std::clamp((p - a).dot(d) / d.squaredNorm(), 0.0, 1.0) : 0.0;
+  const double t =
+      d.squaredNorm() > 0 ? std::clamp((p - a).dot(d) / d.squaredNorm(), 0.0, 1.0) : 0.0;
   return (p - (a + t * d)).norm();
 }
 
 /// Brute-force reference of coverage: fine pieces, distance to every map segment.
-double brute_coverage(const std::vector<std::vector<Vec>>& hd, const std::vector<std::vector<Vec>>& map,
-                      double band, double step) {
+double brute_coverage(const std::vector<std::vector<Vec>>& hd,
+                      const std::vector<std::vector<Vec>>& map, double band, double step) {
   double covered = 0, total = 0;
   for (const auto& l : hd) {
     for (std::size_t i = 1; i < l.size(); ++i) {
@@ -56,7 +57,8 @@ double brute_coverage(const std::vector<std::vector<Vec>>& hd, const std::vector
         total += len;
         double best = 1e300;
         for (const auto& m : map)
-          for (std::size_t j = 1; j < m.size(); ++j) best = std::min(best, seg_dist(mid, m[j - 1], m[j]));
+          for (std::size_t j = 1; j < m.size(); ++j)
+            best = std::min(best, seg_dist(mid, m[j - 1], m[j]));
         if (best <= band) covered += len;
       }
     }
@@ -111,7 +113,8 @@ TEST(HdMapRead, IntersectionPointFeaturesAreCentroids) {
 
 TEST(HdMapRead, Errors) {
   EXPECT_THROW((void)read_lanelet2_osm("/nonexistent/map.osm"), IoError);
-  const fs::path bad = fs::temp_directory_path() / ("polmap_bad_" + std::to_string(::getpid()) + ".osm");
+  const fs::path bad =
+      fs::temp_directory_path() / ("polmap_bad_" + std::to_string(::getpid()) + ".osm");
   std::ofstream(bad) << "<osm><node id='1' lat='x' lon='2'/></osm>";
   try {
     (void)read_lanelet2_osm(bad);
@@ -147,7 +150,8 @@ TEST(HdMapCompare, LinesShiftedLaterallyOnRealMap) {
     noisy[i][0] += 0.4 * nrm;
     noisy[i][1] += 0.4 * nrm;
   }
-  for (std::size_t i = 0; i < 30; ++i) noisy.push_back({hl[i % hl.size()][0] + Vec(15, 15), hl[i % hl.size()][0] + Vec(25, 15)});
+  for (std::size_t i = 0; i < 30; ++i)
+    noisy.push_back({hl[i % hl.size()][0] + Vec(15, 15), hl[i % hl.size()][0] + Vec(25, 15)});
   const auto r2 = compare_hdmap_metric({}, noisy, {}, hl);
   EXPECT_LT(r2.matched_line_samples, r2.map_line_samples);
   EXPECT_NEAR(*r2.line_median_lateral_offset_m, 0.2, 0.02);
@@ -186,7 +190,8 @@ TEST(HdMapCompare, PointsOnRealIntersectionWithOffsetsGapsAndOutliers) {
   // The features stand far enough apart for unambiguous 1 m matching.
   double min_sep = 1e9;
   for (std::size_t i = 0; i < hp.size(); ++i)
-    for (std::size_t j = i + 1; j < hp.size(); ++j) min_sep = std::min(min_sep, (hp[i] - hp[j]).norm());
+    for (std::size_t j = i + 1; j < hp.size(); ++j)
+      min_sep = std::min(min_sep, (hp[i] - hp[j]).norm());
   ASSERT_GT(min_sep, 2.0) << "test assumes separated features";
   std::vector<Vec> mp;
   std::mt19937 rng(3);
@@ -254,9 +259,9 @@ TEST(HdMapCompare, GeodeticEntryPointAndJson) {
   const auto r = compare_with_hdmap(lm, hd);
   EXPECT_NEAR(*r.line_median_lateral_offset_m, 0.25, 0.005);
   const auto j = to_json(r);
-  for (const char* k : {"point_precision", "point_recall", "point_median_offset_m",
-                        "line_median_lateral_offset_m", "line_covered_length_m",
-                        "line_total_length_m", "line_coverage"}) {
+  for (const char* k :
+       {"point_precision", "point_recall", "point_median_offset_m", "line_median_lateral_offset_m",
+        "line_covered_length_m", "line_total_length_m", "line_coverage"}) {
     EXPECT_TRUE(j.contains(k)) << k;
   }
   EXPECT_TRUE(j["point_precision"].is_null());

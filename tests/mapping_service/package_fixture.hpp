@@ -22,9 +22,8 @@ struct SyntheticDrive {
 /// level `level` with observed cells in a diagonal band, and point/line candidates on it.
 inline SyntheticDrive make_synthetic_drive(const std::string& drive_id = "drive_0001",
                                            PolLevel level = PolLevel::Full, int width = 300,
-                                           int height = 280, unsigned seed = 7,
-                                           int num_points = 25, int num_lines = 6,
-                                           int num_samples = 120) {
+                                           int height = 280, unsigned seed = 7, int num_points = 25,
+                                           int num_lines = 6, int num_samples = 120) {
   SyntheticDrive d;
   DriveManifest& m = d.pkg.manifest;
   m.drive_id = drive_id;

@@ -1,8 +1,8 @@
 // Drive package validation: every corruption gives an error naming the file and the field.
 #include <gdal_priv.h>
+#include <gtest/gtest.h>
 #include <ogr_spatialref.h>
 #include <ogrsf_frmts.h>
-#include <gtest/gtest.h>
 
 #include <cmath>
 #include <filesystem>
@@ -45,8 +45,8 @@ class PackageValidationTest : public ::testing::Test {
     dir_ = root_ / "pkg";
     // One written package per suite; each test corrupts its own copy.
     if (template_dir().empty()) {
-      template_dir() = fs::temp_directory_path() /
-                       ("polmap_val_template_" + std::to_string(::getpid()));
+      template_dir() =
+          fs::temp_directory_path() / ("polmap_val_template_" + std::to_string(::getpid()));
       fs::remove_all(template_dir());
       write_drive_package(drive_.pkg, drive_.raster, template_dir());
     }
@@ -118,8 +118,7 @@ TEST_F(PackageValidationTest, ValidPackagePasses) {
 
 TEST_F(PackageValidationTest, MissingManifestField) {
   edit_manifest([](json& j) { j.erase("pol_level"); });
-  expect_error<PackageValidationError>("manifest.json", "pol_level", "missing required field",
-                                       422);
+  expect_error<PackageValidationError>("manifest.json", "pol_level", "missing required field", 422);
 }
 
 TEST_F(PackageValidationTest, MissingNestedField) {
@@ -238,11 +237,12 @@ void rewrite_tiff(const fs::path& path, int bands, const std::string& proj) {
   double gt[6];
   src->GetGeoTransform(gt);
   std::vector<std::string> desc;
-  for (int b = 1; b <= src->GetRasterCount(); ++b) desc.push_back(src->GetRasterBand(b)->GetDescription());
+  for (int b = 1; b <= src->GetRasterCount(); ++b)
+    desc.push_back(src->GetRasterBand(b)->GetDescription());
   std::vector<float> band1(static_cast<std::size_t>(w) * h);
-  ASSERT_EQ(src->GetRasterBand(1)->RasterIO(GF_Read, 0, 0, w, h, band1.data(), w, h, GDT_Float32,
-                                            0, 0),
-            CE_None);
+  ASSERT_EQ(
+      src->GetRasterBand(1)->RasterIO(GF_Read, 0, 0, w, h, band1.data(), w, h, GDT_Float32, 0, 0),
+      CE_None);
   src.reset();
   fs::remove(path);
   const char* opts[] = {"TILED=YES", "BLOCKXSIZE=256", "BLOCKYSIZE=256", "COMPRESS=DEFLATE",
@@ -255,20 +255,20 @@ void rewrite_tiff(const fs::path& path, int bands, const std::string& proj) {
   srs.SetFromUserInput(proj.c_str());
   dst->SetSpatialRef(&srs);
   for (int b = 1; b <= bands; ++b) {
-    if (b <= static_cast<int>(desc.size())) dst->GetRasterBand(b)->SetDescription(desc[b - 1].c_str());
+    if (b <= static_cast<int>(desc.size()))
+      dst->GetRasterBand(b)->SetDescription(desc[b - 1].c_str());
   }
-  ASSERT_EQ(dst->GetRasterBand(1)->RasterIO(GF_Write, 0, 0, w, h, band1.data(), w, h, GDT_Float32,
-                                            0, 0),
-            CE_None);
+  ASSERT_EQ(
+      dst->GetRasterBand(1)->RasterIO(GF_Write, 0, 0, w, h, band1.data(), w, h, GDT_Float32, 0, 0),
+      CE_None);
 }
 
 TEST_F(PackageValidationTest, GeoTiffWithWrongBandCount) {
   rewrite_tiff(dir_ / "gridmap.tif", 7,
                tiles::LocalFrame(drive_.pkg.manifest.origin).proj_string());
   refresh_manifest();
-  const auto err = expect_error<PackageValidationError>("gridmap.tif", "bands",
-                                                        "has 7 bands, pol_level 'full' needs 10",
-                                                        422);
+  const auto err = expect_error<PackageValidationError>(
+      "gridmap.tif", "bands", "has 7 bands, pol_level 'full' needs 10", 422);
   EXPECT_EQ(err.what(), "gridmap.tif: field 'bands': has 7 bands, pol_level 'full' needs 10");
 }
 
@@ -290,12 +290,13 @@ TEST_F(PackageValidationTest, CovarianceWhereNothingWasObserved) {
     ASSERT_TRUE(ds);
     // Cell (col 10, row 10) lies in the observed band: zero its count only.
     float zero = 0.0F;
-    ASSERT_EQ(ds->GetRasterBand(1)->RasterIO(GF_Write, 10, 10, 1, 1, &zero, 1, 1, GDT_Float32, 0, 0),
-              CE_None);
+    ASSERT_EQ(
+        ds->GetRasterBand(1)->RasterIO(GF_Write, 10, 10, 1, 1, &zero, 1, 1, GDT_Float32, 0, 0),
+        CE_None);
   }
   refresh_manifest();
-  expect_error<PackageValidationError>("gridmap.tif", "C_LL_LL",
-                                       "at column 10 row 10 where N = 0", 422);
+  expect_error<PackageValidationError>("gridmap.tif", "C_LL_LL", "at column 10 row 10 where N = 0",
+                                       422);
 }
 
 /// Applies fn to feature `index` (0-based) of a layer of candidates.gpkg, in place.
@@ -312,9 +313,8 @@ void edit_feature(const fs::path& gpkg, const char* layer, int index,
 }
 
 TEST_F(PackageValidationTest, NanCoordinateAttribute) {
-  edit_feature(dir_ / "candidates.gpkg", "points", 3, [](OGRFeature& f) {
-    f.SetField("x_m", std::numeric_limits<double>::quiet_NaN());
-  });
+  edit_feature(dir_ / "candidates.gpkg", "points", 3,
+               [](OGRFeature& f) { f.SetField("x_m", std::numeric_limits<double>::quiet_NaN()); });
   refresh_manifest();
   // SQLite stores NaN as NULL; either way the field is named.
   expect_error<PackageValidationError>("candidates.gpkg", "points.x_m", "feature 3", 422);
@@ -364,8 +364,8 @@ TEST_F(PackageValidationTest, TrajectoryTimesNotMonotonic) {
   edit_feature(dir_ / "candidates.gpkg", "trajectory", 5,
                [&](OGRFeature& f) { f.SetField("time_s", t4); });
   refresh_manifest();
-  expect_error<PackageValidationError>("candidates.gpkg", "trajectory.time_s",
-                                       "feature 5: time", 422);
+  expect_error<PackageValidationError>("candidates.gpkg", "trajectory.time_s", "feature 5: time",
+                                       422);
 }
 
 TEST_F(PackageValidationTest, UnknownScatteringClass) {

@@ -73,20 +73,22 @@ void run(CompareOptions o) {
     std::printf("%s\n", j.dump(2).c_str());
     return;
   }
-  std::printf("map version %lld vs %s (%zu point features, %zu line features; %s)\n",
-              static_cast<long long>(version), o.hdmap.c_str(), hd.points.size(), hd.lines.size(),
-              o.cfg.restrict_to_overlap ? "evaluated where both maps exist"
-                                        : "evaluated everywhere");
-  std::printf("points: %zu of %zu map points matched %zu HD points within %.2f m: precision %s, "
-              "recall %s, median offset %s m\n",
-              r.matched_points, r.map_points, r.hd_points, o.cfg.point_match_radius_m,
-              fmt(r.point_precision, "%.3f").c_str(), fmt(r.point_recall, "%.3f").c_str(),
-              fmt(r.point_median_offset_m, "%.3f").c_str());
-  std::printf("lines: median lateral offset %s m (%zu of %zu samples within %.2f m of an HD line); "
-              "covered %.1f m of %.1f m HD line length (%s %%)\n",
-              fmt(r.line_median_lateral_offset_m, "%.3f").c_str(), r.matched_line_samples,
-              r.map_line_samples, o.cfg.line_band_m, r.line_covered_length_m, r.line_total_length_m,
-              fmt(r.line_coverage, "%.1f", 100.0).c_str());
+  std::printf(
+      "map version %lld vs %s (%zu point features, %zu line features; %s)\n",
+      static_cast<long long>(version), o.hdmap.c_str(), hd.points.size(), hd.lines.size(),
+      o.cfg.restrict_to_overlap ? "evaluated where both maps exist" : "evaluated everywhere");
+  std::printf(
+      "points: %zu of %zu map points matched %zu HD points within %.2f m: precision %s, "
+      "recall %s, median offset %s m\n",
+      r.matched_points, r.map_points, r.hd_points, o.cfg.point_match_radius_m,
+      fmt(r.point_precision, "%.3f").c_str(), fmt(r.point_recall, "%.3f").c_str(),
+      fmt(r.point_median_offset_m, "%.3f").c_str());
+  std::printf(
+      "lines: median lateral offset %s m (%zu of %zu samples within %.2f m of an HD line); "
+      "covered %.1f m of %.1f m HD line length (%s %%)\n",
+      fmt(r.line_median_lateral_offset_m, "%.3f").c_str(), r.matched_line_samples,
+      r.map_line_samples, o.cfg.line_band_m, r.line_covered_length_m, r.line_total_length_m,
+      fmt(r.line_coverage, "%.1f", 100.0).c_str());
 }
 
 void setup(CLI::App& app) {

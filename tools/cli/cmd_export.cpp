@@ -72,10 +72,11 @@ void run(const ExportOptions& o) {
                 static_cast<long long>(version), static_cast<unsigned long long>(s.gridmap_tiles),
                 o.out.c_str(), static_cast<unsigned long long>(s.bytes));
   } else {
-    std::printf("map version %lld: %llu point and %llu line landmarks -> %s (%zu file%s, %llu bytes)\n",
-                static_cast<long long>(version), static_cast<unsigned long long>(s.points),
-                static_cast<unsigned long long>(s.lines), o.out.c_str(), s.files.size(),
-                s.files.size() == 1 ? "" : "s", static_cast<unsigned long long>(s.bytes));
+    std::printf(
+        "map version %lld: %llu point and %llu line landmarks -> %s (%zu file%s, %llu bytes)\n",
+        static_cast<long long>(version), static_cast<unsigned long long>(s.points),
+        static_cast<unsigned long long>(s.lines), o.out.c_str(), s.files.size(),
+        s.files.size() == 1 ? "" : "s", static_cast<unsigned long long>(s.bytes));
   }
 }
 

@@ -130,15 +130,15 @@ void run(const ProcessOptions& o) {
     return;
   }
   std::printf("drive %s: %zu sensor frames (%zu mapped, %zu without pose), %.1f s, %.3f km\n",
-              manifest.drive_id.c_str(), st.sensor_frames, st.frames_mapped,
-              st.frames_without_pose, manifest.end_time_s - manifest.start_time_s, km);
-  std::printf("candidates: %llu points, %llu lines; gridmap %d x %d cells of %.2f m (%s, %d bands)\n",
-              static_cast<unsigned long long>(manifest.counts.points),
-              static_cast<unsigned long long>(manifest.counts.lines), manifest.gridmap.width,
-              manifest.gridmap.height, manifest.cell_size_m, o.pol.c_str(),
-              manifest.gridmap.num_bands);
-  std::printf("package %s%s: %.2f MB (gridmap.tif %.2f MB, candidates.gpkg %.2f MB)",
-              o.out.c_str(), o.tar ? " (ustar archive)" : "", package_bytes / 1e6,
+              manifest.drive_id.c_str(), st.sensor_frames, st.frames_mapped, st.frames_without_pose,
+              manifest.end_time_s - manifest.start_time_s, km);
+  std::printf(
+      "candidates: %llu points, %llu lines; gridmap %d x %d cells of %.2f m (%s, %d bands)\n",
+      static_cast<unsigned long long>(manifest.counts.points),
+      static_cast<unsigned long long>(manifest.counts.lines), manifest.gridmap.width,
+      manifest.gridmap.height, manifest.cell_size_m, o.pol.c_str(), manifest.gridmap.num_bands);
+  std::printf("package %s%s: %.2f MB (gridmap.tif %.2f MB, candidates.gpkg %.2f MB)", o.out.c_str(),
+              o.tar ? " (ustar archive)" : "", package_bytes / 1e6,
               manifest.files.at(0).size_bytes / 1e6, manifest.files.at(1).size_bytes / 1e6);
   if (km > 0) std::printf(", %.2f MB/km", per_km / 1e6);
   std::printf("; processing %.1f s\n", st.total_seconds);
@@ -149,8 +149,7 @@ void setup(CLI::App& app) {
   CLI::App* cmd = app.add_subcommand(
       "process", "Process a recording into a drive package (gridmap, candidates, trajectory)");
   cmd->add_option("--recording", opts->recording, "Recording (.pmrec)")->required();
-  cmd->add_option("--out", opts->out, "Package directory (or archive file with --tar)")
-      ->required();
+  cmd->add_option("--out", opts->out, "Package directory (or archive file with --tar)")->required();
   cmd->add_option("--pol", opts->pol, "Polarimetric level: full, ll-lr, hh-vv, lr, rr, hh")
       ->capture_default_str();
   cmd->add_option("--cell-size", opts->cell_size_m, "Gridmap cell size, metres")

@@ -37,9 +37,9 @@ inline constexpr const char* kCandidatesFileName = "candidates.gpkg";
 
 /// One data file of a package as listed in the manifest (manifest.json itself is not listed).
 struct PackageFileEntry {
-  std::string name;             ///< file name inside the package, e.g. "gridmap.tif"
+  std::string name;  ///< file name inside the package, e.g. "gridmap.tif"
   std::uint64_t size_bytes = 0;
-  std::string sha256;           ///< lower-case hex, 64 characters
+  std::string sha256;  ///< lower-case hex, 64 characters
 };
 
 /// Geometry of gridmap.tif (north-up raster in the drive frame).
@@ -65,11 +65,11 @@ struct DriveManifest {
   std::uint32_t format_version = kDrivePackageFormatVersion;
   std::string drive_id;
   std::string vehicle_id;
-  std::string world;           ///< scenario / map name from the recording header (may be empty)
+  std::string world;  ///< scenario / map name from the recording header (may be empty)
   double start_time_s = 0.0;
   double end_time_s = 0.0;
-  GeoPoint origin;             ///< origin of the drive frame (tiles::LocalFrame)
-  std::string crs_proj;        ///< PROJ string of the drive frame
+  GeoPoint origin;       ///< origin of the drive frame (tiles::LocalFrame)
+  std::string crs_proj;  ///< PROJ string of the drive frame
   std::vector<SensorMount> sensors;
   PolLevel pol_level = PolLevel::Full;
   double cell_size_m = 0.1;
@@ -89,8 +89,8 @@ struct GridmapRaster {
   int width = 0;
   int height = 0;
   int q = 0;
-  std::vector<std::uint32_t> count;            ///< N per cell, row-major
-  std::vector<std::vector<cdouble>> layers;    ///< q(q+1)/2 layers, upper triangle row-major
+  std::vector<std::uint32_t> count;          ///< N per cell, row-major
+  std::vector<std::vector<cdouble>> layers;  ///< q(q+1)/2 layers, upper triangle row-major
 
   /// Number of covariance layers q(q+1)/2.
   [[nodiscard]] int num_layers() const { return q * (q + 1) / 2; }

@@ -25,7 +25,7 @@
 namespace polmap::radar {
 class CovarianceGridmap;
 struct DriveProcessingResult;
-}
+}  // namespace polmap::radar
 
 namespace polmap::mapping {
 
@@ -68,9 +68,9 @@ struct PackageValidationConfig {
 
 /// A failed read/validation as a value (for the HTTP server).
 struct PackageError {
-  std::string file;     ///< package member, "archive" for the ustar container, or the path
-  std::string field;    ///< offending field/band/layer (may be empty)
-  std::string message;  ///< what is wrong
+  std::string file;       ///< package member, "archive" for the ustar container, or the path
+  std::string field;      ///< offending field/band/layer (may be empty)
+  std::string message;    ///< what is wrong
   int http_status = 422;  ///< 400: unparsable container/format, 422: schema/semantic violation
   /// "FILE: field 'FIELD': MESSAGE" (or "FILE: MESSAGE" without a field).
   [[nodiscard]] std::string what() const;

@@ -44,16 +44,16 @@ namespace polmap::mapping {
 /// A point feature of an HD map (line-string-shaped signs and lights: the centroid of
 /// their vertices).
 struct HdMapPoint {
-  std::int64_t id = 0;   ///< OSM way or node id
-  std::string type;      ///< e.g. "traffic_sign"
+  std::int64_t id = 0;  ///< OSM way or node id
+  std::string type;     ///< e.g. "traffic_sign"
   std::string subtype;
   GeoPoint position;
 };
 
 /// A linear feature of an HD map.
 struct HdMapLine {
-  std::int64_t id = 0;   ///< OSM way id
-  std::string type;      ///< canonical type, e.g. "curbstone"
+  std::int64_t id = 0;  ///< OSM way id
+  std::string type;     ///< canonical type, e.g. "curbstone"
   std::string subtype;
   std::vector<GeoPoint> polyline;
 };

@@ -47,6 +47,6 @@ inline constexpr std::size_t kUstarEndBytes = 1024;
                                                 const std::string& source = "archive");
 /// Same checks as read_ustar, without copying member data.
 [[nodiscard]] std::vector<TarMemberView> read_ustar_views(std::string_view bytes,
-                                                         const std::string& source = "archive");
+                                                          const std::string& source = "archive");
 
 }  // namespace polmap::mapping

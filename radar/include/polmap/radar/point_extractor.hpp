@@ -55,7 +55,7 @@ struct PointExtractorConfig {
   /// component (λ − ln λ − 1 = 2 at λ ≈ 4.5), or a strong contrast in fewer components.
   double threshold = 2.0;
   /// The cell must be at least this much brighter (trace) than the ring mean.
-  double min_contrast_db = 0.0;
+  double min_contrast_db = 3.0;
   /// Minimum trace(C)/(q·σ²) of a detection, dB (σ² = map noise power). C averages all
   /// looks, empty ones included: a landmark returns ≥ 15–20 dB in most looks that see
   /// it (0 dBsm at 50 m is 20 dB), while cells below 10 dB mean power owe it to a few

@@ -194,10 +194,12 @@ int main(int argc, char** argv) {
     if (verbose) {
       std::printf(
           "t=%7.2f %-12s v=%5.2f long=%7.3f lat=%7.3f rot=%6.3f° sig=%.2f clusters=%3d map=%4d "
-          "pts=%2d match=%s cand=%d extract=%.0fms match=%.0fms graph=%.1fms\n",
+          "pts=%2d lines=%d/%d/%d maplines=%d match=%s cand=%d extract=%.0fms match=%.0fms "
+          "graph=%.1fms\n",
           f->time_s, std::string(loc::to_string(out.status)).c_str(), s.v_mps, d.x(), d.y(),
           e_rot / kDeg, std::sqrt(out.covariance(0, 0) + out.covariance(1, 1)),
-          out.local_point_clusters, out.map_points, out.matched_points,
+          out.local_point_clusters, out.map_points, out.matched_points, out.line_candidates,
+          out.match_line_associations, out.matched_lines, out.map_lines,
           out.match_status ? std::string(loc::to_string(*out.match_status)).c_str() : "-",
           out.candidates, out.extraction_time_s * 1e3, out.matching_time_s * 1e3,
           out.graph_update_time_s * 1e3);

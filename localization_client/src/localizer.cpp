@@ -455,14 +455,14 @@ struct Localizer::Impl {
       ++extractions;
       const auto t_extract = Clock::now();
       const std::vector<PointCandidate> points = radar::extract_points(gridmap, cfg.points);
-      out.extraction_time_s = seconds_since(t_extract);
-      out.candidates = static_cast<int>(points.size());
-      const auto t_match = Clock::now();
       const bool use_lines = extractions % cfg.lines_every_n_extractions == 0 ||
                              last_point_matches < cfg.lines_below_point_matches;
-      // No line extractor in radar/ yet: line observations stay empty.
-      const std::vector<LineCandidate> lines;
-      (void)use_lines;
+      std::vector<LineCandidate> lines;
+      if (use_lines) lines = radar::extract_lines(gridmap, cfg.lines);
+      out.extraction_time_s = seconds_since(t_extract);
+      out.candidates = static_cast<int>(points.size());
+      out.line_candidates = static_cast<int>(lines.size());
+      const auto t_match = Clock::now();
       local_map.add(f.time_s, *T_odom_vehicle, points, lines);
 
       const Pose2 pred = T_map_odom * *T_odom_vehicle;
@@ -480,6 +480,7 @@ struct Localizer::Impl {
           match_local_map(local_map.point_clusters(), local_map.line_clusters(), map, prior, mcfg);
       out.match_status = match.status;
       out.match_point_associations = static_cast<int>(match.points.size());
+      out.match_line_associations = static_cast<int>(match.lines.size());
       out.matching_time_s = seconds_since(t_match);
       if (searching) {
         search(match, f.time_s, *T_odom_vehicle);
@@ -498,6 +499,7 @@ struct Localizer::Impl {
     out.speed_mps = last_v_mps;
     out.local_point_clusters = static_cast<int>(local_map.point_clusters().size());
     out.map_points = static_cast<int>(map.points().size());
+    out.map_lines = static_cast<int>(map.lines().size());
     out.map_version = map_version;
     if (anchored && T_odom_vehicle) {
       out.has_pose = true;

@@ -7,8 +7,8 @@
 ///   (radar::Odometry, defines the odometry frame) -> sliding-window covariance
 ///   gridmap in the odometry frame -> every `extract_every_n_cycles` radar
 ///   cycles (at the last-triggered sensor's frame): pCFAR point candidates
-///   (lines when a line extractor is available: every 10th extraction or
-///   when fewer than 5 points matched) -> local-map clustering -> map
+///   and, every 10th extraction or when fewer than 5 points matched, ridge/
+///   Hough line candidates -> local-map clustering -> map
 ///   landmarks from tiles around the predicted pose (non-blocking
 ///   TileSource) -> matching -> temporal smoothing -> sliding-window graph
 ///   -> pose + covariance.
@@ -48,6 +48,7 @@
 #include "polmap/localization_client/tile_source.hpp"
 #include "polmap/radar/covariance_gridmap.hpp"
 #include "polmap/radar/egomotion.hpp"
+#include "polmap/radar/line_extractor.hpp"
 #include "polmap/radar/odometry.hpp"
 #include "polmap/radar/point_extractor.hpp"
 #include "polmap/schema/geo.hpp"
@@ -68,6 +69,7 @@ struct LocalizerConfig {
   /// pCFAR statistics, short enough that odometry drift stays below a cell.
   radar::GridmapConfig gridmap{0.1, PolLevel::Full, 2.0, 0.0};
   radar::PointExtractorConfig points;
+  radar::LineExtractorConfig lines;
   LocalMapConfig local_map;
   MatcherConfig matcher;
   SmoothingConfig smoothing;
@@ -131,10 +133,13 @@ struct LocalizationOutput {
   double extraction_time_s = 0.0;    ///< candidate extraction (wall time), if extracted
   double matching_time_s = 0.0;      ///< local map + tiles + matching (wall time)
   int candidates = 0;                ///< point candidates extracted at this frame
+  int line_candidates = 0;           ///< line candidates extracted at this frame
   int local_point_clusters = 0;
   int map_points = 0;  ///< map point landmarks loaded around the vehicle
   std::optional<MatchResult::Status> match_status;  ///< when matching ran at this frame
   int match_point_associations = 0;                 ///< point associations of that matching result
+  int match_line_associations = 0;                  ///< line associations of that matching result
+  int map_lines = 0;  ///< map line landmarks loaded around the vehicle
   /// Ego-motion of this frame (radar::MotionEstimate::Status::Ok when valid).
   radar::MotionEstimate::Status motion_status = radar::MotionEstimate::Status::TooFewDetections;
   double speed_mps = 0.0;         ///< latest accepted ego-motion speed

@@ -125,7 +125,8 @@ struct Tile {
   std::uint32_t partial = 0;  // upper bound of any per-cell residual count
   std::unique_ptr<std::uint16_t[]> n16;
   std::unique_ptr<std::uint32_t[]> n32;
-  std::array<std::unique_ptr<std::complex<T>[]>, kDataBlocksPerSide * kDataBlocksPerSide> blocks{};
+  /// Packed sums per data block: per cell `stride` scalars (see ImplT::off_).
+  std::array<std::unique_ptr<T[]>, kDataBlocksPerSide * kDataBlocksPerSide> blocks{};
 
   [[nodiscard]] std::uint32_t count(int local) const {
     if (n32) return base + n32[local];
@@ -153,16 +154,16 @@ struct Tile {
       n16[local] = static_cast<std::uint16_t>(n16[local] + sign);
     }
   }
-  std::complex<T>* block(int b, int num_layers) {
-    if (!blocks[b]) blocks[b] = std::make_unique<std::complex<T>[]>(kCellsPerDataBlock * num_layers);
+  T* block(int b, int stride) {
+    if (!blocks[b]) blocks[b] = std::make_unique<T[]>(kCellsPerDataBlock * stride);
     return blocks[b].get();
   }
-  [[nodiscard]] std::size_t bytes(int num_layers) const {
+  [[nodiscard]] std::size_t bytes(int stride) const {
     std::size_t b = sizeof(*this);
     if (n16) b += kCellsPerTile * sizeof(std::uint16_t);
     if (n32) b += kCellsPerTile * sizeof(std::uint32_t);
     for (const auto& blk : blocks) {
-      if (blk) b += kCellsPerDataBlock * num_layers * sizeof(std::complex<T>);
+      if (blk) b += kCellsPerDataBlock * stride * sizeof(T);
     }
     return b;
   }
@@ -212,7 +213,22 @@ template <typename T>
 class ImplT final : public CovarianceGridmap::Impl {
  public:
   ImplT(const GridmapConfig& cfg)
-      : cfg_(cfg), q_(pol_dimension(cfg.level)), L_(num_layers(q_)) {}
+      : cfg_(cfg), q_(pol_dimension(cfg.level)), L_(num_layers(q_)) {
+    // Packed layout per cell: diagonal layers are real (one scalar), off-diagonal
+    // layers complex (two): q + 2·(L − q) scalars instead of 2L.
+    off_.resize(L_);
+    cplx_.resize(L_);
+    int k = 0;
+    for (int i = 0; i < q_; ++i) {
+      for (int j = i; j < q_; ++j) {
+        const int l = layer_index(q_, i, j);
+        off_[l] = k;
+        cplx_[l] = i != j;
+        k += i != j ? 2 : 1;
+      }
+    }
+    stride_ = k;
+  }
 
   void apply(const PolSpectrum& s, const Pose2& T_frame_sensor, int sign) override {
     const Geometry g = make_geometry(s, T_frame_sensor);
@@ -235,12 +251,13 @@ class ImplT final : public CovarianceGridmap::Impl {
     t.reserve_partial(1);
     const int local = local_index(ix, iy);
     t.add_count(local, +1);
-    std::complex<T>* s = t.block(block_of(local), L_) + cell_in_block(local) * L_;
-    int l = 0;
+    T* s = t.block(block_of(local), stride_) + cell_in_block(local) * stride_;
     for (int i = 0; i < q_; ++i) {
       for (int j = i; j < q_; ++j) {
+        const int l = layer_index(q_, i, j);
         const cdouble p = k[i] * std::conj(k[j]);
-        s[l++] += std::complex<T>(static_cast<T>(p.real()), static_cast<T>(p.imag()));
+        s[off_[l]] += static_cast<T>(p.real());
+        if (cplx_[l]) s[off_[l] + 1] += static_cast<T>(p.imag());
       }
     }
   }
@@ -262,10 +279,11 @@ class ImplT final : public CovarianceGridmap::Impl {
       } else {
         t.n16[local] = static_cast<std::uint16_t>(t.n16[local] + n);
       }
-      std::complex<T>* s = t.block(block_of(local), L_) + cell_in_block(local) * L_;
+      T* s = t.block(block_of(local), stride_) + cell_in_block(local) * stride_;
       for (int l = 0; l < L_; ++l) {
         const std::complex<float> c = v.layers[l * plane + local];
-        s[l] += std::complex<T>(static_cast<T>(c.real()) * n, static_cast<T>(c.imag()) * n);
+        s[off_[l]] += static_cast<T>(c.real()) * n;
+        if (cplx_[l]) s[off_[l] + 1] += static_cast<T>(c.imag()) * n;
       }
     }
   }
@@ -273,7 +291,7 @@ class ImplT final : public CovarianceGridmap::Impl {
   [[nodiscard]] std::size_t num_tiles() const override { return tiles_.size(); }
   [[nodiscard]] std::size_t tile_bytes() const override {
     std::size_t b = tiles_.bucket_count() * sizeof(void*);
-    for (const auto& [k, t] : tiles_) b += t->bytes(L_) + 32;
+    for (const auto& [k, t] : tiles_) b += t->bytes(stride_) + 32;
     return b;
   }
   [[nodiscard]] std::vector<std::uint64_t> keys() const override {
@@ -292,7 +310,7 @@ class ImplT final : public CovarianceGridmap::Impl {
     for (int local = 0; local < kCellsPerTile; ++local) counts[local] = t.count(local);
     std::fill(layers, layers + L_ * plane, std::complex<float>(0.0F, 0.0F));
     for (int b = 0; b < kDataBlocksPerSide * kDataBlocksPerSide; ++b) {
-      const std::complex<T>* blk = t.blocks[b].get();
+      const T* blk = t.blocks[b].get();
       if (!blk) continue;
       const int row0 = (b / kDataBlocksPerSide) * kD, col0 = (b % kDataBlocksPerSide) * kD;
       for (int c = 0; c < kCellsPerDataBlock; ++c) {
@@ -300,10 +318,10 @@ class ImplT final : public CovarianceGridmap::Impl {
         const std::uint32_t n = counts[local];
         if (n == 0) continue;
         const T inv = T(1) / static_cast<T>(n);
+        const T* cell = blk + c * stride_;
         for (int l = 0; l < L_; ++l) {
-          const std::complex<T> v = blk[c * L_ + l] * inv;
-          layers[l * plane + local] =
-              std::complex<float>(static_cast<float>(v.real()), static_cast<float>(v.imag()));
+          const T re = cell[off_[l]] * inv, im = cplx_[l] ? cell[off_[l] + 1] * inv : T(0);
+          layers[l * plane + local] = std::complex<float>(static_cast<float>(re), static_cast<float>(im));
         }
       }
     }
@@ -318,7 +336,7 @@ class ImplT final : public CovarianceGridmap::Impl {
     int diag[3] = {0, 0, 0};
     for (int i = 0; i < q_; ++i) diag[i] = layer_index(q_, i, i);
     for (int b = 0; b < kDataBlocksPerSide * kDataBlocksPerSide; ++b) {
-      const std::complex<T>* blk = t.blocks[b].get();
+      const T* blk = t.blocks[b].get();
       if (!blk) continue;
       const int row0 = (b / kDataBlocksPerSide) * kD, col0 = (b % kDataBlocksPerSide) * kD;
       for (int c = 0; c < kCellsPerDataBlock; ++c) {
@@ -326,7 +344,7 @@ class ImplT final : public CovarianceGridmap::Impl {
         const std::uint32_t n = t.count(local);
         if (n == 0) continue;
         T sum = 0;
-        for (int i = 0; i < q_; ++i) sum += blk[c * L_ + diag[i]].real();
+        for (int i = 0; i < q_; ++i) sum += blk[c * stride_ + off_[diag[i]]];
         trace[local] = static_cast<float>(sum / static_cast<T>(n));
       }
     }
@@ -344,11 +362,11 @@ class ImplT final : public CovarianceGridmap::Impl {
     auto it = tiles_.find(tile_key(ix >> 6, iy >> 6));
     if (it == tiles_.end()) return;
     const int local = local_index(ix, iy);
-    const std::complex<T>* blk = it->second->blocks[block_of(local)].get();
+    const T* blk = it->second->blocks[block_of(local)].get();
     if (!blk) return;
+    const T* cell = blk + cell_in_block(local) * stride_;
     for (int l = 0; l < L_; ++l) {
-      const std::complex<T> v = blk[cell_in_block(local) * L_ + l];
-      out[l] = cdouble(v.real(), v.imag());
+      out[l] = cdouble(cell[off_[l]], cplx_[l] ? cell[off_[l] + 1] : T(0));
     }
   }
 
@@ -541,7 +559,7 @@ class ImplT final : public CovarianceGridmap::Impl {
       }
       // Products k k^H per bin of the run (absent bins stay null).
       const int len = ib - ia + 1;
-      prod_.assign(static_cast<std::size_t>(len) * L_, std::complex<T>(0, 0));
+      prod_.assign(static_cast<std::size_t>(len) * stride_, T(0));
       has_.assign(len, 0);
       for (std::size_t c = i; c < j; ++c) {
         const SpectrumCell& sc = at(c);
@@ -549,12 +567,14 @@ class ImplT final : public CovarianceGridmap::Impl {
         bool nonzero = false;
         for (int a = 0; a < q_; ++a) nonzero = nonzero || kv[a] != cfloat(0.0F, 0.0F);
         if (!nonzero) continue;
-        std::complex<T>* p = prod_.data() + static_cast<std::size_t>(sc.range_bin - ia) * L_;
-        int l = 0;
+        T* p = prod_.data() + static_cast<std::size_t>(sc.range_bin - ia) * stride_;
         for (int a = 0; a < q_; ++a) {
           for (int b = a; b < q_; ++b) {
+            const int l = layer_index(q_, a, b);
             const std::complex<T> x(kv[a].real(), kv[a].imag()), y(kv[b].real(), kv[b].imag());
-            p[l++] += static_cast<T>(sign) * x * std::conj(y);
+            const std::complex<T> v = static_cast<T>(sign) * x * std::conj(y);
+            p[off_[l]] += v.real();
+            if (cplx_[l]) p[off_[l] + 1] += v.imag();
           }
         }
         has_[sc.range_bin - ia] = 1;
@@ -615,17 +635,17 @@ class ImplT final : public CovarianceGridmap::Impl {
           const int rb = g.range_bin(vx * vx + dy2);
           if (rb < ia || rb > ib) continue;
           if (!has_[rb - ia]) continue;
-          accumulate(ix, iy, prod_.data() + static_cast<std::size_t>(rb - ia) * L_);
+          accumulate(ix, iy, prod_.data() + static_cast<std::size_t>(rb - ia) * stride_);
         }
       }
     }
   }
 
-  void accumulate(int ix, int iy, const std::complex<T>* p) {
+  void accumulate(int ix, int iy, const T* p) {
     Tile<T>& t = tile(ix >> 6, iy >> 6);
     const int local = local_index(ix, iy);
-    std::complex<T>* s = t.block(block_of(local), L_) + cell_in_block(local) * L_;
-    for (int l = 0; l < L_; ++l) s[l] += p[l];
+    T* s = t.block(block_of(local), stride_) + cell_in_block(local) * stride_;
+    for (int k = 0; k < stride_; ++k) s[k] += p[k];
   }
 
   GridmapConfig cfg_;
@@ -635,7 +655,10 @@ class ImplT final : public CovarianceGridmap::Impl {
   std::uint64_t cache_key_ = 0;
   Tile<T>* cache_tile_ = nullptr;
   std::vector<std::uint64_t> touched_;
-  std::vector<std::complex<T>> prod_;
+  std::vector<T> prod_;
+  std::vector<int> off_;    ///< scalar offset of layer l within a cell's packed sums
+  std::vector<char> cplx_;  ///< layer l is off-diagonal (complex)
+  int stride_ = 0;          ///< scalars per cell
   std::vector<char> has_;
 };
 

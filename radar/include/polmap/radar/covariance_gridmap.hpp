@@ -24,7 +24,8 @@
 /// Storage: sparse tiles (kTileSizeCells² cells) in a hash map, so memory grows
 /// with the observed area; per tile a frame count for full coverage plus 16-bit
 /// per-cell counts for partial coverage (32-bit after 65535 partial frames), and
-/// covariance sums allocated per 8×8 block only where data arrived. Sums are
+/// covariance sums allocated per 4×4 block only where data arrived, packed (real
+/// diagonal, complex upper off-diagonal: q + 2·(L−q) scalars per cell). Sums are
 /// float in mapping mode and double in sliding-window mode (which subtracts).
 ///
 /// Modes (paper §III-B3): window_s = 0 keeps the full history (mapping); window_s > 0

@@ -189,10 +189,11 @@ struct CovarianceGridmap::Impl {
   [[nodiscard]] virtual std::vector<std::uint64_t> keys() const = 0;
   /// Writes N and C (layers) of one tile into dense arrays (kT² counts, L·kT² layers);
   /// returns false if the tile does not exist.
-  virtual bool materialize(int tx, int ty, std::uint32_t* counts,
-                           std::complex<float>* layers) const = 0;
+  virtual bool materialize(int tx, int ty, std::uint32_t* counts, std::complex<float>* layers,
+                           std::uint32_t* hits) const = 0;
+  virtual std::uint32_t hits(int ix, int iy) const = 0;
   /// Writes trace(C) of one tile (kT² floats, 0 where N = 0); false if the tile does not exist.
-  virtual bool materialize_trace(int tx, int ty, float* trace) const = 0;
+  virtual bool materialize_trace(int tx, int ty, float* trace, double min_persistence) const = 0;
   virtual std::uint32_t count(int ix, int iy) const = 0;
   virtual void cell_sums(int ix, int iy, cdouble* out) const = 0;
 
@@ -227,7 +228,8 @@ class ImplT final : public CovarianceGridmap::Impl {
         k += i != j ? 2 : 1;
       }
     }
-    stride_ = k;
+    hit_ = k;  // last scalar: number of non-zero contributions (persistence)
+    stride_ = k + 1;
   }
 
   void apply(const PolSpectrum& s, const Pose2& T_frame_sensor, int sign) override {
@@ -260,6 +262,9 @@ class ImplT final : public CovarianceGridmap::Impl {
         if (cplx_[l]) s[off_[l] + 1] += static_cast<T>(p.imag());
       }
     }
+    bool nonzero = false;
+    for (const cdouble& x : k) nonzero = nonzero || x != cdouble(0.0, 0.0);
+    if (nonzero) s[hit_] += T(1);
   }
 
   void merge(const CovarianceTileView& v) override {
@@ -285,6 +290,8 @@ class ImplT final : public CovarianceGridmap::Impl {
         s[off_[l]] += static_cast<T>(c.real()) * n;
         if (cplx_[l]) s[off_[l] + 1] += static_cast<T>(c.imag()) * n;
       }
+      // Without persistence information every look counts as a hit.
+      s[hit_] += static_cast<T>(v.hits.empty() ? n : v.hits[local]);
     }
   }
 
@@ -301,14 +308,15 @@ class ImplT final : public CovarianceGridmap::Impl {
     return k;
   }
 
-  bool materialize(int tx, int ty, std::uint32_t* counts,
-                   std::complex<float>* layers) const override {
+  bool materialize(int tx, int ty, std::uint32_t* counts, std::complex<float>* layers,
+                   std::uint32_t* hits) const override {
     auto it = tiles_.find(tile_key(tx, ty));
     if (it == tiles_.end()) return false;
     const Tile<T>& t = *it->second;
     const std::size_t plane = kCellsPerTile;
     for (int local = 0; local < kCellsPerTile; ++local) counts[local] = t.count(local);
     std::fill(layers, layers + L_ * plane, std::complex<float>(0.0F, 0.0F));
+    std::fill(hits, hits + plane, 0U);
     for (int b = 0; b < kDataBlocksPerSide * kDataBlocksPerSide; ++b) {
       const T* blk = t.blocks[b].get();
       if (!blk) continue;
@@ -323,12 +331,13 @@ class ImplT final : public CovarianceGridmap::Impl {
           const T re = cell[off_[l]] * inv, im = cplx_[l] ? cell[off_[l] + 1] * inv : T(0);
           layers[l * plane + local] = std::complex<float>(static_cast<float>(re), static_cast<float>(im));
         }
+        hits[local] = static_cast<std::uint32_t>(std::lround(std::max<T>(cell[hit_], T(0))));
       }
     }
     return true;
   }
 
-  bool materialize_trace(int tx, int ty, float* trace) const override {
+  bool materialize_trace(int tx, int ty, float* trace, double min_persistence) const override {
     auto it = tiles_.find(tile_key(tx, ty));
     if (it == tiles_.end()) return false;
     const Tile<T>& t = *it->second;
@@ -343,6 +352,7 @@ class ImplT final : public CovarianceGridmap::Impl {
         const int local = (row0 + c / kD) * kT + col0 + c % kD;
         const std::uint32_t n = t.count(local);
         if (n == 0) continue;
+        if (blk[c * stride_ + hit_] < static_cast<T>(min_persistence * n) - T(0.5)) continue;
         T sum = 0;
         for (int i = 0; i < q_; ++i) sum += blk[c * stride_ + off_[diag[i]]];
         trace[local] = static_cast<float>(sum / static_cast<T>(n));
@@ -355,6 +365,15 @@ class ImplT final : public CovarianceGridmap::Impl {
     auto it = tiles_.find(tile_key(ix >> 6, iy >> 6));
     if (it == tiles_.end()) return 0;
     return it->second->count(local_index(ix, iy));
+  }
+
+  std::uint32_t hits(int ix, int iy) const override {
+    auto it = tiles_.find(tile_key(ix >> 6, iy >> 6));
+    if (it == tiles_.end()) return 0;
+    const int local = local_index(ix, iy);
+    const T* blk = it->second->blocks[block_of(local)].get();
+    if (!blk) return 0;
+    return static_cast<std::uint32_t>(std::lround(std::max<T>(blk[cell_in_block(local) * stride_ + hit_], T(0))));
   }
 
   void cell_sums(int ix, int iy, cdouble* out) const override {
@@ -577,6 +596,7 @@ class ImplT final : public CovarianceGridmap::Impl {
             if (cplx_[l]) p[off_[l] + 1] += v.imag();
           }
         }
+        p[hit_] = static_cast<T>(sign);
         has_[sc.range_bin - ia] = 1;
       }
       scan_run(g, beam, ia, ib);
@@ -659,6 +679,7 @@ class ImplT final : public CovarianceGridmap::Impl {
   std::vector<int> off_;    ///< scalar offset of layer l within a cell's packed sums
   std::vector<char> cplx_;  ///< layer l is off-diagonal (complex)
   int stride_ = 0;          ///< scalars per cell
+  int hit_ = 0;             ///< offset of the hit counter
   std::vector<char> has_;
 };
 
@@ -716,15 +737,18 @@ CovarianceRaster CovarianceRaster::zeros(const CellBox& box, double cell_size_m,
   r.level = level;
   r.q = pol_dimension(level);
   r.count.assign(r.plane_size(), 0);
+  r.hits.assign(r.plane_size(), 0);
   r.layers.assign(r.plane_size() * num_layers(r.q), std::complex<float>(0.0F, 0.0F));
   return r;
 }
 
-void CovarianceRaster::set_covariance(int ix, int iy, const Eigen::MatrixXcd& c, std::uint32_t n) {
+void CovarianceRaster::set_covariance(int ix, int iy, const Eigen::MatrixXcd& c, std::uint32_t n,
+                                      std::optional<std::uint32_t> hits_n) {
   POLMAP_EXPECT(box.contains(ix, iy) && c.rows() == q && c.cols() == q);
   const std::size_t index =
       static_cast<std::size_t>(iy - box.min_iy) * box.width() + (ix - box.min_ix);
   count[index] = n;
+  hits[index] = hits_n.value_or(n);
   int l = 0;
   for (int i = 0; i < q; ++i) {
     for (int j = i; j < q; ++j) {
@@ -829,6 +853,7 @@ Eigen::Vector2d CovarianceGridmap::cell_center(int ix, int iy) const {
 }
 
 std::uint32_t CovarianceGridmap::count(int ix, int iy) const { return impl_->count(ix, iy); }
+std::uint32_t CovarianceGridmap::hits(int ix, int iy) const { return impl_->hits(ix, iy); }
 
 Eigen::MatrixXcd CovarianceGridmap::covariance(int ix, int iy) const {
   const int qq = q();
@@ -857,9 +882,10 @@ void CovarianceGridmap::for_each_tile(
   const int L = num_layers(q());
   std::vector<std::uint32_t> counts(kCellsPerTile);
   std::vector<std::complex<float>> layers(static_cast<std::size_t>(L) * kCellsPerTile);
+  std::vector<std::uint32_t> hits(kCellsPerTile);
   for (std::uint64_t k : impl_->keys()) {
     const int tx = key_tx(k), ty = key_ty(k);
-    if (!impl_->materialize(tx, ty, counts.data(), layers.data())) continue;
+    if (!impl_->materialize(tx, ty, counts.data(), layers.data(), hits.data())) continue;
     CovarianceTileView v;
     v.tile_x = tx;
     v.tile_y = ty;
@@ -872,6 +898,7 @@ void CovarianceGridmap::for_each_tile(
     v.num_layers = L;
     v.count = counts;
     v.layers = layers;
+    v.hits = hits;
     fn(v);
   }
 }
@@ -904,11 +931,12 @@ CovarianceRaster CovarianceGridmap::raster(const CellBox& box) const {
   }
   std::vector<std::uint32_t> counts(kCellsPerTile);
   std::vector<std::complex<float>> layers(static_cast<std::size_t>(L) * kCellsPerTile);
+  std::vector<std::uint32_t> hits(kCellsPerTile);
   const std::size_t plane = r.plane_size();
   const int w = box.width();
   for (std::uint64_t k : keys) {
     const int tx = key_tx(k), ty = key_ty(k);
-    if (!impl_->materialize(tx, ty, counts.data(), layers.data())) continue;
+    if (!impl_->materialize(tx, ty, counts.data(), layers.data(), hits.data())) continue;
     const int ixa = std::max(box.min_ix, tx * kT), ixb = std::min(box.max_ix, tx * kT + kT);
     const int iya = std::max(box.min_iy, ty * kT), iyb = std::min(box.max_iy, ty * kT + kT);
     for (int iy = iya; iy < iyb; ++iy) {
@@ -916,6 +944,7 @@ CovarianceRaster CovarianceGridmap::raster(const CellBox& box) const {
         const int local = (iy - ty * kT) * kT + (ix - tx * kT);
         const std::size_t idx = static_cast<std::size_t>(iy - box.min_iy) * w + (ix - box.min_ix);
         r.count[idx] = counts[local];
+        r.hits[idx] = hits[local];
         for (int l = 0; l < L; ++l) r.layers[l * plane + idx] = layers[l * kCellsPerTile + local];
       }
     }
@@ -923,7 +952,7 @@ CovarianceRaster CovarianceGridmap::raster(const CellBox& box) const {
   return r;
 }
 
-cv::Mat CovarianceGridmap::trace_image(const CellBox& box) const {
+cv::Mat CovarianceGridmap::trace_image(const CellBox& box, double min_persistence) const {
   cv::Mat img = cv::Mat::zeros(box.height(), box.width(), CV_32F);
   if (box.empty()) return img;
   const int tx0 = box.min_ix >> 6, tx1 = (box.max_ix - 1) >> 6;
@@ -931,7 +960,7 @@ cv::Mat CovarianceGridmap::trace_image(const CellBox& box) const {
   std::vector<float> trace(kCellsPerTile);
   for (int ty = ty0; ty <= ty1; ++ty) {
     for (int tx = tx0; tx <= tx1; ++tx) {
-      if (!impl_->materialize_trace(tx, ty, trace.data())) continue;
+      if (!impl_->materialize_trace(tx, ty, trace.data(), min_persistence)) continue;
       const int ixa = std::max(box.min_ix, tx * kT), ixb = std::min(box.max_ix, tx * kT + kT);
       const int iya = std::max(box.min_iy, ty * kT), iyb = std::min(box.max_iy, ty * kT + kT);
       for (int iy = iya; iy < iyb; ++iy) {

@@ -112,8 +112,12 @@ DriveProcessingResult process_drive(RecordSource& source, const DriveProcessingC
       return;
     }
     const Pose2 T_frame_sensor = *T * mit->second.T_vehicle_sensor;
-    const auto t0 = Clock::now();
     const auto vw = traj.motion(f.time_s);
+    if (vw && std::abs(vw->first) < cfg.min_speed_mps) {
+      ++st.frames_standstill;
+      return;
+    }
+    const auto t0 = Clock::now();
     if (cfg.use_cube && f.cube && vw) {
       StaticReductionConfig sr = cfg.static_reduction;
       if (sr.azimuth_bins_rad.empty()) sr.azimuth_bins_rad = f.spectrum.azimuth_bins_rad;

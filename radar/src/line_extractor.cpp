@@ -415,7 +415,7 @@ std::vector<LineCandidate> extract_lines(const CovarianceGridmap& map,
                        (cy + 1) * chunk_cells};
     const CellBox box{core.min_ix - halo, core.min_iy - halo, core.max_ix + halo,
                       core.max_iy + halo};
-    const cv::Mat p = map.trace_image(box);
+    const cv::Mat p = map.trace_image(box, cfg.min_persistence);
     auto lines = extract_lines(p, box, cs, map.noise_power(), map.q(), cfg, &core);
     all.insert(all.end(), lines.begin(), lines.end());
   }

@@ -169,6 +169,7 @@ Detection detect(const CovarianceRaster& r, const PointExtractorConfig& cfg, int
   std::vector<std::size_t> cand;
   for (std::size_t idx = 0; idx < plane; ++idx) {
     if (r.count[idx] < std::max<std::uint32_t>(1, cfg.min_count)) continue;
+    if (!r.hits.empty() && r.hits[idx] < cfg.min_persistence * r.count[idx]) continue;
     if (r.power(idx) > min_power) cand.push_back(idx);
   }
   if (cand.empty()) return d;

@@ -24,6 +24,22 @@ class PointIndex {
   void add(const Eigen::Vector2d& p, std::size_t id) {
     cells_[grid_key(ix(p.x()), ix(p.y()))].push_back({p, id});
   }
+  /// Whether some point within r satisfies pred(point, id).
+  template <typename Pred>
+  [[nodiscard]] bool any(const Eigen::Vector2d& q, double r, Pred&& pred) const {
+    const int n = static_cast<int>(std::ceil(r / cell_));
+    const int cx = ix(q.x()), cy = ix(q.y());
+    for (int dy = -n; dy <= n; ++dy) {
+      for (int dx = -n; dx <= n; ++dx) {
+        auto it = cells_.find(grid_key(cx + dx, cy + dy));
+        if (it == cells_.end()) continue;
+        for (const auto& [p, i] : it->second) {
+          if ((p - q).norm() <= r && pred(p, i)) return true;
+        }
+      }
+    }
+    return false;
+  }
   /// Nearest point within r: (distance, id), distance = inf if none.
   [[nodiscard]] std::pair<double, std::size_t> nearest(const Eigen::Vector2d& q, double r) const {
     double best = std::numeric_limits<double>::infinity();
@@ -187,8 +203,17 @@ DetectEval evaluate_detections(const std::vector<PointCandidate>& points,
                                const DetectEvalConfig& cfg) {
   DetectEval ev;
   const PointIndex path = path_index(trajectory, cfg.max_distance_from_path_m);
+  const double cos_bearing = std::cos(cfg.max_bearing_deg * 3.14159265358979323846 / 180.0);
+  // Within range of a trajectory position and in front of it (the sensors look forward).
   auto observable = [&](const Eigen::Vector2d& p) {
-    return std::isfinite(path.nearest(p, cfg.max_distance_from_path_m).first);
+    return path.any(p, cfg.max_distance_from_path_m, [&](const Eigen::Vector2d& x, std::size_t i) {
+      const std::size_t j = i + 1 < trajectory.size() ? i + 1 : i;
+      const std::size_t k = j == i && i > 0 ? i - 1 : i;
+      Eigen::Vector2d h = trajectory[j] - trajectory[k];
+      if (h.norm() < 1e-6) return true;  // standstill: no heading, accept
+      const Eigen::Vector2d v = p - x;
+      return v.norm() < 1e-6 || h.normalized().dot(v.normalized()) >= cos_bearing;
+    });
   };
   // Truth indexes: point-like landmarks, and every present object as segments (structure).
   PointIndex truth_points(2.0);

@@ -14,7 +14,8 @@
 /// neighbours (the outer beams extend by half their spacing). A cell is observed
 /// by a frame (N += 1) iff such a bin exists (the sensor footprint); it then adds
 /// k k^H of that bin, zero for bins the recorder dropped below its floor. So C is
-/// the mean over every frame that saw the cell, empty looks included.
+/// the mean over every frame that saw the cell, empty looks included. A per-cell
+/// hit count (looks with a stored bin) gives the cell's persistence hits/N.
 ///
 /// Cost: the work of one frame is proportional to the cells covered by the
 /// non-zero bins (their footprints are scan-converted row by row) plus the
@@ -41,6 +42,7 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <opencv2/core.hpp>
 #include <span>
 #include <vector>
@@ -100,6 +102,10 @@ struct CovarianceTileView {
   /// Covariance C = 1/N Σ k k^H, upper triangle, layer-major: layers[l·size² + index],
   /// layer order (0,0), (0,1), ..., (0,q−1), (1,1), ... (layer_index()). Zero where N = 0.
   std::span<const std::complex<float>> layers;
+  /// Per cell: looks whose bin was stored (non-zero), ≤ N. hits/N is the cell's
+  /// persistence (static landmarks high, traffic passing through low). May be empty
+  /// in views built elsewhere (merge_tile then counts every look as a hit).
+  std::span<const std::uint32_t> hits;
 
   [[nodiscard]] std::complex<float> layer(int l, int col, int row) const {
     return layers[static_cast<std::size_t>(l) * size_cells * size_cells + row * size_cells + col];
@@ -117,6 +123,7 @@ struct CovarianceRaster {
   int q = 3;
   double noise_power = 0.0;  ///< mean noise σ² per level-vector component
   std::vector<std::uint32_t> count;
+  std::vector<std::uint32_t> hits;          ///< looks with a stored bin (≤ count)
   std::vector<std::complex<float>> layers;  ///< num_layers(q) planes of width·height
 
   [[nodiscard]] std::size_t plane_size() const {
@@ -131,8 +138,9 @@ struct CovarianceRaster {
   [[nodiscard]] Eigen::Vector2d cell_center(std::size_t index) const;
   /// Allocates zeroed arrays for a box.
   static CovarianceRaster zeros(const CellBox& box, double cell_size_m, PolLevel level);
-  /// Sets C of a cell (N set to n); for tests and synthetic inputs.
-  void set_covariance(int ix, int iy, const Eigen::MatrixXcd& c, std::uint32_t n = 1);
+  /// Sets C of a cell (N set to n, hits to hits_n or n); for tests and synthetic inputs.
+  void set_covariance(int ix, int iy, const Eigen::MatrixXcd& c, std::uint32_t n = 1,
+                      std::optional<std::uint32_t> hits_n = std::nullopt);
 };
 
 class CovarianceGridmap {
@@ -184,6 +192,8 @@ class CovarianceGridmap {
 
   /// N of a cell (0 when never observed).
   [[nodiscard]] std::uint32_t count(int ix, int iy) const;
+  /// Looks of a cell whose nearest bin was stored (non-zero): hits/N is its persistence.
+  [[nodiscard]] std::uint32_t hits(int ix, int iy) const;
   /// C of a cell (q×q, zero when N = 0).
   [[nodiscard]] Eigen::MatrixXcd covariance(int ix, int iy) const;
   /// trace(C) of a cell.
@@ -196,7 +206,8 @@ class CovarianceGridmap {
   /// Dense copy of a box (cells outside allocated tiles read as N = 0, C = 0).
   [[nodiscard]] CovarianceRaster raster(const CellBox& box) const;
   /// trace(C) of a box as CV_32F (linear power); row r ↔ iy = box.min_iy + r (south at row 0).
-  [[nodiscard]] cv::Mat trace_image(const CellBox& box) const;
+  /// Cells with persistence hits/N below min_persistence read as 0.
+  [[nodiscard]] cv::Mat trace_image(const CellBox& box, double min_persistence = 0.0) const;
 
   struct Impl;  ///< implementation detail (covariance_gridmap.cpp)
 

@@ -41,6 +41,12 @@ struct DriveProcessingConfig {
   /// Frames after the last trajectory sample are posed by constant-velocity
   /// extrapolation up to this long.
   double max_extrapolation_s = 0.1;
+  /// Frames taken while the vehicle is slower than this (|v| from the trajectory) are
+  /// not mapped. At standstill the static Doppler is 0 for every beam, so crossing
+  /// traffic (radial velocity ≈ 0) and traffic whose radial velocity aliases onto 0
+  /// (±2·v_ua, ±10 m/s) pass the static reduction, and the same viewpoint would
+  /// dominate N. 0.5 m/s: the standstill threshold of the paper's evaluation.
+  double min_speed_mps = 0.5;
   /// Recompute each frame's spectrum from its data cube (when the frame has one)
   /// by static reduction with the trajectory's (v, ω), instead of using the logged
   /// spectrum; frames without a cube use the logged spectrum.
@@ -56,6 +62,7 @@ struct DriveProcessingStats {
   std::size_t frames_without_pose = 0;  ///< skipped: no pose (see file comment)
   std::size_t frames_unknown_sensor = 0;
   std::size_t frames_without_spectrum = 0;  ///< fewer than 2 beams and no usable cube
+  std::size_t frames_standstill = 0;        ///< skipped: slower than min_speed_mps
   double start_time_s = 0.0;            ///< first trajectory sample
   double end_time_s = 0.0;              ///< last trajectory sample
   double distance_m = 0.0;              ///< path length of the trajectory (drive frame)

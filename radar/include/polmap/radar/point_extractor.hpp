@@ -67,6 +67,11 @@ struct PointExtractorConfig {
   double loading = 1.0;
   /// Cells observed fewer times are not tested.
   std::uint32_t min_count = 1;
+  /// Minimum persistence hits/N of a tested cell (looks with a stored bin over looks):
+  /// a static landmark returns in most looks within its detection range, moving
+  /// traffic whose Doppler aliases onto the static one (±2·v_ua) passes a cell in a
+  /// few frames of hundreds.
+  double min_persistence = 0.05;
   /// Line-aware neighbourhood (greatest-of): a cell that passes the ring test is
   /// tested again against the brightest of 8 line strips through it (directions
   /// 0°, 22.5°, ..., one cell wide, guard..training on both sides) when that strip is

@@ -8,7 +8,8 @@
 ///
 /// Definitions (all distances in the drive frame, metres):
 /// - Observable truth: objects present in the evaluated drive within
-///   max_distance_from_path_m of the driven trajectory.
+///   max_distance_from_path_m of a trajectory position, at a bearing of at most
+///   max_bearing_deg from its heading (the front sensors' field of view).
 /// - Point precision: share of point candidates within point_radius_m of a present
 ///   point-like truth object (any distance from the path). "Structure" precision
 ///   also accepts candidates within point_radius_m of a present extended object or
@@ -68,6 +69,9 @@ struct DetectEvalConfig {
   double sample_step_m = 0.25;
   /// Truth farther than this from the trajectory is not expected to be seen.
   double max_distance_from_path_m = 30.0;
+  /// ... and truth only behind the vehicle neither: bearing from the heading at most
+  /// this (the default front mounts at ±40° with ±60° FoV see ±100°).
+  double max_bearing_deg = 100.0;
   /// Point landmark classes (truth objects with one position).
   std::set<std::string> point_classes{"lamp_pole",     "sign_pole",  "sign_plate",
                                       "traffic_light", "pole",       "guardrail_post",

@@ -80,6 +80,7 @@ TEST(SlidingWindow, EqualsMapOfFramesInsideTheWindow) {
   for (int iy = b.min_iy; iy < b.max_iy; iy += 2) {
     for (int ix = b.min_ix; ix < b.max_ix; ix += 2) {
       ASSERT_EQ(window.count(ix, iy), direct.count(ix, iy)) << ix << "," << iy;
+      ASSERT_EQ(window.hits(ix, iy), direct.hits(ix, iy)) << ix << "," << iy;
       const Eigen::MatrixXcd a = window.covariance(ix, iy), d = direct.covariance(ix, iy);
       ASSERT_LE((a - d).norm(), 1e-9 * (1.0 + d.norm())) << ix << "," << iy;
       data_cells += d.norm() > 0;

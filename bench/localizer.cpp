@@ -3,7 +3,9 @@
 //
 //   bench_localizer [--world urban|industrial|rural|FILE] [--length-m L] [--seed S]
 //                   [--drive K] [--duration-s T] [--init-error-m E] [--init-error-deg D]
-//                   [--map oracle] [--json]
+//                   [--json] [-v]
+//   bench_localizer --recording R --server URL [...]   a recorded drive (exact truth from
+//                   DIR/truth/drive_<k>_trajectory.csv) against a running mapping service
 //
 // Map: "oracle" = the world truth's permanent point objects (poles, posts, tree
 // trunks, sign plates, facade corners/recesses) and extended objects (curbs,
@@ -23,10 +25,15 @@
 #include <cmath>
 #include <cstdio>
 #include <map>
+#include <memory>
 #include <nlohmann/json.hpp>
 #include <numbers>
+#include <optional>
 #include <random>
 
+#include "polmap/eval/trajectory_eval.hpp"
+#include "polmap/localization_client/tile_fetcher.hpp"
+#include "polmap/schema/recording_io.hpp"
 #include "polmap/sim/drive_simulator.hpp"
 #include "polmap/sim/world.hpp"
 #include "polmap/tiles/local_frame.hpp"
@@ -93,6 +100,29 @@ void fill_oracle_tiles(const sim::World& world, loc::InMemoryTileSource& source)
   for (auto& [k, t] : out) source.put(t);
 }
 
+/// Exact truth of either source, in the world frame of `frame`.
+struct TruthPose {
+  double x_m, y_m, yaw_rad, v_mps;
+};
+
+/// Linear interpolation in a reference trajectory (recording mode).
+TruthPose interpolate(const std::vector<eval::ReferenceSample>& ref, const tiles::LocalFrame& frame,
+                      double t) {
+  auto it = std::lower_bound(ref.begin(), ref.end(), t,
+                             [](const eval::ReferenceSample& s, double v) { return s.time_s < v; });
+  if (it == ref.begin()) it = std::next(it);
+  if (it == ref.end()) it = std::prev(it);
+  const auto& a = *std::prev(it);
+  const auto& b = *it;
+  const double u = std::clamp((t - a.time_s) / std::max(b.time_s - a.time_s, 1e-9), 0.0, 1.0);
+  const Eigen::Vector2d pa = frame.to_local(a.lat_deg, a.lon_deg);
+  const Eigen::Vector2d pb = frame.to_local(b.lat_deg, b.lon_deg);
+  const Eigen::Vector2d p = (1 - u) * pa + u * pb;
+  const double yaw =
+      a.yaw_enu_rad + u * wrap_angle_rad(b.yaw_enu_rad - a.yaw_enu_rad) + frame.convergence_rad(p);
+  return {p.x(), p.y(), yaw, (1 - u) * a.speed_mps + u * b.speed_mps};
+}
+
 struct Stats {
   std::vector<double> e_long, e_lat, e_rot;
   void add(double lo, double la, double ro) {
@@ -116,7 +146,7 @@ struct Stats {
 
 int main(int argc, char** argv) {
   CLI::App app{"Localizer accuracy and cost on a simulated drive"};
-  std::string world_name = "urban", map_kind = "oracle";
+  std::string world_name = "urban", map_kind = "oracle", recording, server;
   double length_m = 800.0, duration_s = 0.0, init_error_m = 3.0, init_error_deg = 3.0;
   std::uint64_t seed = 1;
   int drive = 0;
@@ -128,33 +158,72 @@ int main(int argc, char** argv) {
   app.add_option("--duration-s", duration_s, "stop after this many seconds (0 = whole route)");
   app.add_option("--init-error-m", init_error_m, "initial position error");
   app.add_option("--init-error-deg", init_error_deg, "initial yaw error");
-  app.add_option("--map", map_kind, "oracle (world truth landmarks)");
+  app.add_option("--recording", recording, "replay a recording instead of simulating");
+  app.add_option("--server", server, "mapping service URL (with --recording)");
   app.add_flag("--json", json, "one JSON document");
   app.add_flag("-v,--verbose", verbose, "one line per extraction");
   CLI11_PARSE(app, argc, argv);
 
-  sim::SimConfig scfg;
-  scfg.seed = seed;
-  scfg.duration_s = duration_s;
-  const auto world = sim::load_world(world_name, length_m, seed, scfg);
-  sim::DriveSimulator source(world, scfg, drive);
-  loc::InMemoryTileSource tiles_src;
-  fill_oracle_tiles(*world, tiles_src);
+  // Source of frames and truth: the simulator (oracle map) or a recording
+  // (exact truth beside it, tiles from a server).
+  std::unique_ptr<RecordSource> source;
+  std::shared_ptr<const sim::World> world;
+  const sim::DriveSimulator* simulator = nullptr;
+  std::vector<eval::ReferenceSample> reference;
+  std::optional<tiles::LocalFrame> frame;
+  loc::InMemoryTileSource oracle;
+  std::unique_ptr<loc::TileFetcher> fetcher;
+  loc::TileSource* tiles_src = &oracle;
+  if (!recording.empty()) {
+    auto reader = std::make_unique<RecordingReader>(recording);
+    frame.emplace(reader->header().origin);
+    const std::filesystem::path rec(recording);
+    reference = eval::reference_from_truth_csv(
+        rec.parent_path() / "truth" / (rec.stem().string() + "_trajectory.csv"), {});
+    source = std::move(reader);
+    loc::TileFetcherConfig fcfg;
+    fcfg.server_url = server;
+    fetcher = std::make_unique<loc::TileFetcher>(fcfg);
+    tiles_src = fetcher.get();
+    map_kind = "server";
+    world_name = recording;
+  } else {
+    sim::SimConfig scfg;
+    scfg.seed = seed;
+    scfg.duration_s = duration_s;
+    world = sim::load_world(world_name, length_m, seed, scfg);
+    auto sim_source = std::make_unique<sim::DriveSimulator>(world, scfg, drive);
+    simulator = sim_source.get();
+    frame.emplace(world->frame);
+    fill_oracle_tiles(*world, oracle);
+    source = std::move(sim_source);
+  }
+  auto truth_at = [&](double t) -> TruthPose {
+    if (simulator != nullptr) {
+      const sim::ExactState s = simulator->plan().state(t);
+      return {s.x_m, s.y_m, s.yaw_rad, s.v_mps};
+    }
+    return interpolate(reference, *frame, t);
+  };
 
   loc::LocalizerConfig cfg;
-  loc::Localizer localizer(cfg, source.header().sensors, tiles_src);
+  loc::Localizer localizer(cfg, source->header().sensors, *tiles_src);
 
   // Initial pose: exact start + deliberate error.
   std::mt19937 rng(seed * 7 + drive);
   const double dir =
       std::uniform_real_distribution<double>(-std::numbers::pi, std::numbers::pi)(rng);
   const double sign = std::uniform_int_distribution<int>(0, 1)(rng) ? 1.0 : -1.0;
-  const sim::ExactState s0 = source.plan().state(0.0);
+  const TruthPose s0 = truth_at(0.0);
   const Eigen::Vector2d p0 = Eigen::Vector2d(s0.x_m, s0.y_m) +
                              init_error_m * Eigen::Vector2d(std::cos(dir), std::sin(dir));
   GeoPose init;
-  init.position = world->frame.to_geo(p0);
-  init.yaw_enu_rad = s0.yaw_rad + sign * init_error_deg * kDeg - world->frame.convergence_rad(p0);
+  init.position = frame->to_geo(p0);
+  init.yaw_enu_rad = s0.yaw_rad + sign * init_error_deg * kDeg - frame->convergence_rad(p0);
+  if (fetcher) {
+    const auto keys = loc::tiles_around(init.position, 150.0);
+    fetcher->wait_for(keys, 15.0);
+  }
   localizer.set_initial_pose(init, std::max(init_error_m, 0.5),
                              std::max(init_error_deg, 0.5) * kDeg);
 
@@ -162,7 +231,7 @@ int main(int argc, char** argv) {
   std::map<std::string, int> status_count;
   double first_track_s = -1.0, proc_sum = 0.0, proc_max = 0.0, extract_sum = 0.0, graph_sum = 0.0;
   int frames = 0, extractions = 0, graph_updates = 0;
-  while (auto rec = source.next()) {
+  while (auto rec = source->next()) {
     const auto* f = std::get_if<SensorFrame>(&*rec);
     if (f == nullptr) continue;  // the localizer never reads GNSS
     const auto out = localizer.process(*f);
@@ -179,9 +248,10 @@ int main(int argc, char** argv) {
     }
     if (!out.extracted || !out.has_pose) continue;
     ++status_count[std::string(loc::to_string(out.status))];
-    const sim::ExactState s = source.plan().state(f->time_s);
-    const Eigen::Vector2d est = world->frame.to_local(out.pose.position);
-    const double est_yaw = out.pose.yaw_enu_rad + world->frame.convergence_rad(est);
+    if (duration_s > 0 && f->time_s > duration_s) break;
+    const TruthPose s = truth_at(f->time_s);
+    const Eigen::Vector2d est = frame->to_local(out.pose.position);
+    const double est_yaw = out.pose.yaw_enu_rad + frame->convergence_rad(est);
     const Eigen::Vector2d d =
         Pose2{0, 0, s.yaw_rad}.rotation().transpose() * (est - Eigen::Vector2d(s.x_m, s.y_m));
     const double e_rot = std::abs(wrap_angle_rad(est_yaw - s.yaw_rad));

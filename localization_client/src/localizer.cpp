@@ -110,7 +110,10 @@ struct Localizer::Impl {
 
   // Initialization confirmations.
   int init_streak = 0;
+  double init_streak_start_m = 0.0;  ///< odometry distance when the streak began
   Pose2 init_last_T_map_odom;
+  int reloc_streak = 0;
+  Pose2 reloc_last_T_map_odom;
 
   // Graph bookkeeping.
   std::optional<SlidingWindowGraph::PoseKey> last_key;
@@ -233,13 +236,38 @@ struct Localizer::Impl {
     init_streak = 0;
   }
 
-  void go_lost(double time_s) {
+  void go_lost() {
     status = Status::Lost;
     searching = true;
     reset_tracking();
     // Widen the gate to at least the initial uncertainty.
     for (int i = 0; i < 3; ++i) anchor_cov(i, i) = std::max(anchor_cov(i, i), initial_cov(i, i));
-    (void)time_s;
+  }
+
+  /// Starts tracking at a confidently matched pose: fresh graph with a prior.
+  void start_tracking(const Pose2& T_map_vehicle, const Pose2& T_odom_vehicle, double time_s) {
+    const Eigen::Matrix3d cov = diag3(cfg.init_pose_sigma_xy_m, cfg.init_pose_sigma_yaw_rad);
+    anchor(T_map_vehicle, T_odom_vehicle, cov);
+    searching = false;
+    status = Status::Tracking;
+    tracking_since_s = time_s;
+    graph.clear();
+    last_key.reset();
+    const auto key = graph.add_pose(time_s, T_map_vehicle, std::nullopt);
+    graph.add_pose_prior(key, T_map_vehicle, cov);
+    last_key = key;
+    last_key_time_s = time_s;
+    last_assoc_time_s = time_s;
+    reloc_streak = 0;
+  }
+
+  /// Whether two transforms agree at the current vehicle pose.
+  [[nodiscard]] bool agree(const Pose2& T_map_odom_a, const Pose2& T_map_odom_b,
+                           const Pose2& T_odom_vehicle) const {
+    const Pose2 a = T_map_odom_a * T_odom_vehicle;
+    const Pose2 b = T_map_odom_b * T_odom_vehicle;
+    return (a.translation() - b.translation()).norm() < cfg.init_agreement_xy_m &&
+           std::abs(wrap_angle_rad(a.yaw_rad - b.yaw_rad)) < cfg.init_agreement_yaw_rad;
   }
 
   /// Initialization / recovery: wide-gate matching until confident.
@@ -251,34 +279,58 @@ struct Localizer::Impl {
       point_smoother.clear();
       return;
     }
-    // Agreement of consecutive matches: both transforms applied to the
-    // current vehicle pose in the odometry frame.
-    const Pose2 T = match.T_map_odom * T_odom_vehicle;
-    const Pose2 T_prev = init_last_T_map_odom * T_odom_vehicle;
     const bool agrees =
-        init_streak > 0 && (T.translation() - T_prev.translation()).norm() < 1.0 &&
-        std::abs(wrap_angle_rad(T.yaw_rad - T_prev.yaw_rad)) < 1.5 * std::numbers::pi / 180.0;
-    if (!agrees) point_smoother.clear();
+        init_streak > 0 && agree(match.T_map_odom, init_last_T_map_odom, T_odom_vehicle);
+    if (!agrees) {
+      point_smoother.clear();
+      init_streak_start_m = odo.distance_m();
+    }
     init_streak = agrees ? init_streak + 1 : 1;
     init_last_T_map_odom = match.T_map_odom;
     std::vector<std::pair<std::uint64_t, std::int64_t>> votes;
     for (const auto& m : match.points) votes.emplace_back(m.cluster_id, m.landmark_id);
     point_smoother.add_votes(votes);
-    if (init_streak < cfg.init_confirmations) return;
+    if (init_streak < cfg.init_confirmations ||
+        odo.distance_m() - init_streak_start_m < cfg.init_min_travel_m) {
+      return;
+    }
+    start_tracking(match.T_map_odom * T_odom_vehicle, T_odom_vehicle, time_s);
+  }
 
-    // Confident: start tracking from the matched pose.
-    const Eigen::Matrix3d cov = diag3(cfg.init_pose_sigma_xy_m, cfg.init_pose_sigma_yaw_rad);
-    anchor(T, T_odom_vehicle, cov);
-    searching = false;
-    status = Status::Tracking;
-    tracking_since_s = time_s;
-    graph.clear();
-    last_key.reset();
-    const auto key = graph.add_pose(time_s, T, std::nullopt);
-    graph.add_pose_prior(key, T, cov);
-    last_key = key;
-    last_key_time_s = time_s;
-    last_assoc_time_s = time_s;
+  /// Relocalization check (LocalizerConfig): returns true if it re-anchored.
+  bool relocalization_check(const MatchResult& tracking_match, const MatcherConfig& mcfg,
+                            double time_s, const Pose2& T_odom_vehicle) {
+    MatchPrior wide;
+    wide.T_map_odom = T_map_odom;
+    wide.T_odom_vehicle = T_odom_vehicle;
+    const Eigen::Matrix3d pred = predicted_cov();
+    wide.covariance = pred;
+    for (int i = 0; i < 3; ++i) wide.covariance(i, i) = std::max(pred(i, i), initial_cov(i, i));
+    const MatchResult r =
+        match_local_map(local_map.point_clusters(), local_map.line_clusters(), map, wide, mcfg);
+    const Pose2 now = T_map_odom * T_odom_vehicle;
+    const Pose2 alt = r.T_map_odom * T_odom_vehicle;
+    const double dxy = (alt.translation() - now.translation()).norm();
+    const double dyaw = std::abs(wrap_angle_rad(alt.yaw_rad - now.yaw_rad));
+    const bool better =
+        r.status == MatchResult::Status::Ok &&
+        static_cast<int>(r.points.size()) >= cfg.init_min_point_matches &&
+        r.points.size() >= tracking_match.points.size() +
+                               static_cast<std::size_t>(cfg.relocalization_extra_matches);
+    const bool distinct = dxy > std::max(1.0, 3.0 * position_sigma_m(pred)) ||
+                          dyaw > std::max(0.026, 3.0 * std::sqrt(pred(2, 2)));
+    if (!better || !distinct) {
+      reloc_streak = 0;
+      return false;
+    }
+    reloc_streak = reloc_streak > 0 && agree(r.T_map_odom, reloc_last_T_map_odom, T_odom_vehicle)
+                       ? reloc_streak + 1
+                       : 1;
+    reloc_last_T_map_odom = r.T_map_odom;
+    if (reloc_streak < 2) return false;
+    reset_tracking();
+    start_tracking(alt, T_odom_vehicle, time_s);
+    return true;
   }
 
   /// Observed position (odometry frame) of a cluster at the latest
@@ -422,7 +474,7 @@ struct Localizer::Impl {
         anchor_cov(0, 0) += gap_s * gap_s;
         anchor_cov(1, 1) += gap_s * gap_s;
         anchor_cov(2, 2) += std::pow(0.02 * gap_s, 2);
-        go_lost(m.time_s);
+        go_lost();
       }
       last_motion_time_s = m.time_s;
       last_v_mps = m.v_mps;
@@ -486,11 +538,16 @@ struct Localizer::Impl {
         search(match, f.time_s, *T_odom_vehicle);
       } else {
         sol = track(match, f.time_s, *T_odom_vehicle, use_lines, out);
+        if (cfg.relocalization_every_n_extractions > 0 &&
+            extractions % cfg.relocalization_every_n_extractions == 0 &&
+            relocalization_check(match, mcfg, f.time_s, *T_odom_vehicle)) {
+          out.relocalized = true;
+        }
         status = f.time_s - last_assoc_time_s <= cfg.degraded_after_s ? Status::Tracking
                                                                       : Status::Degraded;
         if (position_sigma_m(predicted_cov()) > cfg.lost_sigma_m ||
             f.time_s - last_assoc_time_s > cfg.lost_after_s) {
-          go_lost(f.time_s);
+          go_lost();
         }
       }
     }

@@ -346,7 +346,9 @@ MatchResult match_local_map(std::span<const PointCluster> points_odom,
   const double k = std::sqrt(cfg.gate_chi2);
   Scorer scorer(points_odom, lines_odom, map, prior, cfg);
   // Map points near the observed area (radar range plus margin around the vehicle).
-  scorer.set_region(prior.T_map_odom, k * std::sqrt(var_xy + var_yaw * 60.0 * 60.0), 90.0);
+  scorer.set_region(prior.T_map_odom,
+                    std::min(k * std::sqrt(var_xy + var_yaw * 60.0 * 60.0), cfg.max_gate_radius_m),
+                    90.0);
   std::vector<Candidate> candidates;
   std::unordered_set<std::uint64_t> seen;
   auto consider = [&](const Pose2& T) {
@@ -379,7 +381,8 @@ MatchResult match_local_map(std::span<const PointCluster> points_odom,
   for (std::size_t a = 0; a < anchors.size(); ++a) {
     const Eigen::Vector2d p = prior.T_map_odom * points_odom[anchors[a]].centroid_odom_m;
     const double lever2 = (p - prior_vehicle.translation()).squaredNorm();
-    const double r = k * std::sqrt(var_xy + var_yaw * lever2) + cfg.pair_distance_tolerance_m;
+    const double r = std::min(k * std::sqrt(var_xy + var_yaw * lever2), cfg.max_gate_radius_m) +
+                     cfg.pair_distance_tolerance_m;
     map.points_within(p, r, cand[a]);
   }
   bool capped = false;
@@ -435,7 +438,8 @@ MatchResult match_local_map(std::span<const PointCluster> points_odom,
       for (std::size_t i = 0; i < points_odom.size(); ++i) {
         const Eigen::Vector2d p = R * (predicted[i] - v) + v;
         // Gate radius of the translation (rotation is fixed per hypothesis).
-        const double r = k * std::sqrt(var_xy) + cfg.pair_distance_tolerance_m;
+        const double r =
+            std::min(k * std::sqrt(var_xy), cfg.max_gate_radius_m) + cfg.pair_distance_tolerance_m;
         map.points_within(p, r, near);
         const double w = std::min(1.0, points_odom[i].num_observations / 3.0);
         for (std::size_t m : near) {

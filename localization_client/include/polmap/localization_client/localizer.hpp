@@ -95,13 +95,30 @@ struct LocalizerConfig {
   /// covariance can be optimistic, matching must still find its landmarks.
   double tracking_gate_floor_xy_m = 0.5;
   double tracking_gate_floor_yaw_rad = 0.02;
-  /// Initialization: unambiguous matches needed, and how many must agree
-  /// (within 1 m, 1.5°) in a row.
+  /// Initialization: a match counts when it is unambiguous with at least
+  /// init_min_point_matches associations; tracking starts when consecutive
+  /// counting matches agreed (within init_agreement_xy_m / _yaw_rad, both
+  /// applied to the current odometry pose) at least init_confirmations times
+  /// AND over at least init_min_travel_m of driving. Agreement of matches
+  /// 0.2 s apart says little (the local map barely changed); agreement over
+  /// 20 m of new landmarks rejects a wrong fit to a periodic post row.
   int init_min_point_matches = 6;
   int init_confirmations = 2;
+  double init_min_travel_m = 20.0;
+  double init_agreement_xy_m = 1.0;
+  double init_agreement_yaw_rad = 0.0175;
   /// Covariance of the first graph pose after a confident initialization.
-  double init_pose_sigma_xy_m = 0.3;
-  double init_pose_sigma_yaw_rad = 0.01;
+  double init_pose_sigma_xy_m = 0.5;
+  double init_pose_sigma_yaw_rad = 0.02;
+  /// Relocalization check while tracking: every this many extractions the
+  /// local map is also matched in the wide initial gate. If that finds an
+  /// unambiguous match with at least relocalization_extra_matches more
+  /// associations than the tracking match, away from the current estimate
+  /// (> max(1 m, 3σ) or > max(1.5°, 3σ)), twice in a row and agreeing, the
+  /// localizer re-anchors there (a wrong initialization or a divergence that
+  /// the graph's own covariance cannot reveal). 0 disables the check.
+  int relocalization_every_n_extractions = 10;
+  int relocalization_extra_matches = 3;
   /// Status thresholds (see file comment).
   double degraded_after_s = 2.0;
   double lost_after_s = 30.0;
@@ -126,6 +143,7 @@ struct LocalizationOutput {
   Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();  ///< (x_m, y_m, yaw_rad), map frame
   bool extracted = false;      ///< candidates were extracted at this frame
   bool graph_updated = false;  ///< the graph was solved at this frame
+  bool relocalized = false;    ///< the relocalization check re-anchored at this frame
   int matched_points = 0;      ///< point observations entered into the graph at this frame
   int matched_lines = 0;
   double graph_update_time_s = 0.0;  ///< Ceres solve + covariance (wall time), if updated

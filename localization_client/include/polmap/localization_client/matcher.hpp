@@ -117,6 +117,10 @@ struct MatchPrior {
 /// Parameters of the matcher; defaults for the paper's radar and map density.
 struct MatcherConfig {
   double gate_chi2 = 16.0;  ///< Mahalanobis² gate of a candidate's vehicle pose (3 DoF ≈ 99.9 %)
+  /// Upper bound of the per-cluster search radius (translation part of the
+  /// gate). After a long outage the covariance can be tens of metres; beyond
+  /// ~40 m the voting cost explodes while the map offers only repetitions.
+  double max_gate_radius_m = 40.0;
   double pair_distance_tolerance_m = 0.5;  ///< |d(l1,l2) - d(m1,m2)|: cluster noise + drift
   double min_pair_baseline_m = 3.0;        ///< short baselines give unstable yaw
   int max_anchor_clusters = 14;            ///< most-observed clusters used to make candidates

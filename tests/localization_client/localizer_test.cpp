@@ -249,6 +249,8 @@ TEST(Localizer, ConvergesFromCoarseInitialPoseAndTracks) {
   EXPECT_LT(r.rms_pos_error_tracking_m, 0.15);
   EXPECT_LT(r.max_pos_error_tracking_m, 0.4);
   EXPECT_LT(r.max_yaw_error_tracking_rad, 0.6 * kDeg);
+  // The periodic wide-gate relocalization check must not fire while tracking well.
+  for (const auto& [t, out] : r.outputs) EXPECT_FALSE(out.relocalized) << "at " << t;
   const auto& last = r.outputs.back().second;
   EXPECT_EQ(last.status, LocalizationOutput::Status::Tracking);
   EXPECT_GT(last.matched_points, 3);

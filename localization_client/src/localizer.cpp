@@ -130,6 +130,7 @@ struct Localizer::Impl {
   std::uint64_t map_version = 0;
   double last_v_mps = 0.0;
   double last_motion_time_s = std::numeric_limits<double>::infinity();
+  bool odometry_gap = false;  ///< an ego-motion outage since the last graph pose
 
   // ---------------------------------------------------------------- prediction
 
@@ -375,11 +376,12 @@ struct Localizer::Impl {
 
     const Pose2 guess = T_map_odom * T_odom_vehicle;
     std::optional<Pose2> delta;
-    if (last_key) {
+    if (last_key && !odometry_gap) {
       const auto prev = odo.try_T_odom_vehicle(last_key_time_s);
       if (prev) delta = prev->inverse() * T_odom_vehicle;
     }
     if (!delta) graph.clear();  // odometry cannot link: restart the window
+    odometry_gap = false;
     const auto key = graph.add_pose(time_s, guess, delta);
     last_key = key;
     last_key_time_s = time_s;
@@ -467,14 +469,15 @@ struct Localizer::Impl {
     out.motion_status = m.status;
     if (m.status == radar::MotionEstimate::Status::Ok) {
       // An outage of the ego-motion longer than the odometry's hold time is
-      // bridged by one arc, which can be far off: widen the gate by the
-      // outage (1 m/s, 0.02 rad/s) and search again.
+      // bridged by one arc, which can be far off: widen the uncertainty by
+      // the outage (1 m/s, 0.02 rad/s; the lost check then decides whether
+      // to search again) and do not link graph poses across it.
       const double gap_s = m.time_s - last_motion_time_s;
-      if (anchored && !searching && gap_s > cfg.odometry.max_hold_s) {
+      if (anchored && gap_s > cfg.odometry.max_hold_s) {
         anchor_cov(0, 0) += gap_s * gap_s;
         anchor_cov(1, 1) += gap_s * gap_s;
         anchor_cov(2, 2) += std::pow(0.02 * gap_s, 2);
-        go_lost();
+        odometry_gap = true;
       }
       last_motion_time_s = m.time_s;
       last_v_mps = m.v_mps;
@@ -501,7 +504,6 @@ struct Localizer::Impl {
     const bool extract =
         anchored && T_odom_vehicle && f.sensor_id == last_sensor_id &&
         f.cycle_index % static_cast<std::uint32_t>(cfg.extract_every_n_cycles) == 0;
-    std::optional<GraphSolution> sol;
     if (extract) {
       out.extracted = true;
       ++extractions;
@@ -537,7 +539,7 @@ struct Localizer::Impl {
       if (searching) {
         search(match, f.time_s, *T_odom_vehicle);
       } else {
-        sol = track(match, f.time_s, *T_odom_vehicle, use_lines, out);
+        track(match, f.time_s, *T_odom_vehicle, use_lines, out);
         if (cfg.relocalization_every_n_extractions > 0 &&
             extractions % cfg.relocalization_every_n_extractions == 0 &&
             relocalization_check(match, mcfg, f.time_s, *T_odom_vehicle)) {

@@ -134,8 +134,9 @@ struct LocalizationOutput {
   enum class Status { Initializing, Tracking, Degraded, Lost };
   double time_s = 0.0;
   Status status = Status::Initializing;
-  /// False until both an initial pose and odometry exist; then the pose
-  /// fields below are valid (in Initializing they are the odometry-moved
+  /// False until both an initial pose and odometry exist, and during an
+  /// ego-motion outage longer than the odometry's hold time (0.5 s); else the
+  /// pose fields below are valid (in Initializing they are the odometry-moved
   /// initial pose with its wide covariance).
   bool has_pose = false;
   Pose2 T_map_vehicle;                                   ///< client map frame (see file comment)

@@ -21,9 +21,9 @@
 /// Status.
 ///  - Initializing: no confident match yet. Matching searches the wide gate
 ///    of the initial pose (σ given to set_initial_pose, grown with the
-///    distance driven); a match is accepted after `init_confirmations`
-///    consecutive unambiguous matches with at least init_min_point_matches
-///    associations that agree with each other. The output meanwhile is the
+///    distance driven); tracking starts when consecutive unambiguous matches
+///    with at least init_min_point_matches associations agreed with each
+///    other over init_min_travel_m of driving. The output meanwhile is the
 ///    initial pose moved by odometry.
 ///  - Tracking: landmark observations entered the graph within degraded_after_s.
 ///  - Degraded: none for longer (landmark-poor road, map gap, outside the
@@ -32,6 +32,10 @@
 ///    for lost_after_s. The graph and smoothing are reset and initialization
 ///    restarts around the current estimate with a gate widened to at least the
 ///    initial σ; the status stays Lost until a confident match.
+/// While tracking, a periodic wide-gate relocalization check re-anchors when a
+/// clearly better match disagrees with the estimate (LocalizerConfig). An
+/// ego-motion outage widens the uncertainty by its length and restarts the
+/// graph window (no odometry factor across the bridged arc).
 ///
 /// Ground truth is never read. Not thread-safe (one instance per vehicle).
 #include <Eigen/Core>

@@ -191,6 +191,9 @@ struct CovarianceGridmap::Impl {
   /// returns false if the tile does not exist.
   virtual bool materialize(int tx, int ty, std::uint32_t* counts, std::complex<float>* layers,
                            std::uint32_t* hits) const = 0;
+  /// Writes N, hits and C of the cells of tile (tx, ty) inside r.box straight into
+  /// the raster (which is zero elsewhere); cells with N = 0 are left untouched.
+  virtual void blit(int tx, int ty, CovarianceRaster& r) const = 0;
   virtual std::uint32_t hits(int ix, int iy) const = 0;
   /// Writes trace(C) of one tile (kT² floats, 0 where N = 0); false if the tile does not exist.
   virtual bool materialize_trace(int tx, int ty, float* trace, double min_persistence) const = 0;
@@ -335,6 +338,53 @@ class ImplT final : public CovarianceGridmap::Impl {
       }
     }
     return true;
+  }
+
+  void blit(int tx, int ty, CovarianceRaster& r) const override {
+    auto it = tiles_.find(tile_key(tx, ty));
+    if (it == tiles_.end()) return;
+    const Tile<T>& t = *it->second;
+    const CellBox& box = r.box;
+    const std::size_t plane = r.plane_size();
+    const int w = box.width();
+    // N first for every cell: a cell can be observed without a stored bin (no
+    // data block), and it still counts as observed (CFAR ring statistics).
+    const int ixa = std::max(box.min_ix, tx * kT), ixb = std::min(box.max_ix, tx * kT + kT);
+    const int iya = std::max(box.min_iy, ty * kT), iyb = std::min(box.max_iy, ty * kT + kT);
+    for (int iy = iya; iy < iyb; ++iy) {
+      const std::size_t row = static_cast<std::size_t>(iy - box.min_iy) * w;
+      for (int ix = ixa; ix < ixb; ++ix) {
+        r.count[row + (ix - box.min_ix)] = t.count((iy - ty * kT) * kT + (ix - tx * kT));
+      }
+    }
+    for (int b = 0; b < kDataBlocksPerSide * kDataBlocksPerSide; ++b) {
+      const T* blk = t.blocks[b].get();
+      if (!blk) continue;
+      const int row0 = (b / kDataBlocksPerSide) * kD, col0 = (b % kDataBlocksPerSide) * kD;
+      const int ix0 = tx * kT + col0, iy0 = ty * kT + row0;
+      // Blocks entirely outside the box contribute nothing.
+      if (ix0 + kD <= box.min_ix || ix0 >= box.max_ix || iy0 + kD <= box.min_iy ||
+          iy0 >= box.max_iy) {
+        continue;
+      }
+      for (int c = 0; c < kCellsPerDataBlock; ++c) {
+        const int ix = ix0 + c % kD, iy = iy0 + c / kD;
+        if (ix < box.min_ix || ix >= box.max_ix || iy < box.min_iy || iy >= box.max_iy) continue;
+        const int local = (row0 + c / kD) * kT + col0 + c % kD;
+        const std::uint32_t n = t.count(local);
+        if (n == 0) continue;
+        const std::size_t idx =
+            static_cast<std::size_t>(iy - box.min_iy) * w + static_cast<std::size_t>(ix - box.min_ix);
+        const T inv = T(1) / static_cast<T>(n);
+        const T* cell = blk + c * stride_;
+        for (int l = 0; l < L_; ++l) {
+          const T re = cell[off_[l]] * inv, im = cplx_[l] ? cell[off_[l] + 1] * inv : T(0);
+          r.layers[l * plane + idx] =
+              std::complex<float>(static_cast<float>(re), static_cast<float>(im));
+        }
+        r.hits[idx] = static_cast<std::uint32_t>(std::lround(std::max<T>(cell[hit_], T(0))));
+      }
+    }
   }
 
   bool materialize_trace(int tx, int ty, float* trace, double min_persistence) const override {
@@ -913,7 +963,6 @@ std::vector<std::array<int, 2>> CovarianceGridmap::tile_indices() const {
 CovarianceRaster CovarianceGridmap::raster(const CellBox& box) const {
   CovarianceRaster r = CovarianceRaster::zeros(box, cfg_.cell_size_m, cfg_.level);
   r.noise_power = noise_power();
-  const int L = num_layers(q());
   const int tx0 = box.min_ix >> 6, tx1 = (box.max_ix - 1) >> 6;
   const int ty0 = box.min_iy >> 6, ty1 = (box.max_iy - 1) >> 6;
   std::vector<std::uint64_t> keys;
@@ -929,26 +978,7 @@ CovarianceRaster CovarianceGridmap::raster(const CellBox& box) const {
       }
     }
   }
-  std::vector<std::uint32_t> counts(kCellsPerTile);
-  std::vector<std::complex<float>> layers(static_cast<std::size_t>(L) * kCellsPerTile);
-  std::vector<std::uint32_t> hits(kCellsPerTile);
-  const std::size_t plane = r.plane_size();
-  const int w = box.width();
-  for (std::uint64_t k : keys) {
-    const int tx = key_tx(k), ty = key_ty(k);
-    if (!impl_->materialize(tx, ty, counts.data(), layers.data(), hits.data())) continue;
-    const int ixa = std::max(box.min_ix, tx * kT), ixb = std::min(box.max_ix, tx * kT + kT);
-    const int iya = std::max(box.min_iy, ty * kT), iyb = std::min(box.max_iy, ty * kT + kT);
-    for (int iy = iya; iy < iyb; ++iy) {
-      for (int ix = ixa; ix < ixb; ++ix) {
-        const int local = (iy - ty * kT) * kT + (ix - tx * kT);
-        const std::size_t idx = static_cast<std::size_t>(iy - box.min_iy) * w + (ix - box.min_ix);
-        r.count[idx] = counts[local];
-        r.hits[idx] = hits[local];
-        for (int l = 0; l < L; ++l) r.layers[l * plane + idx] = layers[l * kCellsPerTile + local];
-      }
-    }
-  }
+  for (std::uint64_t k : keys) impl_->blit(key_tx(k), key_ty(k), r);
   return r;
 }
 

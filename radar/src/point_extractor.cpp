@@ -5,6 +5,7 @@
 #include <cmath>
 #include <opencv2/imgproc.hpp>
 #include <numbers>
+#include <map>
 #include <set>
 #include <unordered_map>
 
@@ -78,6 +79,44 @@ struct Planes {
     const double* c = integral.data() + (y1 * W + x0) * num;
     const double* d = integral.data() + (y0 * W + x0) * num;
     for (int k = 0; k < num; ++k) acc[k] += sign * (a[k] - b[k] - c[k] + d[k]);
+  }
+};
+
+/// Integral image of the observed indicator and trace(C) only (2 planes), for the
+/// pre-screen of detect().
+struct TracePlanes {
+  int w = 0, h = 0;
+  std::vector<double> integral;  // (h+1)·(w+1)·2
+
+  explicit TracePlanes(const CovarianceRaster& r) : w(r.box.width()), h(r.box.height()) {
+    const std::size_t W = static_cast<std::size_t>(w) + 1;
+    integral.assign(W * (h + 1) * 2, 0.0);
+    for (int y = 0; y < h; ++y) {
+      double n = 0.0, t = 0.0;
+      const double* above = integral.data() + static_cast<std::size_t>(y) * W * 2;
+      double* out = integral.data() + static_cast<std::size_t>(y + 1) * W * 2;
+      for (int x = 0; x < w; ++x) {
+        const std::size_t idx = static_cast<std::size_t>(y) * w + x;
+        if (r.count[idx] > 0) {
+          n += 1.0;
+          t += r.power(idx);
+        }
+        out[(x + 1) * 2] = above[(x + 1) * 2] + n;
+        out[(x + 1) * 2 + 1] = above[(x + 1) * 2 + 1] + t;
+      }
+    }
+  }
+  void box(int x0, int y0, int x1, int y1, double sign, double* acc) const {
+    x0 = std::clamp(x0, 0, w);
+    x1 = std::clamp(x1, 0, w);
+    y0 = std::clamp(y0, 0, h);
+    y1 = std::clamp(y1, 0, h);
+    if (x1 <= x0 || y1 <= y0) return;
+    const std::size_t W = static_cast<std::size_t>(w) + 1;
+    for (int k = 0; k < 2; ++k) {
+      acc[k] += sign * (integral[(y1 * W + x1) * 2 + k] - integral[(y0 * W + x1) * 2 + k] -
+                        integral[(y1 * W + x0) * 2 + k] + integral[(y0 * W + x0) * 2 + k]);
+    }
   }
 };
 
@@ -171,6 +210,24 @@ Detection detect(const CovarianceRaster& r, const PointExtractorConfig& cfg, int
     if (r.count[idx] < std::max<std::uint32_t>(1, cfg.min_count)) continue;
     if (!r.hits.empty() && r.hits[idx] < cfg.min_persistence * r.count[idx]) continue;
     if (r.power(idx) > min_power) cand.push_back(idx);
+  }
+  if (cand.empty()) return d;
+  {
+    // Trace-only pre-screen: the ring's observed-cell count and mean trace decide
+    // two necessary conditions of a detection at a fraction of the full planes' cost.
+    const TracePlanes tp(r);
+    std::size_t kept = 0;
+    for (std::size_t idx : cand) {
+      const int x = static_cast<int>(idx % w), y = static_cast<int>(idx / w);
+      double s[2] = {0.0, 0.0};
+      tp.box(x - train, y - train, x + train + 1, y + train + 1, 1.0, s);
+      tp.box(x - guard, y - guard, x + guard + 1, y + guard + 1, -1.0, s);
+      if (s[0] < min_ring) continue;
+      // Slightly relaxed against rounding: the exact test follows below.
+      if (!(r.power(idx) > contrast * (s[1] / s[0]) * (1.0 - 1e-9))) continue;
+      cand[kept++] = idx;
+    }
+    cand.resize(kept);
   }
   if (cand.empty()) return d;
   const Planes p(r);
@@ -380,16 +437,29 @@ std::vector<PointCandidate> extract_points(const CovarianceGridmap& map,
   const int chunk_cells = cfg.chunk_tiles * kTileSizeCells;
   const int halo =
       static_cast<int>(std::ceil((cfg.training_radius_m + cfg.max_extent_m) / cs)) + 2;
-  std::set<std::pair<int, int>> chunks;
+  // Per chunk, the bounding box of its populated tiles: cells outside are empty
+  // (N = 0) and can neither be detections nor contribute to a neighbourhood, so
+  // the result equals processing the whole chunk; a sliding-window map fills
+  // only part of each chunk.
+  std::map<std::pair<int, int>, CellBox> chunks;
   for (const auto& t : map.tile_indices()) {
-    chunks.insert({floor_div(t[0], cfg.chunk_tiles), floor_div(t[1], cfg.chunk_tiles)});
+    const CellBox tb{t[0] * kTileSizeCells, t[1] * kTileSizeCells, (t[0] + 1) * kTileSizeCells,
+                     (t[1] + 1) * kTileSizeCells};
+    const auto key = std::make_pair(floor_div(t[0], cfg.chunk_tiles), floor_div(t[1], cfg.chunk_tiles));
+    const auto [it, inserted] = chunks.try_emplace(key, tb);
+    if (!inserted) {
+      CellBox& b = it->second;
+      b = CellBox{std::min(b.min_ix, tb.min_ix), std::min(b.min_iy, tb.min_iy),
+                  std::max(b.max_ix, tb.max_ix), std::max(b.max_iy, tb.max_iy)};
+    }
   }
   std::vector<PointCandidate> out;
-  for (const auto& [cx, cy] : chunks) {
+  for (const auto& [key, populated] : chunks) {
+    const auto [cx, cy] = key;
     const CellBox core{cx * chunk_cells, cy * chunk_cells, (cx + 1) * chunk_cells,
                        (cy + 1) * chunk_cells};
-    const CellBox box{core.min_ix - halo, core.min_iy - halo, core.max_ix + halo,
-                      core.max_iy + halo};
+    const CellBox box{populated.min_ix - halo, populated.min_iy - halo, populated.max_ix + halo,
+                      populated.max_iy + halo};
     const CovarianceRaster r = map.raster(box);
     auto pts = extract_points(r, cfg, &core);
     out.insert(out.end(), pts.begin(), pts.end());

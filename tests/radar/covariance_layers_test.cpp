@@ -66,6 +66,49 @@ TEST_P(CovarianceLayers, HermitianPsdAndViewsAgree) {
   EXPECT_GT(checked, 50);
 }
 
+TEST_P(CovarianceLayers, RasterOfAnUnalignedBoxEqualsCellAccess) {
+  // raster() writes tiles straight into the box; a box that cuts tiles and reaches
+  // beyond the data must hold exactly the per-cell N, hits and C (brute force).
+  std::mt19937 rng(2);
+  GridmapConfig cfg;
+  cfg.level = GetParam();
+  CovarianceGridmap map(cfg);
+  // Keep a third of the cells: the rest of the footprint is observed (N > 0)
+  // without a stored bin, as below a real sensor's noise floor.
+  for (int f = 0; f < 4; ++f) {
+    PolSpectrum s = dense_spectrum(rng);
+    std::vector<SpectrumCell> kept;
+    for (std::size_t i = 0; i < s.cells.size(); ++i) {
+      if (rng() % 3 == 0) kept.push_back(s.cells[i]);
+    }
+    s.cells = std::move(kept);
+    map.add(s, {0.2 * f, -0.1 * f, 0.03 * f}, 0.1 * f);
+  }
+  const CellBox all = map.bounds();
+  const CellBox box{all.min_ix + 37, all.min_iy - 11, all.max_ix - 29, all.max_iy + 5};
+  const CovarianceRaster r = map.raster(box);
+  ASSERT_EQ(r.count.size(), r.plane_size());
+  int observed = 0, observed_without_bin = 0;
+  for (int iy = box.min_iy; iy < box.max_iy; ++iy) {
+    for (int ix = box.min_ix; ix < box.max_ix; ++ix) {
+      const std::size_t idx =
+          static_cast<std::size_t>(iy - box.min_iy) * box.width() + (ix - box.min_ix);
+      ASSERT_EQ(r.count[idx], map.count(ix, iy)) << ix << "," << iy;
+      ASSERT_EQ(r.hits[idx], map.hits(ix, iy)) << ix << "," << iy;
+      if (r.count[idx] == 0) {
+        ASSERT_EQ(r.covariance(idx).norm(), 0.0);
+        continue;
+      }
+      ++observed;
+      observed_without_bin += r.hits[idx] == 0 ? 1 : 0;
+      const Eigen::MatrixXcd c = map.covariance(ix, iy);
+      ASSERT_LE((r.covariance(idx) - c).norm(), 1e-5 * (1.0 + c.norm())) << ix << "," << iy;
+    }
+  }
+  EXPECT_GT(observed, 1000);
+  EXPECT_GT(observed_without_bin, 100);
+}
+
 INSTANTIATE_TEST_SUITE_P(AllLevels, CovarianceLayers,
                          ::testing::Values(PolLevel::Full, PolLevel::DualLLLR, PolLevel::DualHHVV,
                                            PolLevel::SingleLR, PolLevel::SingleRR,

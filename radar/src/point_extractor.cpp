@@ -19,6 +19,15 @@ using CMat = Eigen::Matrix<cdouble, Q, Q>;
 
 int floor_div(int a, int b) { return a >= 0 ? a / b : -((-a + b - 1) / b); }
 
+/// Clips the cell rectangle [x0, x1) × [y0, y1) to a w × h raster; false if empty.
+bool clip_to_raster(int w, int h, int& x0, int& y0, int& x1, int& y1) {
+  x0 = std::clamp(x0, 0, w);
+  x1 = std::clamp(x1, 0, w);
+  y0 = std::clamp(y0, 0, h);
+  y1 = std::clamp(y1, 0, h);
+  return x1 > x0 && y1 > y0;
+}
+
 /// Per-cell planes of a raster used by the CFAR, interleaved per cell: plane 0 is the
 /// observed indicator (N > 0), then per covariance layer its real part and, for
 /// off-diagonal layers, its imaginary part. Sums over rectangles come from one
@@ -68,11 +77,7 @@ struct Planes {
   }
   /// Adds sign·(sum over cells [x0, x1) × [y0, y1), clipped) to acc.
   void box(int x0, int y0, int x1, int y1, double sign, double* acc) const {
-    x0 = std::clamp(x0, 0, w);
-    x1 = std::clamp(x1, 0, w);
-    y0 = std::clamp(y0, 0, h);
-    y1 = std::clamp(y1, 0, h);
-    if (x1 <= x0 || y1 <= y0) return;
+    if (!clip_to_raster(w, h, x0, y0, x1, y1)) return;
     const std::size_t W = static_cast<std::size_t>(w) + 1;
     const double* a = integral.data() + (y1 * W + x1) * num;
     const double* b = integral.data() + (y0 * W + x1) * num;
@@ -107,11 +112,7 @@ struct TracePlanes {
     }
   }
   void box(int x0, int y0, int x1, int y1, double sign, double* acc) const {
-    x0 = std::clamp(x0, 0, w);
-    x1 = std::clamp(x1, 0, w);
-    y0 = std::clamp(y0, 0, h);
-    y1 = std::clamp(y1, 0, h);
-    if (x1 <= x0 || y1 <= y0) return;
+    if (!clip_to_raster(w, h, x0, y0, x1, y1)) return;
     const std::size_t W = static_cast<std::size_t>(w) + 1;
     for (int k = 0; k < 2; ++k) {
       acc[k] += sign * (integral[(y1 * W + x1) * 2 + k] - integral[(y0 * W + x1) * 2 + k] -

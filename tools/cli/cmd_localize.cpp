@@ -187,20 +187,7 @@ void run(const LocalizeOptions& o) {
     }
     map_version = std::max(map_version, out.map_version);
     if (!out.has_pose) return;
-    eval::TrajectoryRow r;
-    r.time_s = f.time_s;
-    r.status = std::string(loc::to_string(out.status));
-    r.lat_deg = out.pose.position.lat_deg;
-    r.lon_deg = out.pose.position.lon_deg;
-    r.yaw_enu_rad = out.pose.yaw_enu_rad;
-    r.cov_xx_m2 = out.covariance(0, 0);
-    r.cov_xy_m2 = out.covariance(0, 1);
-    r.cov_yy_m2 = out.covariance(1, 1);
-    r.cov_yaw_rad2 = out.covariance(2, 2);
-    r.matched_points = out.matched_points;
-    r.matched_lines = out.matched_lines;
-    r.map_version = out.map_version;
-    r.graph_ms = out.graph_updated ? out.graph_update_time_s * 1e3 : 0.0;
+    const eval::TrajectoryRow r = eval::to_trajectory_row(out);
     writer.write(r);
     ++rows;
     ++status_rows[r.status];

@@ -193,20 +193,7 @@ StudyDriveResult localize_simulated_drive(const std::shared_ptr<const sim::World
       match_ms.push_back(1e3 * out.matching_time_s);
     }
     if (!out.has_pose) return;
-    TrajectoryRow row;
-    row.time_s = out.time_s;
-    row.status = std::string(loc::to_string(out.status));
-    row.lat_deg = out.pose.position.lat_deg;
-    row.lon_deg = out.pose.position.lon_deg;
-    row.yaw_enu_rad = out.pose.yaw_enu_rad;
-    row.cov_xx_m2 = out.covariance(0, 0);
-    row.cov_xy_m2 = out.covariance(0, 1);
-    row.cov_yy_m2 = out.covariance(1, 1);
-    row.cov_yaw_rad2 = out.covariance(2, 2);
-    row.matched_points = out.matched_points;
-    row.matched_lines = out.matched_lines;
-    row.map_version = out.map_version;
-    row.graph_ms = out.graph_updated ? 1e3 * out.graph_update_time_s : 0.0;
+    const TrajectoryRow row = to_trajectory_row(out);
     if (csv) csv->write(row);
     rows.push_back(std::move(row));
   };

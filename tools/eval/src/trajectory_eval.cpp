@@ -8,6 +8,7 @@
 #include <numbers>
 #include <string_view>
 
+#include "polmap/localization_client/localizer.hpp"
 #include "polmap/schema/errors.hpp"
 #include "polmap/schema/pose2.hpp"
 #include "polmap/tiles/local_frame.hpp"
@@ -79,6 +80,26 @@ double parse_double(std::string_view s, const std::filesystem::path& path, std::
 }
 
 }  // namespace
+
+
+TrajectoryRow to_trajectory_row(const loc::LocalizationOutput& out) {
+  POLMAP_EXPECT(out.has_pose);
+  TrajectoryRow r;
+  r.time_s = out.time_s;
+  r.status = std::string(loc::to_string(out.status));
+  r.lat_deg = out.pose.position.lat_deg;
+  r.lon_deg = out.pose.position.lon_deg;
+  r.yaw_enu_rad = out.pose.yaw_enu_rad;
+  r.cov_xx_m2 = out.covariance(0, 0);
+  r.cov_xy_m2 = out.covariance(0, 1);
+  r.cov_yy_m2 = out.covariance(1, 1);
+  r.cov_yaw_rad2 = out.covariance(2, 2);
+  r.matched_points = out.matched_points;
+  r.matched_lines = out.matched_lines;
+  r.map_version = out.map_version;
+  r.graph_ms = out.graph_updated ? 1e3 * out.graph_update_time_s : 0.0;
+  return r;
+}
 
 const std::string& trajectory_csv_header() {
   static const std::string h =

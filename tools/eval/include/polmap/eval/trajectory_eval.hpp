@@ -19,6 +19,10 @@
 #include "polmap/schema/geo.hpp"
 #include "polmap/schema/recording.hpp"
 
+namespace polmap::loc {
+struct LocalizationOutput;
+}
+
 namespace polmap::eval {
 
 /// One row of a localization trajectory CSV (schema/trajectory_csv.md).
@@ -37,6 +41,9 @@ struct TrajectoryRow {
   std::uint64_t map_version = 0;
   double graph_ms = 0.0;  ///< graph solve time of this frame, 0 if no solve
 };
+
+/// The row of one localizer output (which must have a pose).
+[[nodiscard]] TrajectoryRow to_trajectory_row(const loc::LocalizationOutput& out);
 
 /// The CSV header line (without newline) written by TrajectoryCsvWriter.
 [[nodiscard]] const std::string& trajectory_csv_header();

@@ -118,6 +118,11 @@ struct Localizer::Impl {
   // Graph bookkeeping.
   std::optional<SlidingWindowGraph::PoseKey> last_key;
   double last_key_time_s = 0.0;
+  /// Standstill hold (LocalizerConfig::standstill_*): the graph runs on its own
+  /// clock, real time minus the time held, so a stop does not age the window.
+  double standstill_total_s = 0.0;
+  double last_track_time_s = 0.0;
+  [[nodiscard]] double graph_time_s(double time_s) const { return time_s - standstill_total_s; }
   double last_assoc_time_s = -std::numeric_limits<double>::infinity();
   double tracking_since_s = 0.0;
   std::uint64_t extractions = 0;
@@ -254,7 +259,8 @@ struct Localizer::Impl {
     tracking_since_s = time_s;
     graph.clear();
     last_key.reset();
-    const auto key = graph.add_pose(time_s, T_map_vehicle, std::nullopt);
+    last_track_time_s = time_s;
+    const auto key = graph.add_pose(graph_time_s(time_s), T_map_vehicle, std::nullopt);
     graph.add_pose_prior(key, T_map_vehicle, cov);
     last_key = key;
     last_key_time_s = time_s;
@@ -380,9 +386,19 @@ struct Localizer::Impl {
       const auto prev = odo.try_T_odom_vehicle(last_key_time_s);
       if (prev) delta = prev->inverse() * T_odom_vehicle;
     }
+    const double since_last_track_s = std::max(0.0, time_s - last_track_time_s);
+    last_track_time_s = time_s;
+    if (delta && delta->translation().norm() < cfg.standstill_translation_m &&
+        std::abs(delta->yaw_rad) < cfg.standstill_yaw_rad) {
+      // Standing: hold the estimate (config comment); the stop neither ages
+      // the window nor counts as time without associations.
+      standstill_total_s += since_last_track_s;
+      last_assoc_time_s += since_last_track_s;
+      return std::nullopt;
+    }
     if (!delta) graph.clear();  // odometry cannot link: restart the window
     odometry_gap = false;
-    const auto key = graph.add_pose(time_s, guess, delta);
+    const auto key = graph.add_pose(graph_time_s(time_s), guess, delta);
     last_key = key;
     last_key_time_s = time_s;
 
@@ -440,7 +456,7 @@ struct Localizer::Impl {
     last_point_matches = n_points;
     if (n_points > 0 || n_lines > 0) last_assoc_time_s = time_s;
 
-    graph.truncate_before(time_s - cfg.graph.window_s);
+    graph.truncate_before(graph_time_s(time_s) - cfg.graph.window_s);
     const double constraint =
         graph.num_point_landmarks() + 0.5 * std::min(graph.num_line_observations(), 6);
     if (constraint < cfg.min_landmarks_without_pose_prior) {

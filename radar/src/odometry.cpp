@@ -7,8 +7,13 @@
 
 namespace polmap::radar {
 
-void Odometry::add(const MotionEstimate& m) {
-  if (m.status != MotionEstimate::Status::Ok) return;
+void Odometry::add(const MotionEstimate& estimate) {
+  if (estimate.status != MotionEstimate::Status::Ok) return;
+  MotionEstimate m = estimate;
+  if (std::abs(m.v_mps) < cfg_.standstill_speed_mps) {
+    m.v_mps = 0.0;  // zero-velocity update (OdometryConfig::standstill_speed_mps)
+    m.yaw_rate_rps = 0.0;
+  }
   if (nodes_.empty()) {
     nodes_.push_back({m.time_s, Pose2{}, m.v_mps, m.yaw_rate_rps, m.v_mps, m.yaw_rate_rps});
     return;

@@ -13,6 +13,7 @@
 #include <cstdlib>
 #include <map>
 #include <numbers>
+#include <optional>
 #include <random>
 
 #include "polmap/tiles/local_frame.hpp"
@@ -31,14 +32,26 @@ class SyntheticDrive {
  public:
   /// Poles in [gap_from_m, gap_to_m) along the route exist in the world but
   /// not in the map (a stretch the map does not cover).
-  SyntheticDrive(std::uint64_t seed, double duration_s, double gap_from_m, double gap_to_m)
+  /// With stop_from_s < stop_to_s the vehicle brakes at 5 m/s² to stand still
+  /// from stop_from_s to stop_to_s, then accelerates at 2.5 m/s² back to 10 m/s.
+  SyntheticDrive(std::uint64_t seed, double duration_s, double gap_from_m, double gap_to_m,
+                 double stop_from_s = -1.0, double stop_to_s = -1.0)
       : frame_(GeoPoint{48.40, 9.98, 500.0}), rng_(seed), mounts_(default_front_mounts()) {
     // Truth at 1 ms steps, kept at 10 ms.
     TruthState s;
     s.v = 10.0;
     double dist = 0.0;
     for (int k = 0; s.t <= duration_s + 0.2; ++k) {
-      s.w = 0.04 * std::sin(2.0 * std::numbers::pi * dist / 250.0);
+      if (stop_from_s < stop_to_s) {
+        const double brake_start_s = stop_from_s - 2.0;
+        if (s.t >= brake_start_s && s.t < stop_to_s) {
+          s.v = std::max(0.0, 10.0 - 5.0 * (s.t - brake_start_s));
+        } else if (s.t >= stop_to_s) {
+          s.v = std::min(10.0, 2.5 * (s.t - stop_to_s));
+        }
+      }
+      // Curvature follows the road (a car turns only while moving).
+      s.w = s.v / 10.0 * 0.04 * std::sin(2.0 * std::numbers::pi * dist / 250.0);
       if (k % 10 == 0) states_.push_back(s);
       const Pose2 next = Pose2{s.x, s.y, s.yaw} * integrate_motion(s.v, s.w, 0.001);
       s.x = next.x_m;
@@ -315,6 +328,50 @@ TEST(Localizer, SurvivesAnEgoMotionOutage) {
                  (drive.frame().to_local(out.pose.position) - Eigen::Vector2d(s.x, s.y)).norm());
   }
   EXPECT_LT(max_err_after, 0.3);
+}
+
+TEST(Localizer, HoldsThePoseThroughAStandstill) {
+  // Stop from 8 s to 20 s: a standing car does not move, so the estimate is
+  // held (no drift, no Degraded for lack of new associations) and tracking
+  // continues when it drives off.
+  SyntheticDrive drive(6, 30.0, 1e9, 1e9, 8.0, 20.0);
+  InMemoryTileSource tiles;
+  drive.fill_tiles(tiles);
+  Localizer loc(fast_config(), drive.mounts(), tiles);
+  loc.set_initial_pose(perturbed_start(drive, 2.0, 2.0, 1.0), 3.0, 3.0 * kDeg);
+  const RunResult r = run(drive, loc, 30.0);
+  ASSERT_GT(r.first_tracking_s, 0.0);
+  ASSERT_LT(r.first_tracking_s, 6.0);
+  EXPECT_FALSE(r.saw_lost);
+  std::optional<Eigen::Vector2d> stop_position;
+  std::optional<double> stop_yaw;
+  double max_move_m = 0.0, max_turn_rad = 0.0;
+  for (const auto& [t, out] : r.outputs) {
+    if (t < r.first_tracking_s) continue;
+    EXPECT_EQ(out.status, LocalizationOutput::Status::Tracking) << "at " << t;
+    const Eigen::Vector2d est = drive.frame().to_local(out.pose.position);
+    const TruthState s = drive.truth(t);
+    if (t > 8.5 && t < 19.5) {
+      if (!stop_position) {
+        stop_position = est;
+        stop_yaw = out.pose.yaw_enu_rad;
+      }
+      max_move_m = std::max(max_move_m, (est - *stop_position).norm());
+      max_turn_rad = std::max(max_turn_rad, std::abs(wrap_angle_rad(out.pose.yaw_enu_rad - *stop_yaw)));
+    }
+    // Up to 27 s: near the end of the synthetic road the sensors look past its
+    // last poles.
+    if (t > 8.0 && t < 27.0) {
+      EXPECT_LT((est - Eigen::Vector2d(s.x, s.y)).norm(), 0.3) << "at " << t;
+      const double yaw = out.pose.yaw_enu_rad + drive.frame().convergence_rad(est);
+      EXPECT_LT(std::abs(wrap_angle_rad(yaw - s.yaw)), 0.6 * kDeg) << "at " << t;
+    }
+  }
+  ASSERT_TRUE(stop_position.has_value());
+  EXPECT_LT(max_move_m, 0.02);
+  EXPECT_LT(max_turn_rad, 0.1 * kDeg);
+  EXPECT_GT(r.outputs.back().first, 27.5);
+  EXPECT_GT(r.outputs.back().second.matched_points, 3);
 }
 
 /// Tiles become available only after a while (a fetcher still downloading).

@@ -15,9 +15,9 @@
 namespace polmap::radar {
 namespace {
 
-constexpr int kT = kTileSizeCells;        // cells per tile side
-constexpr int kB = 8;                     // cells per block side
-constexpr int kBlocksPerSide = kT / kB;   // blocks per tile side
+constexpr int kT = kTileSizeCells;       // cells per tile side
+constexpr int kB = 8;                    // cells per block side
+constexpr int kBlocksPerSide = kT / kB;  // blocks per tile side
 constexpr int kCellsPerBlock = kB * kB;  // coverage blocks (one 64-bit mask)
 /// Covariance sums are allocated per data block of kD × kD cells: small, because
 /// isolated far-range bins (2 m arcs) would otherwise allocate mostly empty blocks.
@@ -34,7 +34,9 @@ std::uint64_t tile_key(int tx, int ty) {
   return (static_cast<std::uint64_t>(static_cast<std::uint32_t>(tx)) << 32) |
          static_cast<std::uint32_t>(ty);
 }
-int key_tx(std::uint64_t k) { return static_cast<std::int32_t>(static_cast<std::uint32_t>(k >> 32)); }
+int key_tx(std::uint64_t k) {
+  return static_cast<std::int32_t>(static_cast<std::uint32_t>(k >> 32));
+}
 int key_ty(std::uint64_t k) { return static_cast<std::int32_t>(static_cast<std::uint32_t>(k)); }
 
 inline double cross(double ax, double ay, double bx, double by) { return ax * by - ay * bx; }
@@ -43,12 +45,12 @@ inline double cross(double ax, double ay, double bx, double by) { return ax * by
 /// (coverage and data) goes through the same arithmetic below, so a cell that
 /// receives data is always counted in N and beams partition the footprint exactly.
 struct Geometry {
-  double px = 0, py = 0;        // sensor position
-  std::vector<double> ex, ey;   // M+1 beam edge directions (unit), ascending azimuth
-  double dr = 0, inv_dr = 0;    // range bin size
-  int num_bins = 0;             // usable range bins
-  double r_max = 0;             // (num_bins − ½)·dr
-  double cs = 0;                // cell size
+  double px = 0, py = 0;       // sensor position
+  std::vector<double> ex, ey;  // M+1 beam edge directions (unit), ascending azimuth
+  double dr = 0, inv_dr = 0;   // range bin size
+  int num_bins = 0;            // usable range bins
+  double r_max = 0;            // (num_bins − ½)·dr
+  double cs = 0;               // cell size
 
   [[nodiscard]] int range_bin(double r2) const {
     return static_cast<int>(std::sqrt(r2) * inv_dr + 0.5);
@@ -216,8 +218,7 @@ namespace {
 template <typename T>
 class ImplT final : public CovarianceGridmap::Impl {
  public:
-  ImplT(const GridmapConfig& cfg)
-      : cfg_(cfg), q_(pol_dimension(cfg.level)), L_(num_layers(q_)) {
+  ImplT(const GridmapConfig& cfg) : cfg_(cfg), q_(pol_dimension(cfg.level)), L_(num_layers(q_)) {
     // Packed layout per cell: diagonal layers are real (one scalar), off-diagonal
     // layers complex (two): q + 2·(L − q) scalars instead of 2L.
     off_.resize(L_);
@@ -332,7 +333,8 @@ class ImplT final : public CovarianceGridmap::Impl {
         const T* cell = blk + c * stride_;
         for (int l = 0; l < L_; ++l) {
           const T re = cell[off_[l]] * inv, im = cplx_[l] ? cell[off_[l] + 1] * inv : T(0);
-          layers[l * plane + local] = std::complex<float>(static_cast<float>(re), static_cast<float>(im));
+          layers[l * plane + local] =
+              std::complex<float>(static_cast<float>(re), static_cast<float>(im));
         }
         hits[local] = static_cast<std::uint32_t>(std::lround(std::max<T>(cell[hit_], T(0))));
       }
@@ -373,8 +375,8 @@ class ImplT final : public CovarianceGridmap::Impl {
         const int local = (row0 + c / kD) * kT + col0 + c % kD;
         const std::uint32_t n = t.count(local);
         if (n == 0) continue;
-        const std::size_t idx =
-            static_cast<std::size_t>(iy - box.min_iy) * w + static_cast<std::size_t>(ix - box.min_ix);
+        const std::size_t idx = static_cast<std::size_t>(iy - box.min_iy) * w +
+                                static_cast<std::size_t>(ix - box.min_ix);
         const T inv = T(1) / static_cast<T>(n);
         const T* cell = blk + c * stride_;
         for (int l = 0; l < L_; ++l) {
@@ -423,7 +425,8 @@ class ImplT final : public CovarianceGridmap::Impl {
     const int local = local_index(ix, iy);
     const T* blk = it->second->blocks[block_of(local)].get();
     if (!blk) return 0;
-    return static_cast<std::uint32_t>(std::lround(std::max<T>(blk[cell_in_block(local) * stride_ + hit_], T(0))));
+    return static_cast<std::uint32_t>(
+        std::lround(std::max<T>(blk[cell_in_block(local) * stride_ + hit_], T(0))));
   }
 
   void cell_sums(int ix, int iy, cdouble* out) const override {
@@ -465,7 +468,8 @@ class ImplT final : public CovarianceGridmap::Impl {
     for (std::size_t k = 1; k < m; ++k) {
       edges[k] = 0.5 * (double(s.azimuth_bins_rad[k - 1]) + double(s.azimuth_bins_rad[k]));
     }
-    edges[m] = s.azimuth_bins_rad[m - 1] + 0.5 * (s.azimuth_bins_rad[m - 1] - s.azimuth_bins_rad[m - 2]);
+    edges[m] =
+        s.azimuth_bins_rad[m - 1] + 0.5 * (s.azimuth_bins_rad[m - 1] - s.azimuth_bins_rad[m - 2]);
     if (!(edges[m] - edges[0] < std::numbers::pi)) {
       throw ValidationError("PolSpectrum: beams span 180° or more (footprint must be convex)");
     }
@@ -504,8 +508,8 @@ class ImplT final : public CovarianceGridmap::Impl {
     for (int ty = iy0 >> 6; ty <= iy1 >> 6; ++ty) {
       for (int tx = ix0 >> 6; tx <= ix1 >> 6; ++tx) {
         const int cx0 = tx * kT, cy0 = ty * kT;
-        const Cover c = classify_rect(g, (cx0 + 0.5) * cs, (cx0 + kT - 0.5) * cs,
-                                      (cy0 + 0.5) * cs, (cy0 + kT - 0.5) * cs);
+        const Cover c = classify_rect(g, (cx0 + 0.5) * cs, (cx0 + kT - 0.5) * cs, (cy0 + 0.5) * cs,
+                                      (cy0 + kT - 0.5) * cs);
         if (c == Cover::Outside) continue;
         if (c == Cover::Inside) {
           Tile<T>& t = tile(tx, ty);
@@ -582,10 +586,11 @@ class ImplT final : public CovarianceGridmap::Impl {
     const int m = static_cast<int>(s.azimuth_bins_rad.size());
     // Cells must be sorted by (azimuth_bin, range_bin); sort an index if they are not.
     std::vector<std::uint32_t> order;
-    const bool sorted = std::is_sorted(cells.begin(), cells.end(), [](const auto& a, const auto& b) {
-      return a.azimuth_bin != b.azimuth_bin ? a.azimuth_bin < b.azimuth_bin
-                                            : a.range_bin < b.range_bin;
-    });
+    const bool sorted =
+        std::is_sorted(cells.begin(), cells.end(), [](const auto& a, const auto& b) {
+          return a.azimuth_bin != b.azimuth_bin ? a.azimuth_bin < b.azimuth_bin
+                                                : a.range_bin < b.range_bin;
+        });
     if (!sorted) {
       order.resize(cells.size());
       for (std::size_t i = 0; i < cells.size(); ++i) order[i] = static_cast<std::uint32_t>(i);
@@ -595,7 +600,9 @@ class ImplT final : public CovarianceGridmap::Impl {
                    : cells[a].range_bin < cells[b].range_bin;
       });
     }
-    auto at = [&](std::size_t i) -> const SpectrumCell& { return sorted ? cells[i] : cells[order[i]]; };
+    auto at = [&](std::size_t i) -> const SpectrumCell& {
+      return sorted ? cells[i] : cells[order[i]];
+    };
 
     std::array<cfloat, 4> kv{};
     std::size_t i = 0;
@@ -802,8 +809,8 @@ void CovarianceRaster::set_covariance(int ix, int iy, const Eigen::MatrixXcd& c,
   int l = 0;
   for (int i = 0; i < q; ++i) {
     for (int j = i; j < q; ++j) {
-      layers[l++ * plane_size() + index] =
-          std::complex<float>(static_cast<float>(c(i, j).real()), static_cast<float>(c(i, j).imag()));
+      layers[l++ * plane_size() + index] = std::complex<float>(static_cast<float>(c(i, j).real()),
+                                                               static_cast<float>(c(i, j).imag()));
     }
   }
 }
@@ -832,7 +839,8 @@ void CovarianceGridmap::add(const PolSpectrum& spectrum, const Pose2& T_frame_se
   if (cfg_.window_s > 0.0) {
     impl_->window.push_back({time_s, T_frame_sensor, spectrum});
     impl_->window_bytes += spectrum.cells.size() * sizeof(SpectrumCell) +
-                           spectrum.azimuth_bins_rad.size() * sizeof(float) + sizeof(Impl::FrameRecord);
+                           spectrum.azimuth_bins_rad.size() * sizeof(float) +
+                           sizeof(Impl::FrameRecord);
   }
 }
 
@@ -865,7 +873,9 @@ void CovarianceGridmap::merge_tile(const CovarianceTileView& tile) {
 double CovarianceGridmap::noise_power() const {
   return impl_->frames > 0 ? impl_->noise_sum / static_cast<double>(impl_->frames) : 0.0;
 }
-std::size_t CovarianceGridmap::num_frames() const { return static_cast<std::size_t>(impl_->frames); }
+std::size_t CovarianceGridmap::num_frames() const {
+  return static_cast<std::size_t>(impl_->frames);
+}
 std::size_t CovarianceGridmap::num_tiles() const { return impl_->num_tiles(); }
 std::size_t CovarianceGridmap::memory_bytes() const {
   return impl_->tile_bytes() + impl_->window_bytes;
@@ -923,9 +933,7 @@ Eigen::MatrixXcd CovarianceGridmap::covariance(int ix, int iy) const {
   return c;
 }
 
-double CovarianceGridmap::power(int ix, int iy) const {
-  return covariance(ix, iy).trace().real();
-}
+double CovarianceGridmap::power(int ix, int iy) const { return covariance(ix, iy).trace().real(); }
 
 void CovarianceGridmap::for_each_tile(
     const std::function<void(const CovarianceTileView&)>& fn) const {

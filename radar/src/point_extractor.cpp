@@ -3,9 +3,9 @@
 #include <Eigen/Cholesky>
 #include <algorithm>
 #include <cmath>
-#include <opencv2/imgproc.hpp>
-#include <numbers>
 #include <map>
+#include <numbers>
+#include <opencv2/imgproc.hpp>
 #include <set>
 #include <unordered_map>
 
@@ -34,10 +34,10 @@ bool clip_to_raster(int w, int h, int& x0, int& y0, int& x1, int& y1) {
 /// double-precision integral image of all planes.
 struct Planes {
   int q = 0;
-  int num = 0;                    // planes per cell
-  std::vector<int> re, im;        // plane index of layer l's real / imaginary part (−1: none)
+  int num = 0;              // planes per cell
+  std::vector<int> re, im;  // plane index of layer l's real / imaginary part (−1: none)
   int w = 0, h = 0;
-  std::vector<double> integral;   // (h+1)·(w+1)·num
+  std::vector<double> integral;  // (h+1)·(w+1)·num
 
   Planes(const CovarianceRaster& r) : q(r.q), w(r.box.width()), h(r.box.height()) {
     const int L = num_layers(q);
@@ -314,10 +314,14 @@ Detection detect(const CovarianceRaster& r, const PointExtractorConfig& cfg, int
 Detection detect_any(const CovarianceRaster& r, const PointExtractorConfig& cfg, int guard,
                      int train, double eps) {
   switch (r.q) {
-    case 1: return detect<1>(r, cfg, guard, train, eps);
-    case 2: return detect<2>(r, cfg, guard, train, eps);
-    case 3: return detect<3>(r, cfg, guard, train, eps);
-    default: throw ContractViolation("pCFAR: unsupported q");
+    case 1:
+      return detect<1>(r, cfg, guard, train, eps);
+    case 2:
+      return detect<2>(r, cfg, guard, train, eps);
+    case 3:
+      return detect<3>(r, cfg, guard, train, eps);
+    default:
+      throw ContractViolation("pCFAR: unsupported q");
   }
 }
 
@@ -436,8 +440,7 @@ std::vector<PointCandidate> extract_points(const CovarianceGridmap& map,
   POLMAP_EXPECT(cfg.chunk_tiles >= 1);
   const double cs = map.cell_size_m();
   const int chunk_cells = cfg.chunk_tiles * kTileSizeCells;
-  const int halo =
-      static_cast<int>(std::ceil((cfg.training_radius_m + cfg.max_extent_m) / cs)) + 2;
+  const int halo = static_cast<int>(std::ceil((cfg.training_radius_m + cfg.max_extent_m) / cs)) + 2;
   // Per chunk, the bounding box of its populated tiles: cells outside are empty
   // (N = 0) and can neither be detections nor contribute to a neighbourhood, so
   // the result equals processing the whole chunk; a sliding-window map fills
@@ -446,7 +449,8 @@ std::vector<PointCandidate> extract_points(const CovarianceGridmap& map,
   for (const auto& t : map.tile_indices()) {
     const CellBox tb{t[0] * kTileSizeCells, t[1] * kTileSizeCells, (t[0] + 1) * kTileSizeCells,
                      (t[1] + 1) * kTileSizeCells};
-    const auto key = std::make_pair(floor_div(t[0], cfg.chunk_tiles), floor_div(t[1], cfg.chunk_tiles));
+    const auto key =
+        std::make_pair(floor_div(t[0], cfg.chunk_tiles), floor_div(t[1], cfg.chunk_tiles));
     const auto [it, inserted] = chunks.try_emplace(key, tb);
     if (!inserted) {
       CellBox& b = it->second;

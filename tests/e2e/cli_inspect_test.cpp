@@ -69,7 +69,8 @@ int count_lines(const std::string& s) {
 class CliInspect : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
-    dir_ = std::filesystem::temp_directory_path() / ("polmap-e2e-inspect-" + std::to_string(::getpid()));
+    dir_ = std::filesystem::temp_directory_path() /
+           ("polmap-e2e-inspect-" + std::to_string(::getpid()));
     std::filesystem::remove_all(dir_);
     std::filesystem::create_directories(dir_);
     // A short simulated drive (2 s: 60 sensor frames, 200 GNSS samples).

@@ -172,12 +172,13 @@ TEST_F(LocalizeThroughServer, HeldOutDriveLocalizesWithinBounds) {
   EXPECT_FALSE(r.diverged);
   EXPECT_EQ(r.lost_events, 0);
   expect_within_bounds(r.errors, "whole drive");
-  std::printf("[e2e] held-out drive: %lld samples, long RMSE %.3f max %.3f m, lat RMSE %.3f max "
-              "%.3f m, rot RMSE %.2f max %.2f deg, converged after %.1f s, %.1fx real time, "
-              "%llu tile bytes\n",
-              static_cast<long long>(r.errors.samples), r.errors.long_rmse_m, r.errors.long_max_m,
-              r.errors.lat_rmse_m, r.errors.lat_max_m, r.errors.rot_rmse_deg, r.errors.rot_max_deg,
-              r.converge_time_s, r.realtime_factor, static_cast<unsigned long long>(st.bytes_downloaded));
+  std::printf(
+      "[e2e] held-out drive: %lld samples, long RMSE %.3f max %.3f m, lat RMSE %.3f max "
+      "%.3f m, rot RMSE %.2f max %.2f deg, converged after %.1f s, %.1fx real time, "
+      "%llu tile bytes\n",
+      static_cast<long long>(r.errors.samples), r.errors.long_rmse_m, r.errors.long_max_m,
+      r.errors.lat_rmse_m, r.errors.lat_max_m, r.errors.rot_rmse_deg, r.errors.rot_max_deg,
+      r.converge_time_s, r.realtime_factor, static_cast<unsigned long long>(st.bytes_downloaded));
 }
 
 TEST_F(LocalizeThroughServer, KeepsLocalizingFromCacheWhenServerStops) {
@@ -231,10 +232,11 @@ TEST_F(LocalizeThroughServer, KeepsLocalizingFromCacheWhenServerStops) {
   }
   const eval::ErrorSummary e2 = eval::summarize_errors({&second});
   expect_within_bounds(e2, "second half, server stopped");
-  std::printf("[e2e] second half without server: %lld samples, lat RMSE %.3f m (max %.3f), "
-              "long RMSE %.3f m, rot RMSE %.2f deg; %llu transport errors\n",
-              static_cast<long long>(e2.samples), e2.lat_rmse_m, e2.lat_max_m, e2.long_rmse_m,
-              e2.rot_rmse_deg, static_cast<unsigned long long>(st.transport_errors));
+  std::printf(
+      "[e2e] second half without server: %lld samples, lat RMSE %.3f m (max %.3f), "
+      "long RMSE %.3f m, rot RMSE %.2f deg; %llu transport errors\n",
+      static_cast<long long>(e2.samples), e2.lat_rmse_m, e2.lat_max_m, e2.long_rmse_m,
+      e2.rot_rmse_deg, static_cast<unsigned long long>(st.transport_errors));
 }
 
 }  // namespace

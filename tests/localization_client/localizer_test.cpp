@@ -357,7 +357,8 @@ TEST(Localizer, HoldsThePoseThroughAStandstill) {
         stop_yaw = out.pose.yaw_enu_rad;
       }
       max_move_m = std::max(max_move_m, (est - *stop_position).norm());
-      max_turn_rad = std::max(max_turn_rad, std::abs(wrap_angle_rad(out.pose.yaw_enu_rad - *stop_yaw)));
+      max_turn_rad =
+          std::max(max_turn_rad, std::abs(wrap_angle_rad(out.pose.yaw_enu_rad - *stop_yaw)));
     }
     // Up to 27 s: near the end of the synthetic road the sensors look past its
     // last poles.

@@ -57,7 +57,8 @@ TEST_P(CovarianceLayers, HermitianPsdAndViewsAgree) {
         const Eigen::MatrixXcd c2 = map.covariance(ix, iy);
         ASSERT_LE((c - c2).norm(), 1e-5 * (1.0 + c2.norm()));
         ASSERT_LE((c2 - c2.adjoint()).norm(), 1e-12);
-        const Eigen::VectorXd ev = Eigen::SelfAdjointEigenSolver<Eigen::MatrixXcd>(c2).eigenvalues();
+        const Eigen::VectorXd ev =
+            Eigen::SelfAdjointEigenSolver<Eigen::MatrixXcd>(c2).eigenvalues();
         ASSERT_GE(ev.minCoeff(), -1e-5 * (1.0 + c2.trace().real()));
         checked += v.count[row * v.size_cells + col] > 0;
       }

@@ -2,13 +2,13 @@
 // speckled clutter is found at the right position (±1 cell) with the right
 // mechanism; holes and extended objects are not points; chunking does not
 // duplicate or lose a point on a chunk boundary.
+#include "polmap/radar/point_extractor.hpp"
+
 #include <gtest/gtest.h>
 
 #include <algorithm>
 #include <cmath>
 #include <random>
-
-#include "polmap/radar/point_extractor.hpp"
 
 namespace polmap::radar {
 namespace {
@@ -42,7 +42,7 @@ Eigen::VectorXcd mechanism(ScatteringClass cls) {
   if (cls == ScatteringClass::Odd) {
     k(1) = cdouble(0.0, std::sqrt(2.0));  // S_LR = S_RL = j -> (LR+RL)/√2
   } else {
-    k(0) = std::polar(1.0, 0.6);   // dihedral at 0.3 rad: LL = e^{j2θ}
+    k(0) = std::polar(1.0, 0.6);    // dihedral at 0.3 rad: LL = e^{j2θ}
     k(2) = -std::polar(1.0, -0.6);  // RR = −e^{−j2θ}
   }
   return k;
@@ -156,13 +156,15 @@ TEST(PointExtractor, SpeckleOnAWallIsNotAPointButAPostOnItIs) {
   const CellBox box{0, 0, 300, 100};
   CovarianceRaster r = clutter_raster(rng, box, 1.0);
   for (int ix = 0; ix < 300; ++ix) {  // across the whole raster: no wall ends
-    for (int iy = 49; iy <= 50; ++iy) r.set_covariance(ix, iy, wishart_sample(rng, 100.0 * clutter_cov(1.0), 4), 50);
+    for (int iy = 49; iy <= 50; ++iy)
+      r.set_covariance(ix, iy, wishart_sample(rng, 100.0 * clutter_cov(1.0), 4), 50);
   }
   const Eigen::Vector2d post(20.05, 5.0);
   add_point(r, post, 3000.0, ScatteringClass::Even);
   PointExtractorConfig cfg;
   const auto pts = extract_points(r, cfg);
-  ASSERT_EQ(pts.size(), 1U) << pts[0].position_m.transpose() << " / " << pts.back().position_m.transpose();
+  ASSERT_EQ(pts.size(), 1U) << pts[0].position_m.transpose() << " / "
+                            << pts.back().position_m.transpose();
   EXPECT_LT((pts[0].position_m - post).norm(), kCell);
   EXPECT_EQ(pts[0].scattering, ScatteringClass::Even);
   // The plain ring detects the wall speckle too; the post drowns in one long wall
@@ -195,7 +197,6 @@ TEST(PointExtractor, GridmapChunkBoundaryYieldsExactlyOnePoint) {
   EXPECT_EQ(pts[0].scattering, ScatteringClass::Odd);
 }
 
-
 TEST(PointExtractor, ChunkedGridmapEqualsOneWholeRaster) {
   // Two patches far apart (different chunks, most of each chunk empty): the
   // chunked extraction, which processes only the populated part of each chunk,
@@ -210,7 +211,8 @@ TEST(PointExtractor, ChunkedGridmapEqualsOneWholeRaster) {
       for (int ix = x0; ix < x0 + 110; ++ix) {
         const Eigen::Vector2d c((ix + 0.5) * kCell, (iy + 0.5) * kCell);
         double a = 0.0;
-        for (const auto& p : posts) a += 6.0 * std::exp(-0.25 * (c - p).squaredNorm() / (kCell * kCell));
+        for (const auto& p : posts)
+          a += 6.0 * std::exp(-0.25 * (c - p).squaredNorm() / (kCell * kCell));
         for (int look = 0; look < 16; ++look) {
           std::vector<cdouble> v(3);
           for (int i = 0; i < 3; ++i) v[i] = cdouble(n(rng), n(rng)) + a * k(i);

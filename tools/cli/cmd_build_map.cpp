@@ -46,7 +46,8 @@ std::vector<double> parse_region(const std::string& s) {
       throw ValidationError("--region '" + s + "': '" + item + "' is not a number");
     }
   }
-  if (v.size() != 4) throw ValidationError("--region '" + s + "': expected minlon,minlat,maxlon,maxlat");
+  if (v.size() != 4)
+    throw ValidationError("--region '" + s + "': expected minlon,minlat,maxlon,maxlat");
   return v;
 }
 

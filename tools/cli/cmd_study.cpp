@@ -82,8 +82,8 @@ void run(const StudyOptions& o) {
 
   Progress progress("study", 1.0);
   const eval::StudyResult r = eval::run_study(cfg, [&](const eval::StudyProgress& p) {
-    std::string note = p.stage + " seed " + std::to_string(p.seed) + " " +
-                       std::string(to_string(p.level));
+    std::string note =
+        p.stage + " seed " + std::to_string(p.seed) + " " + std::string(to_string(p.level));
     if (p.drive >= 0) note += " drive #" + std::to_string(p.drive + 1);
     progress.update(p.fraction, note);
   });

@@ -1,10 +1,10 @@
 // Client side of the mapping service API (see http_client.hpp).
+#include "http_client.hpp"
+
 #include <cctype>
 #include <nlohmann/json.hpp>
 
 #include "polmap/schema/errors.hpp"
-
-#include "http_client.hpp"
 
 namespace polmap::cli {
 

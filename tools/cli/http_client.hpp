@@ -5,10 +5,10 @@
 ///
 /// Include this header last: httplib pulls in <resolv.h>, whose `_res` macro
 /// breaks Eigen templates.
+#include <httplib.h>
+
 #include <memory>
 #include <string>
-
-#include <httplib.h>
 
 namespace polmap::cli {
 

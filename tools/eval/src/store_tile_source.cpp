@@ -10,7 +10,8 @@ StoreTileSource::StoreTileSource(const mapping::MapStore& store, std::int64_t ve
     : store_(store), version_(version) {
   const auto info = store_.get_map_version(version);
   if (!info || info->status != mapping::MapVersionStatus::Published) {
-    throw NotFoundError("map version " + std::to_string(version) + " is not published in the store");
+    throw NotFoundError("map version " + std::to_string(version) +
+                        " is not published in the store");
   }
 }
 
@@ -23,8 +24,8 @@ std::optional<tiles::LocalizationTile> StoreTileSource::tile(const tiles::TileKe
   if (const auto stored = store_.get_tile(version_, mapping::TileLayer::Localization, key)) {
     stats_.bytes_read += stored->payload.size();
     t = tiles::decode_localization_tile(
-        stored->payload, "store tile " + tiles::to_string(key) + " of version " +
-                             std::to_string(version_));
+        stored->payload,
+        "store tile " + tiles::to_string(key) + " of version " + std::to_string(version_));
     stats_.point_landmarks += t.points.size();
     stats_.line_landmarks += t.lines.size();
   } else {

@@ -1,5 +1,7 @@
 #include "polmap/eval/study.hpp"
 
+#include <time.h>
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -11,7 +13,6 @@
 #include <random>
 #include <sstream>
 #include <thread>
-#include <time.h>
 
 #include "polmap/eval/store_tile_source.hpp"
 #include "polmap/eval/svg_plot.hpp"
@@ -29,7 +30,6 @@
 #include "polmap/sim/truth.hpp"
 #include "polmap/sim/world.hpp"
 #include "polmap/tiles/local_frame.hpp"
-
 
 namespace polmap::eval {
 namespace {
@@ -142,9 +142,9 @@ GeoPose perturbed_initial_pose(const TrajectorySample& s, const tiles::LocalFram
 }  // namespace
 
 StudyDriveResult localize_simulated_drive(const std::shared_ptr<const sim::World>& world,
-                                          const sim::SimConfig& sim_cfg, int drive,
-                                          PolLevel level, const StudyConfig& cfg,
-                                          loc::TileSource& tiles, const LocalizeOptions& opt) {
+                                          const sim::SimConfig& sim_cfg, int drive, PolLevel level,
+                                          const StudyConfig& cfg, loc::TileSource& tiles,
+                                          const LocalizeOptions& opt) {
   StudyDriveResult r;
   r.seed = sim_cfg.seed;
   r.level = level;
@@ -294,16 +294,16 @@ StudyDriveResult localize_simulated_drive(const std::shared_ptr<const sim::World
       while (j < m.errors.size() && m.errors[j].time_s < e.time_s) ++j;
       const bool inc = j < m.errors.size() && m.errors[j].time_s == e.time_s;
       char buf[200];
-      std::snprintf(buf, sizeof buf, "%.4f,%s,%.3f,%.4f,%.4f,%.4f,%d\n", e.time_s,
-                    e.status.c_str(), e.speed_mps, e.long_m, e.lat_m, std::abs(e.rot_rad) / kDeg,
-                    inc ? 1 : 0);
+      std::snprintf(buf, sizeof buf, "%.4f,%s,%.3f,%.4f,%.4f,%.4f,%d\n", e.time_s, e.status.c_str(),
+                    e.speed_mps, e.long_m, e.lat_m, std::abs(e.rot_rad) / kDeg, inc ? 1 : 0);
       f << buf;
     }
   }
 
   r.graph_updates = static_cast<std::int64_t>(graph_ms.size());
   r.mean_matched_points =
-      graph_ms.empty() ? 0.0 : static_cast<double>(matched_sum) / static_cast<double>(graph_ms.size());
+      graph_ms.empty() ? 0.0
+                       : static_cast<double>(matched_sum) / static_cast<double>(graph_ms.size());
   r.frame_mean_ms = mean(frame_ms);
   r.frame_p95_ms = percentile(frame_ms, 0.95);
   r.frame_max_ms = frame_ms.empty() ? 0.0 : *std::max_element(frame_ms.begin(), frame_ms.end());
@@ -311,7 +311,8 @@ StudyDriveResult localize_simulated_drive(const std::shared_ptr<const sim::World
   r.matching_mean_ms = mean(match_ms);
   r.graph_update_mean_ms = mean(graph_ms);
   r.graph_update_p95_ms = percentile(graph_ms, 0.95);
-  r.graph_update_max_ms = graph_ms.empty() ? 0.0 : *std::max_element(graph_ms.begin(), graph_ms.end());
+  r.graph_update_max_ms =
+      graph_ms.empty() ? 0.0 : *std::max_element(graph_ms.begin(), graph_ms.end());
   const double span = last_t - first_frame_t;
   r.realtime_factor = r.localizer_cpu_s > 0 ? span / r.localizer_cpu_s : 0.0;
   r.realtime_factor_wall = r.localizer_wall_s > 0 ? span / r.localizer_wall_s : 0.0;
@@ -388,9 +389,9 @@ DriveDiagnosis diagnose_drive(const std::shared_ptr<const sim::World>& world,
   const auto& mounts = simulator.header().sensors;
   std::map<std::uint8_t, SensorMount> mount_by_id;
   for (const auto& m : mounts) mount_by_id[m.sensor_id] = m;
-  const auto last = std::max_element(mounts.begin(), mounts.end(), [](const auto& a, const auto& b) {
-    return a.trigger_offset_s < b.trigger_offset_s;
-  });
+  const auto last = std::max_element(
+      mounts.begin(), mounts.end(),
+      [](const auto& a, const auto& b) { return a.trigger_offset_s < b.trigger_offset_s; });
   const std::uint8_t last_sensor = last->sensor_id;
 
   radar::EgoMotionEstimator ego(mounts, lcfg.egomotion);
@@ -471,7 +472,8 @@ DriveDiagnosis diagnose_drive(const std::shared_ptr<const sim::World>& world,
       for (const auto& l : lines) {
         const Eigen::Vector2d mid = 0.5 * (l.start_m + l.end_m);
         double best = std::numeric_limits<double>::infinity();
-        for (const auto& [a, b] : map_segs) best = std::min(best, point_segment_distance(mid, a, b));
+        for (const auto& [a, b] : map_segs)
+          best = std::min(best, point_segment_distance(mid, a, b));
         ++line_cands;
         if (best <= dcfg.assoc_radius_m) {
           ++line_matched;
@@ -510,7 +512,8 @@ DriveDiagnosis diagnose_drive(const std::shared_ptr<const sim::World>& world,
   if (n_line_cand > 0) {
     d.line_matched_share = static_cast<double>(n_line_match) / static_cast<double>(n_line_cand);
   }
-  if (n_line_match > 0) d.line_offset_rms_m = std::sqrt(line_sq / static_cast<double>(n_line_match));
+  if (n_line_match > 0)
+    d.line_offset_rms_m = std::sqrt(line_sq / static_cast<double>(n_line_match));
 
   // Odometry over windows of window_s (starts every 1 s).
   double pos_sq = 0, lat_sq = 0, yaw_sq = 0;
@@ -648,8 +651,10 @@ ErrorSummary summarize_errors(const std::vector<const StudyDriveResult*>& drives
 StudyResult run_study(const StudyConfig& cfg,
                       const std::function<void(const StudyProgress&)>& progress) {
   if (cfg.drives < 3) {
-    throw ValidationError("study: --drives must be at least 3 (the left-out drive plus N_p = 2 "
-                          "drives for the consensus), got " + std::to_string(cfg.drives));
+    throw ValidationError(
+        "study: --drives must be at least 3 (the left-out drive plus N_p = 2 "
+        "drives for the consensus), got " +
+        std::to_string(cfg.drives));
   }
   if (cfg.seeds.empty()) throw ValidationError("study: no seeds given");
   if (cfg.levels.empty()) throw ValidationError("study: no polarimetric levels given");
@@ -687,7 +692,8 @@ StudyResult run_study(const StudyConfig& cfg,
   for (const std::uint64_t seed : cfg.seeds) {
     sim::SimConfig sim_cfg = cfg.sim;
     sim_cfg.seed = seed;
-    std::shared_ptr<const sim::World> world = sim::load_world(cfg.world, cfg.length_m, seed, sim_cfg);
+    std::shared_ptr<const sim::World> world =
+        sim::load_world(cfg.world, cfg.length_m, seed, sim_cfg);
     for (const PolLevel level : cfg.levels) {
       const auto dir = cfg.out_dir / ("seed_" + std::to_string(seed)) / level_dir_name(level);
       std::filesystem::remove_all(dir, ec);
@@ -699,9 +705,9 @@ StudyResult run_study(const StudyConfig& cfg,
       std::vector<StudyPackage> processed;
       for (int k = 0; k < cfg.drives; ++k) {
         const auto pkg_dir = dir / "packages" / ("drive_" + std::to_string(k));
-        StudyPackage sp = simulate_and_package(world, sim_cfg, k, level, cfg, pkg_dir, [&](double f) {
-          report("simulate+process", seed, level, k, f, 1.0);
-        });
+        StudyPackage sp = simulate_and_package(
+            world, sim_cfg, k, level, cfg, pkg_dir,
+            [&](double f) { report("simulate+process", seed, level, k, f, 1.0); });
         const mapping::DrivePackage pkg = mapping::read_and_validate_package(pkg_dir);
         store.put_drive(pkg, pkg_dir, pkg.content_sha256);
         if (!cfg.keep_packages) std::filesystem::remove_all(pkg_dir, ec);
@@ -766,8 +772,10 @@ StudyResult run_study(const StudyConfig& cfg,
                                        cfg.write_trajectories ? dir / ("diag_" + drive_id + ".csv")
                                                               : std::filesystem::path{});
         }
-        r.tile_bytes = fetcher ? fetcher->stats().bytes_downloaded : store_tiles->stats().bytes_read;
-        r.tile_bytes_per_km = r.distance_m > 0 ? static_cast<double>(r.tile_bytes) / (r.distance_m / 1000.0) : 0.0;
+        r.tile_bytes =
+            fetcher ? fetcher->stats().bytes_downloaded : store_tiles->stats().bytes_read;
+        r.tile_bytes_per_km =
+            r.distance_m > 0 ? static_cast<double>(r.tile_bytes) / (r.distance_m / 1000.0) : 0.0;
         done_units += 1.0;
         result.results.push_back(std::move(r));
       }
@@ -830,14 +838,14 @@ std::string format_accuracy_table(const StudyResult& r, PolLevel level) {
                  const ErrorSummary& e, const std::string& conv, const std::string& div) {
     if (e.samples == 0) {
       std::snprintf(buf, sizeof buf, "%-6s %-6s %5.0f%% %7.1f | %-17s | %-17s | %-17s | %6s %-4s\n",
-                    seed.c_str(), drive.c_str(), 100 * gnss, dur, "no samples", "", "", conv.c_str(),
-                    div.c_str());
+                    seed.c_str(), drive.c_str(), 100 * gnss, dur, "no samples", "", "",
+                    conv.c_str(), div.c_str());
     } else {
-      std::snprintf(buf, sizeof buf,
-                    "%-6s %-6s %5.0f%% %7.1f | %8.3f %8.3f | %8.3f %8.3f | %8.2f %8.2f | %6s %-4s\n",
-                    seed.c_str(), drive.c_str(), 100 * gnss, dur, e.long_rmse_m, e.long_max_m,
-                    e.lat_rmse_m, e.lat_max_m, e.rot_rmse_deg, e.rot_max_deg, conv.c_str(),
-                    div.c_str());
+      std::snprintf(
+          buf, sizeof buf,
+          "%-6s %-6s %5.0f%% %7.1f | %8.3f %8.3f | %8.3f %8.3f | %8.2f %8.2f | %6s %-4s\n",
+          seed.c_str(), drive.c_str(), 100 * gnss, dur, e.long_rmse_m, e.long_max_m, e.lat_rmse_m,
+          e.lat_max_m, e.rot_rmse_deg, e.rot_max_deg, conv.c_str(), div.c_str());
     }
     o << buf;
   };
@@ -850,8 +858,7 @@ std::string format_accuracy_table(const StudyResult& r, PolLevel level) {
   for (const auto& s : r.levels) {
     if (s.level != level) continue;
     row("total", "", s.reliable_gnss_share, s.duration_s, s.errors,
-        std::to_string(s.converged) + "/" + std::to_string(s.drives),
-        std::to_string(s.diverged));
+        std::to_string(s.converged) + "/" + std::to_string(s.drives), std::to_string(s.diverged));
   }
   return o.str();
 }
@@ -865,12 +872,11 @@ std::string format_level_table(const StudyResult& r) {
                 "div");
   o << buf;
   for (const auto& s : r.levels) {
-    std::snprintf(buf, sizeof buf,
-                  "%-6s %7lld | %8.3f %8.3f | %8.3f %8.3f | %8.2f %8.2f | %3d/%-2d %5d\n",
-                  std::string(to_string(s.level)).c_str(), static_cast<long long>(s.errors.samples),
-                  s.errors.long_rmse_m, s.errors.long_max_m, s.errors.lat_rmse_m,
-                  s.errors.lat_max_m, s.errors.rot_rmse_deg, s.errors.rot_max_deg, s.converged,
-                  s.drives, s.diverged);
+    std::snprintf(
+        buf, sizeof buf, "%-6s %7lld | %8.3f %8.3f | %8.3f %8.3f | %8.2f %8.2f | %3d/%-2d %5d\n",
+        std::string(to_string(s.level)).c_str(), static_cast<long long>(s.errors.samples),
+        s.errors.long_rmse_m, s.errors.long_max_m, s.errors.lat_rmse_m, s.errors.lat_max_m,
+        s.errors.rot_rmse_deg, s.errors.rot_max_deg, s.converged, s.drives, s.diverged);
     o << buf;
   }
   return o.str();
@@ -887,14 +893,14 @@ std::string format_speed_table(const StudyResult& r) {
                 "match ms", "graph ms", "graph p95", "matches", "tile B/km", "map pts");
   o << buf;
   for (const auto& d : r.results) {
-    std::snprintf(buf, sizeof buf,
-                  "%-6s %-5llu #%-4d %6.1f (%5.1f) %9.2f %8.2f %8.2f %8.2f %9.2f %9.2f %8.1f %10.0f "
-                  "%8lld\n",
-                  std::string(to_string(d.level)).c_str(), static_cast<unsigned long long>(d.seed),
-                  d.drive + 1, d.realtime_factor, d.realtime_factor_wall, d.frame_mean_ms,
-                  d.frame_p95_ms, d.extraction_mean_ms, d.matching_mean_ms, d.graph_update_mean_ms,
-                  d.graph_update_p95_ms, d.mean_matched_points, d.tile_bytes_per_km,
-                  static_cast<long long>(d.map_point_landmarks));
+    std::snprintf(
+        buf, sizeof buf,
+        "%-6s %-5llu #%-4d %6.1f (%5.1f) %9.2f %8.2f %8.2f %8.2f %9.2f %9.2f %8.1f %10.0f "
+        "%8lld\n",
+        std::string(to_string(d.level)).c_str(), static_cast<unsigned long long>(d.seed),
+        d.drive + 1, d.realtime_factor, d.realtime_factor_wall, d.frame_mean_ms, d.frame_p95_ms,
+        d.extraction_mean_ms, d.matching_mean_ms, d.graph_update_mean_ms, d.graph_update_p95_ms,
+        d.mean_matched_points, d.tile_bytes_per_km, static_cast<long long>(d.map_point_landmarks));
     o << buf;
   }
   return o.str();
@@ -906,12 +912,13 @@ std::string format_diagnosis_table(const StudyResult& r) {
   for (const auto& d : r.results) any = any || d.diagnosis.has_value();
   if (!any) return {};
   o << "Stage diagnosis (odometry over 8 s windows vs truth; truth-posed sliding-window candidates "
-       "vs the left-out map, pairs within 0.3 m; offsets candidate - landmark in the vehicle frame)\n";
+       "vs the left-out map, pairs within 0.3 m; offsets candidate - landmark in the vehicle "
+       "frame)\n";
   char buf[400];
-  std::snprintf(buf, sizeof buf,
-                "%-6s %-4s %-5s | %-24s | %-47s | %-16s | %s\n", "level", "seed", "drive",
-                "odometry 8 s: pos lat yaw", "point candidates: n  match  pairs  <3  off.lo off.la rms",
-                "lines: n match rms", "loc lat RMSE");
+  std::snprintf(buf, sizeof buf, "%-6s %-4s %-5s | %-24s | %-47s | %-16s | %s\n", "level", "seed",
+                "drive", "odometry 8 s: pos lat yaw",
+                "point candidates: n  match  pairs  <3  off.lo off.la rms", "lines: n match rms",
+                "loc lat RMSE");
   o << buf;
   for (const auto& d : r.results) {
     if (!d.diagnosis) continue;
@@ -965,9 +972,9 @@ std::vector<std::filesystem::path> write_ccdf_figures(const StudyResult& r,
 }
 
 nlohmann::json to_json(const ErrorSummary& s) {
-  return {{"samples", s.samples},          {"long_rmse_m", s.long_rmse_m},
-          {"long_max_m", s.long_max_m},    {"lat_rmse_m", s.lat_rmse_m},
-          {"lat_max_m", s.lat_max_m},      {"rot_rmse_deg", s.rot_rmse_deg},
+  return {{"samples", s.samples},        {"long_rmse_m", s.long_rmse_m},
+          {"long_max_m", s.long_max_m},  {"lat_rmse_m", s.lat_rmse_m},
+          {"lat_max_m", s.lat_max_m},    {"rot_rmse_deg", s.rot_rmse_deg},
           {"rot_max_deg", s.rot_max_deg}};
 }
 

@@ -180,12 +180,23 @@ std::string svg_escape(std::string_view text) {
   out.reserve(text.size());
   for (char c : text) {
     switch (c) {
-      case '&': out += "&amp;"; break;
-      case '<': out += "&lt;"; break;
-      case '>': out += "&gt;"; break;
-      case '"': out += "&quot;"; break;
-      case '\'': out += "&apos;"; break;
-      default: out += c;
+      case '&':
+        out += "&amp;";
+        break;
+      case '<':
+        out += "&lt;";
+        break;
+      case '>':
+        out += "&gt;";
+        break;
+      case '"':
+        out += "&quot;";
+        break;
+      case '\'':
+        out += "&apos;";
+        break;
+      default:
+        out += c;
     }
   }
   return out;
@@ -223,8 +234,8 @@ std::string render_svg(const SvgPlot& plot) {
   for (double t : xt) {
     const double px = xs.to_px(t);
     if (plot.grid) {
-      o << "<line x1=\"" << fmt(px) << "\" y1=\"" << fmt(top) << "\" x2=\"" << fmt(px)
-        << "\" y2=\"" << fmt(bottom) << "\" stroke=\"#ddd\"/>\n";
+      o << "<line x1=\"" << fmt(px) << "\" y1=\"" << fmt(top) << "\" x2=\"" << fmt(px) << "\" y2=\""
+        << fmt(bottom) << "\" stroke=\"#ddd\"/>\n";
     }
     o << "<line x1=\"" << fmt(px) << "\" y1=\"" << fmt(bottom) << "\" x2=\"" << fmt(px)
       << "\" y2=\"" << fmt(bottom + 5) << "\"/>\n";
@@ -253,14 +264,14 @@ std::string render_svg(const SvgPlot& plot) {
     << fmt(right - left) << "\" height=\"" << fmt(bottom - top)
     << "\" fill=\"none\" stroke=\"#000\"/>\n";
   if (!plot.x_label.empty()) {
-    o << "<text class=\"x-label\" x=\"" << fmt((left + right) / 2) << "\" y=\""
-      << fmt(H - 12) << "\" text-anchor=\"middle\">" << svg_escape(plot.x_label) << "</text>\n";
+    o << "<text class=\"x-label\" x=\"" << fmt((left + right) / 2) << "\" y=\"" << fmt(H - 12)
+      << "\" text-anchor=\"middle\">" << svg_escape(plot.x_label) << "</text>\n";
   }
   if (!plot.y_label.empty()) {
     const double cx = 16, cy = (top + bottom) / 2;
     o << "<text class=\"y-label\" x=\"" << fmt(cx) << "\" y=\"" << fmt(cy)
-      << "\" text-anchor=\"middle\" transform=\"rotate(-90 " << fmt(cx) << ' ' << fmt(cy)
-      << ")\">" << svg_escape(plot.y_label) << "</text>\n";
+      << "\" text-anchor=\"middle\" transform=\"rotate(-90 " << fmt(cx) << ' ' << fmt(cy) << ")\">"
+      << svg_escape(plot.y_label) << "</text>\n";
   }
 
   // Series (clipped to the plot area).
@@ -293,8 +304,8 @@ std::string render_svg(const SvgPlot& plot) {
     }
     if (d.empty()) continue;
     o << "<path class=\"series\" data-label=\"" << svg_escape(s.label) << "\" d=\"" << d
-      << "\" stroke=\"" << svg_escape(colors[si]) << "\" stroke-width=\""
-      << fmt(s.stroke_width_px) << '"';
+      << "\" stroke=\"" << svg_escape(colors[si]) << "\" stroke-width=\"" << fmt(s.stroke_width_px)
+      << '"';
     if (!s.dash.empty()) o << " stroke-dasharray=\"" << svg_escape(s.dash) << '"';
     o << "/>\n";
   }
@@ -344,7 +355,8 @@ void write_svg(const std::string& svg, const std::filesystem::path& path) {
   }
   std::error_code ec;
   std::filesystem::rename(tmp, path, ec);
-  if (ec) throw IoError("cannot rename " + tmp.string() + " to " + path.string() + ": " + ec.message());
+  if (ec)
+    throw IoError("cannot rename " + tmp.string() + " to " + path.string() + ": " + ec.message());
 }
 
 }  // namespace polmap::eval

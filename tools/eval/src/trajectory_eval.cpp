@@ -81,7 +81,6 @@ double parse_double(std::string_view s, const std::filesystem::path& path, std::
 
 }  // namespace
 
-
 TrajectoryRow to_trajectory_row(const loc::LocalizationOutput& out) {
   POLMAP_EXPECT(out.has_pose);
   TrajectoryRow r;

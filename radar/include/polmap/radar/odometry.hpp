@@ -68,9 +68,9 @@ class Odometry {
   struct Node {
     double time_s;
     Pose2 T_odom_vehicle;
-    double v_mps;         // estimate at time_s
+    double v_mps;  // estimate at time_s
     double yaw_rate_rps;
-    double seg_v_mps;     // mean state of the arc from this node to the next
+    double seg_v_mps;  // mean state of the arc from this node to the next
     double seg_yaw_rate_rps;
   };
   OdometryConfig cfg_;

@@ -26,11 +26,11 @@ namespace polmap::eval {
 
 /// Counters of a StoreTileSource.
 struct StoreTileSourceStats {
-  std::uint64_t requests = 0;       ///< tile() calls
-  std::uint64_t store_reads = 0;    ///< distinct tiles read from the store
-  std::uint64_t empty_tiles = 0;    ///< of those, keys without a stored tile
-  std::uint64_t bytes_read = 0;     ///< encoded payload bytes of the distinct tiles read
-                                    ///< (what a vehicle would download once)
+  std::uint64_t requests = 0;         ///< tile() calls
+  std::uint64_t store_reads = 0;      ///< distinct tiles read from the store
+  std::uint64_t empty_tiles = 0;      ///< of those, keys without a stored tile
+  std::uint64_t bytes_read = 0;       ///< encoded payload bytes of the distinct tiles read
+                                      ///< (what a vehicle would download once)
   std::uint64_t point_landmarks = 0;  ///< in the distinct tiles read
   std::uint64_t line_landmarks = 0;
 };

@@ -154,7 +154,8 @@ struct DriveDiagnosis {
   double matched_share = 0.0;  ///< candidates with a map point within assoc_radius_m
   double pairs_per_extraction = 0.0;
   double sparse_extraction_share = 0.0;  ///< extractions with < 3 pairs
-  double offset_long_mean_m = 0.0, offset_lat_mean_m = 0.0;  ///< candidate − landmark, vehicle frame
+  double offset_long_mean_m = 0.0,
+         offset_lat_mean_m = 0.0;  ///< candidate − landmark, vehicle frame
   double offset_rms_m = 0.0;
   double line_candidates_per_extraction = 0.0;
   double line_matched_share = 0.0;  ///< midpoint within 0.3 m of a map line
@@ -174,24 +175,24 @@ struct StudyDriveResult {
   // --- mapping
   std::int64_t point_candidates = 0;  ///< of this drive (mapping mode)
   std::int64_t line_candidates = 0;
-  std::int64_t map_version = 0;       ///< leave-one-out version
+  std::int64_t map_version = 0;  ///< leave-one-out version
   std::int64_t map_point_landmarks = 0;
   std::int64_t map_line_landmarks = 0;
   double map_build_s = 0.0;
   // --- localization
   ErrorSummary errors;
-  bool converged = false;          ///< reached Tracking at some point
-  double converge_time_s = 0.0;    ///< from the first frame to the first Tracking
-  bool diverged = false;           ///< see StudyConfig::divergence_threshold_m
-  int lost_events = 0;             ///< transitions into Lost after converging
-  double tracking_share = 0.0;     ///< of outputs after converging
+  bool converged = false;        ///< reached Tracking at some point
+  double converge_time_s = 0.0;  ///< from the first frame to the first Tracking
+  bool diverged = false;         ///< see StudyConfig::divergence_threshold_m
+  int lost_events = 0;           ///< transitions into Lost after converging
+  double tracking_share = 0.0;   ///< of outputs after converging
   double degraded_share = 0.0;
   double lost_share = 0.0;
   double mean_matched_points = 0.0;  ///< per graph update
   // --- speed and data
   std::int64_t frames = 0;
-  double localizer_cpu_s = 0.0;   ///< thread CPU time inside Localizer::process
-  double localizer_wall_s = 0.0;  ///< wall time inside Localizer::process (machine load!)
+  double localizer_cpu_s = 0.0;       ///< thread CPU time inside Localizer::process
+  double localizer_wall_s = 0.0;      ///< wall time inside Localizer::process (machine load!)
   double realtime_factor = 0.0;       ///< drive time / localizer CPU time
   double realtime_factor_wall = 0.0;  ///< drive time / localizer wall time
   /// Per process() call, thread CPU time.
@@ -201,9 +202,9 @@ struct StudyDriveResult {
   double extraction_mean_ms = 0.0, matching_mean_ms = 0.0;
   std::int64_t graph_updates = 0;
   double graph_update_mean_ms = 0.0, graph_update_p95_ms = 0.0, graph_update_max_ms = 0.0;
-  std::uint64_t tile_bytes = 0;      ///< encoded tile bytes fetched (distinct tiles)
+  std::uint64_t tile_bytes = 0;  ///< encoded tile bytes fetched (distinct tiles)
   double tile_bytes_per_km = 0.0;
-  double simulate_process_s = 0.0;   ///< wall time of simulation + mapping-mode processing
+  double simulate_process_s = 0.0;  ///< wall time of simulation + mapping-mode processing
   /// Stage diagnosis (StudyConfig::diagnose).
   std::optional<DriveDiagnosis> diagnosis;
   // --- per included sample (for CCDFs)
@@ -231,8 +232,8 @@ struct StudyResult {
   int drives = 0;
   std::vector<std::uint64_t> seeds;
   bool http = false;
-  std::vector<StudyDriveResult> results;   ///< seed-major, then level, then drive
-  std::vector<StudyLevelSummary> levels;   ///< in the order of StudyConfig::levels
+  std::vector<StudyDriveResult> results;  ///< seed-major, then level, then drive
+  std::vector<StudyLevelSummary> levels;  ///< in the order of StudyConfig::levels
   std::vector<std::filesystem::path> figures;
   double wall_s = 0.0;
 };
@@ -285,9 +286,9 @@ struct LocalizeOptions {
 /// first GNSS sample; evaluates against the exact trajectory (file comment).
 /// Fills everything of StudyDriveResult except the mapping and tile figures.
 StudyDriveResult localize_simulated_drive(const std::shared_ptr<const sim::World>& world,
-                                          const sim::SimConfig& sim_cfg, int drive,
-                                          PolLevel level, const StudyConfig& cfg,
-                                          loc::TileSource& tiles, const LocalizeOptions& opt = {});
+                                          const sim::SimConfig& sim_cfg, int drive, PolLevel level,
+                                          const StudyConfig& cfg, loc::TileSource& tiles,
+                                          const LocalizeOptions& opt = {});
 
 /// Runs the diagnosis of drive `drive` against map version `version` of `store`
 /// (landmarks read from the store). csv_path: per-extraction rows (may be empty).

@@ -956,13 +956,27 @@ std::vector<std::filesystem::path> write_ccdf_figures(const StudyResult& r,
     p.y_label = "P(error > x)";
     p.log_y = true;
     for (const auto& s : r.levels) {
+      // Diverged drives are left out (and counted in the label): the tables
+      // report them, and their metre-scale errors would set the x range and
+      // flatten every other curve against the axis.
       std::vector<double> v;
+      int diverged = 0, drives = 0;
       for (const auto& d : r.results) {
         if (d.level != s.level) continue;
+        ++drives;
+        if (d.diverged) {
+          ++diverged;
+          continue;
+        }
         const auto& src = f.which == 0 ? d.abs_lat_m : f.which == 1 ? d.abs_long_m : d.rot_deg;
         v.insert(v.end(), src.begin(), src.end());
       }
-      p.series.push_back(ccdf_series(std::string(to_string(s.level)), v));
+      std::string label(to_string(s.level));
+      if (diverged > 0) {
+        label += " (" + std::to_string(diverged) + " of " + std::to_string(drives) +
+                 " drives diverged, not shown)";
+      }
+      p.series.push_back(ccdf_series(label, v));
     }
     const auto path = dir / f.file;
     write_svg(render_svg(p), path);

@@ -318,7 +318,8 @@ std::string format_speed_table(const StudyResult& r);
 std::string format_diagnosis_table(const StudyResult& r);
 
 /// Writes OUT/ccdf_lat.svg, ccdf_long.svg, ccdf_rot.svg (one series per level,
-/// log-scale y) and returns their paths.
+/// log-scale y; diverged drives left out and counted in the series label) and
+/// returns their paths.
 std::vector<std::filesystem::path> write_ccdf_figures(const StudyResult& r,
                                                       const std::filesystem::path& dir);
 

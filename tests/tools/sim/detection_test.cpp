@@ -13,12 +13,7 @@ namespace polmap::sim {
 namespace {
 
 using test::kDeg;
-
-double wrap5(double v) {
-  double w = std::fmod(v + 5.0, 10.0);
-  if (w < 0) w += 10.0;
-  return w - 5.0;
-}
+using test::wrap5;
 
 /// A wall (facade parameters of the world builder) across the road at x = x_m, y in [-h, h].
 std::shared_ptr<World> wall_world(double x_m, double half_m) {
@@ -41,10 +36,10 @@ std::shared_ptr<World> wall_world(double x_m, double half_m) {
 }
 
 struct WallStats {
-  double mean_on_wall = 0;   ///< detections within 0.3 m of the wall per frame
+  double mean_on_wall = 0;  ///< detections within 0.3 m of the wall per frame
   double min_y = 1e9, max_y = -1e9;
-  double max_dv = 0;         ///< largest |v_r - static prediction| of on-wall detections
-  int beams = 0;             ///< distinct 1.5-degree azimuth bins holding on-wall detections
+  double max_dv = 0;  ///< largest |v_r - static prediction| of on-wall detections
+  int beams = 0;      ///< distinct 1.5-degree azimuth bins holding on-wall detections
 };
 
 WallStats wall_stats(const SimConfig& cfg, int frames) {
@@ -60,14 +55,16 @@ WallStats wall_stats(const SimConfig& cfg, int frames) {
     const SensorFrame f = rend.render(m, s, nullptr, k, false, 1000 + k);
     const Pose2 T_ws = Pose2{s.x_m, s.y_m, s.yaw_rad} * m.T_vehicle_sensor;
     for (const Detection& d : f.detections) {
-      const Eigen::Vector2d p_s(d.range_m * std::cos(d.azimuth_rad), d.range_m * std::sin(d.azimuth_rad));
+      const Eigen::Vector2d p_s(d.range_m * std::cos(d.azimuth_rad),
+                                d.range_m * std::sin(d.azimuth_rad));
       const Eigen::Vector2d p = T_ws * p_s;
       if (std::abs(p.x() - wall_x) > 0.3 || std::abs(p.y()) > 10.3) continue;
       ++on;
       st.min_y = std::min(st.min_y, p.y());
       st.max_y = std::max(st.max_y, p.y());
       // Static target seen from a sensor moving at 10 m/s along its boresight: v_r = -10 cos(az).
-      st.max_dv = std::max(st.max_dv, std::abs(wrap5(d.radial_velocity_mps + 10.0 * std::cos(d.azimuth_rad))));
+      st.max_dv = std::max(st.max_dv,
+                           std::abs(wrap5(d.radial_velocity_mps + 10.0 * std::cos(d.azimuth_rad))));
       beams.insert(static_cast<int>(std::lround(d.azimuth_rad / (1.5 * kDeg))));
     }
   }
@@ -79,9 +76,10 @@ WallStats wall_stats(const SimConfig& cfg, int frames) {
 TEST(Detection, WallAt20mGivesManyDetectionsAlongItsExtentWithStaticDoppler) {
   SimConfig cfg = test::quiet_config();
   const WallStats st = wall_stats(cfg, 6);
-  std::printf("wall at 20 m (+-10 m): %.1f detections/frame on the wall, y %.1f..%.1f m, %d beams, "
-              "max |dv| %.3f m/s\n",
-              st.mean_on_wall, st.min_y, st.max_y, st.beams, st.max_dv);
+  std::printf(
+      "wall at 20 m (+-10 m): %.1f detections/frame on the wall, y %.1f..%.1f m, %d beams, "
+      "max |dv| %.3f m/s\n",
+      st.mean_on_wall, st.min_y, st.max_y, st.beams, st.max_dv);
   // The wall spans +-26.6 deg = 36 beams; peaks in about every other beam near the normal and
   // every beam (several range bins apart) off it.
   EXPECT_GE(st.mean_on_wall, 18.0);
@@ -104,8 +102,8 @@ TEST(Detection, ThresholdAndSuppressionKnobsControlDensity) {
   wide.radar.detection_suppress_beams = 2;
   const double nl = wall_stats(low, 4).mean_on_wall, nh = wall_stats(high, 4).mean_on_wall,
                nw = wall_stats(wide, 4).mean_on_wall;
-  std::printf("wall detections/frame: 8 dB %.1f, 12 dB %.1f, 18 dB %.1f, wide suppression %.1f\n", nl,
-              base, nh, nw);
+  std::printf("wall detections/frame: 8 dB %.1f, 12 dB %.1f, 18 dB %.1f, wide suppression %.1f\n",
+              nl, base, nh, nw);
   EXPECT_GT(nl, base);
   EXPECT_LT(nh, base);
   EXPECT_LT(nw, base);
@@ -123,13 +121,15 @@ TEST(Detection, GroundClutterGivesStaticDetectionsAtShortRangeAtAllAzimuths) {
   double max_dv = 0;
   const int frames = 5;
   for (int k = 0; k < frames; ++k) {
-    const SensorFrame f = rend.render(m, test::state_at(0.5 * k, 0, 0, v), nullptr, k, false, 77 + k);
+    const SensorFrame f =
+        rend.render(m, test::state_at(0.5 * k, 0, 0, v), nullptr, k, false, 77 + k);
     for (const Detection& d : f.detections) {
       ++n;
       if (d.range_m < 12.0) ++near;
       if (d.azimuth_rad > 30 * kDeg) ++left;
       if (d.azimuth_rad < -30 * kDeg) ++right;
-      max_dv = std::max(max_dv, std::abs(wrap5(d.radial_velocity_mps + v * std::cos(d.azimuth_rad))));
+      max_dv =
+          std::max(max_dv, std::abs(wrap5(d.radial_velocity_mps + v * std::cos(d.azimuth_rad))));
     }
   }
   std::printf("empty world, ground only: %.1f detections/frame, %.0f %% below 12 m\n",
@@ -171,9 +171,10 @@ double mean_detections_per_frame(const char* world_name, double speed_hint_s, in
       min_moving = std::min(min_moving, f.detections.size());
     }
   }
-  std::printf("%s 400 m seed %d, first %.0f s: %.0f detections/frame (%.0f while > 5 m/s, min %zu)\n",
-              world_name, seed, speed_hint_s, double(dets) / frames,
-              double(moving_dets) / std::max<std::size_t>(moving_frames, 1), min_moving);
+  std::printf(
+      "%s 400 m seed %d, first %.0f s: %.0f detections/frame (%.0f while > 5 m/s, min %zu)\n",
+      world_name, seed, speed_hint_s, double(dets) / frames,
+      double(moving_dets) / std::max<std::size_t>(moving_frames, 1), min_moving);
   EXPECT_GT(moving_frames, 0U);
   return double(moving_dets) / std::max<std::size_t>(moving_frames, 1);
 }

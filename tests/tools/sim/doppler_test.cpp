@@ -11,12 +11,7 @@ namespace polmap::sim {
 namespace {
 
 using test::kDeg;
-
-double wrap5(double v) {
-  double w = std::fmod(v + 5.0, 10.0);
-  if (w < 0) w += 10.0;
-  return w - 5.0;
-}
+using test::wrap5;
 
 /// Independent kinematic prediction (SIMULATION.md): v_s = (v - w y_m, w x_m) in the
 /// vehicle frame, v_r = -v_s . u, u the vehicle-frame unit vector towards the target.
@@ -31,7 +26,8 @@ double predicted_vr(const ExactState& st, const SensorMount& m, const Eigen::Vec
 
 TEST(Doppler, StaticScattererMatchesKinematicsAliasedAt14mps) {
   auto w = test::empty_world(400);
-  const std::vector<Eigen::Vector2d> targets = {{40.0, 12.0}, {25.0, -8.0}, {30.0, 2.0}, {18.0, 14.0}};
+  const std::vector<Eigen::Vector2d> targets = {
+      {40.0, 12.0}, {25.0, -8.0}, {30.0, 2.0}, {18.0, 14.0}};
   for (const auto& t : targets) test::add_point(*w, t, odd_bounce(), 10.0);
   w->build_index();
   SimConfig cfg = test::quiet_config();
@@ -110,7 +106,7 @@ TEST(Doppler, MovingObjectsAreDetectedButAbsentFromStaticSpectrum) {
   car.direction = -1;
   car.lateral_m = 3.5;
   for (const Eigen::Vector2d& l : {Eigen::Vector2d(2.2, 0.9), Eigen::Vector2d(2.2, -0.9),
-                                  Eigen::Vector2d(-2.2, 0.9), Eigen::Vector2d(-2.2, -0.9)}) {
+                                   Eigen::Vector2d(-2.2, 0.9), Eigen::Vector2d(-2.2, -0.9)}) {
     PointScatterer c;
     c.pos_m = l;
     c.omega = odd_bounce();

@@ -1,5 +1,6 @@
 #pragma once
 // Helpers shared by the simulator tests: tiny hand-made worlds.
+#include <cmath>
 #include <memory>
 #include <numbers>
 
@@ -10,6 +11,13 @@
 namespace polmap::sim::test {
 
 inline constexpr double kDeg = std::numbers::pi / 180.0;
+
+/// Wraps a radial velocity into the unambiguous interval [-5, 5) m/s.
+inline double wrap5(double v) {
+  double w = std::fmod(v + 5.0, 10.0);
+  if (w < 0) w += 10.0;
+  return w - 5.0;
+}
 
 /// An empty world with a straight route along +x from (0, 0).
 inline std::shared_ptr<World> empty_world(double length_m = 200.0) {

@@ -27,23 +27,26 @@ class PointIndex {
   /// Whether some point within r satisfies pred(point, id).
   template <typename Pred>
   [[nodiscard]] bool any(const Eigen::Vector2d& q, double r, Pred&& pred) const {
-    const int n = static_cast<int>(std::ceil(r / cell_));
-    const int cx = ix(q.x()), cy = ix(q.y());
-    for (int dy = -n; dy <= n; ++dy) {
-      for (int dx = -n; dx <= n; ++dx) {
-        auto it = cells_.find(grid_key(cx + dx, cy + dy));
-        if (it == cells_.end()) continue;
-        for (const auto& [p, i] : it->second) {
-          if ((p - q).norm() <= r && pred(p, i)) return true;
-        }
-      }
-    }
-    return false;
+    return visit(q, r, [&](const Eigen::Vector2d& p, std::size_t i, double) { return pred(p, i); });
   }
   /// Nearest point within r: (distance, id), distance = inf if none.
   [[nodiscard]] std::pair<double, std::size_t> nearest(const Eigen::Vector2d& q, double r) const {
     double best = std::numeric_limits<double>::infinity();
     std::size_t id = 0;
+    visit(q, r, [&](const Eigen::Vector2d&, std::size_t i, double d) {
+      if (d < best) {
+        best = d;
+        id = i;
+      }
+      return false;
+    });
+    return {best, id};
+  }
+
+ private:
+  /// Calls fn(point, id, distance) for the points within r of q until it returns true.
+  template <typename Fn>
+  bool visit(const Eigen::Vector2d& q, double r, Fn&& fn) const {
     const int n = static_cast<int>(std::ceil(r / cell_));
     const int cx = ix(q.x()), cy = ix(q.y());
     for (int dy = -n; dy <= n; ++dy) {
@@ -52,23 +55,19 @@ class PointIndex {
         if (it == cells_.end()) continue;
         for (const auto& [p, i] : it->second) {
           const double d = (p - q).norm();
-          if (d <= r && d < best) {
-            best = d;
-            id = i;
-          }
+          if (d <= r && fn(p, i, d)) return true;
         }
       }
     }
-    return {best, id};
+    return false;
   }
-
- private:
   [[nodiscard]] int ix(double v) const { return static_cast<int>(std::floor(v / cell_)); }
   double cell_;
   std::unordered_map<std::int64_t, std::vector<std::pair<Eigen::Vector2d, std::size_t>>> cells_;
 };
 
-double dist_to_segment(const Eigen::Vector2d& p, const Eigen::Vector2d& a, const Eigen::Vector2d& b) {
+double dist_to_segment(const Eigen::Vector2d& p, const Eigen::Vector2d& a,
+                       const Eigen::Vector2d& b) {
   const Eigen::Vector2d d = b - a;
   const double l2 = d.squaredNorm();
   const double t = l2 > 0.0 ? std::clamp(d.dot(p - a) / l2, 0.0, 1.0) : 0.0;
@@ -156,8 +155,8 @@ WorldTruth parse_world_truth(const std::string& text, const tiles::LocalFrame& f
       throw FormatError(source + ": field 'format' is not polmap-sim-world-truth");
     }
     WorldTruth w;
-    w.origin = {j.at("origin").at("lat_deg").get<double>(), j.at("origin").at("lon_deg").get<double>(),
-                j.at("origin").value("alt_m", 0.0)};
+    w.origin = {j.at("origin").at("lat_deg").get<double>(),
+                j.at("origin").at("lon_deg").get<double>(), j.at("origin").value("alt_m", 0.0)};
     const tiles::LocalFrame world_frame(w.origin);
     auto to_frame = [&](const nlohmann::json& p) {
       return frame.to_local(p.at("lat_deg").get<double>(), p.at("lon_deg").get<double>());
@@ -175,7 +174,8 @@ WorldTruth parse_world_truth(const std::string& text, const tiles::LocalFrame& f
       t.cls = o.at("class").get<std::string>();
       t.mechanism = o.value("mechanism", "");
       t.permanent = o.value("permanent", true);
-      if (o.contains("drives_present")) t.drives_present = o.at("drives_present").get<std::vector<int>>();
+      if (o.contains("drives_present"))
+        t.drives_present = o.at("drives_present").get<std::vector<int>>();
       if (o.contains("position")) {
         t.geometry_m.push_back(to_frame(o.at("position")));
       } else {
@@ -322,7 +322,8 @@ DetectEval evaluate_detections(const std::vector<PointCandidate>& points,
       }
     });
   }
-  le.precision = le.candidate_length_m > 0 ? le.candidate_length_on_truth_m / le.candidate_length_m : 0.0;
+  le.precision =
+      le.candidate_length_m > 0 ? le.candidate_length_on_truth_m / le.candidate_length_m : 0.0;
   le.coverage = le.truth_length_m > 0 ? le.truth_covered_m / le.truth_length_m : 0.0;
   return ev;
 }
@@ -330,7 +331,8 @@ DetectEval evaluate_detections(const std::vector<PointCandidate>& points,
 double point_repeatability(const std::vector<PointCandidate>& a,
                            const std::vector<Eigen::Vector2d>& traj_a,
                            const std::vector<PointCandidate>& b,
-                           const std::vector<Eigen::Vector2d>& traj_b, const DetectEvalConfig& cfg) {
+                           const std::vector<Eigen::Vector2d>& traj_b,
+                           const DetectEvalConfig& cfg) {
   const PointIndex pa = path_index(traj_a, cfg.max_distance_from_path_m);
   const PointIndex pb = path_index(traj_b, cfg.max_distance_from_path_m);
   auto common = [&](const Eigen::Vector2d& p) {

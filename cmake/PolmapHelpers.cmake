@@ -31,6 +31,8 @@ function(polmap_add_test name)
   cmake_parse_arguments(ARG "" "TIMEOUT" "SOURCES;DEPS;LABELS" ${ARGN})
   add_executable(${name} ${ARG_SOURCES})
   target_link_libraries(${name} PRIVATE ${ARG_DEPS} GTest::gtest_main)
+  # Shared fixtures are included as "<module>/<fixture>.hpp" from the tests/ root.
+  target_include_directories(${name} PRIVATE ${CMAKE_SOURCE_DIR}/tests)
   target_compile_definitions(${name} PRIVATE
     POLMAP_SOURCE_DIR="${CMAKE_SOURCE_DIR}"
     POLMAP_DATA_DIR="${CMAKE_SOURCE_DIR}/data"

@@ -15,7 +15,7 @@
 #include <thread>
 #include <vector>
 
-#include "package_fixture.hpp"
+#include "mapping_service/package_fixture.hpp"
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/mapping_service/server.hpp"
 #include "polmap/mapping_service/sqlite_store.hpp"

@@ -1,3 +1,4 @@
+#include "polmap/util/text.hpp"
 #include "polmap/eval/detections_csv.hpp"
 
 #include <nlohmann/json.hpp>
@@ -15,26 +16,10 @@ namespace polmap::eval {
 
 namespace {
 
-std::string_view trim(std::string_view s) {
-  while (!s.empty() && (s.front() == ' ' || s.front() == '\t')) s.remove_prefix(1);
-  while (!s.empty() && (s.back() == ' ' || s.back() == '\t' || s.back() == '\r')) s.remove_suffix(1);
-  return s;
-}
-
-std::vector<std::string_view> split_commas(std::string_view line) {
-  std::vector<std::string_view> out;
-  std::size_t start = 0;
-  for (;;) {
-    const std::size_t pos = line.find(',', start);
-    out.push_back(trim(line.substr(start, pos == std::string_view::npos ? pos : pos - start)));
-    if (pos == std::string_view::npos) break;
-    start = pos + 1;
-  }
-  return out;
-}
+std::vector<std::string_view> split_commas(std::string_view line) { return util::split_trimmed(line, ','); }
 
 bool blank_or_comment(std::string_view line) {
-  const std::string_view t = trim(line);
+  const std::string_view t = util::trim(line);
   return t.empty() || t.front() == '#';
 }
 

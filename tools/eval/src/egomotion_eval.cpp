@@ -1,3 +1,4 @@
+#include "polmap/util/text.hpp"
 #include "polmap/eval/egomotion_eval.hpp"
 
 #include <algorithm>
@@ -16,23 +17,7 @@ namespace {
 
 constexpr double kRadToDeg = 180.0 / std::numbers::pi;
 
-std::string_view trim(std::string_view s) {
-  while (!s.empty() && (s.front() == ' ' || s.front() == '\t')) s.remove_prefix(1);
-  while (!s.empty() && (s.back() == ' ' || s.back() == '\t' || s.back() == '\r')) s.remove_suffix(1);
-  return s;
-}
-
-std::vector<std::string_view> split_commas(std::string_view line) {
-  std::vector<std::string_view> out;
-  std::size_t start = 0;
-  for (;;) {
-    const std::size_t pos = line.find(',', start);
-    out.push_back(trim(line.substr(start, pos == std::string_view::npos ? pos : pos - start)));
-    if (pos == std::string_view::npos) break;
-    start = pos + 1;
-  }
-  return out;
-}
+std::vector<std::string_view> split_commas(std::string_view line) { return util::split_trimmed(line, ','); }
 
 double percentile(std::vector<double> v, double q) {
   if (v.empty()) return 0.0;
@@ -112,7 +97,7 @@ MotionTruth read_truth_csv(const std::filesystem::path& path, std::optional<GeoP
   std::map<std::string, int, std::less<>> col;
   while (std::getline(in, line)) {
     ++line_no;
-    if (trim(line).empty() || trim(line).front() == '#') continue;
+    if (util::trim(line).empty() || util::trim(line).front() == '#') continue;
     const auto f = split_commas(line);
     for (std::size_t i = 0; i < f.size(); ++i) col[std::string(f[i])] = static_cast<int>(i);
     break;
@@ -135,7 +120,7 @@ MotionTruth read_truth_csv(const std::filesystem::path& path, std::optional<GeoP
   std::vector<Raw> raw;
   while (std::getline(in, line)) {
     ++line_no;
-    if (trim(line).empty() || trim(line).front() == '#') continue;
+    if (util::trim(line).empty() || util::trim(line).front() == '#') continue;
     const auto f = split_commas(line);
     if (f.size() < min_fields) {
       throw FormatError(src + ": line " + std::to_string(line_no) + ", column " +

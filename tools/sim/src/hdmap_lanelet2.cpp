@@ -1,8 +1,6 @@
 // Lanelet2 OSM worlds: geometry from the map (nodes' lat/lon), a route along
 // the longest chain of connected road lanelets, and what the map implies
 // (posts along guard rails and fences, lamps along borders).
-#include <pugixml.hpp>
-
 #include <algorithm>
 #include <cmath>
 #include <functional>
@@ -10,6 +8,7 @@
 #include <numbers>
 #include <unordered_map>
 
+#include "polmap/hdmap/lanelet2_osm.hpp"
 #include "polmap/schema/errors.hpp"
 #include "polmap/sim/world.hpp"
 #include "world_builder.hpp"
@@ -59,62 +58,39 @@ double heading(const Eigen::Vector2d& a, const Eigen::Vector2d& b) {
 std::shared_ptr<World> load_lanelet2_world(const std::filesystem::path& path, const SimConfig& cfg,
                                            std::uint64_t seed, double max_length_m) {
   const std::string name = path.string();
-  std::error_code ec;
-  if (!std::filesystem::is_regular_file(path, ec)) throw IoError("cannot read map file " + name);
-  pugi::xml_document doc;
-  const pugi::xml_parse_result res = doc.load_file(path.c_str());
-  if (!res) {
-    throw FormatError(name, static_cast<std::uint64_t>(res.offset),
-                      std::string("not valid XML: ") + res.description());
-  }
-  const pugi::xml_node osm = doc.child("osm");
-  if (!osm) throw FormatError(name, 0, "no <osm> root element (not a Lanelet2 OSM file)");
+  const hdmap::Lanelet2Osm osm = hdmap::read_lanelet2_osm_file(path);
 
   // Nodes (lat/lon are authoritative; local_x/local_y ignored).
-  std::unordered_map<std::int64_t, GeoPoint> geo;
   double lat_min = 90, lat_max = -90, lon_min = 180, lon_max = -180;
-  for (pugi::xml_node n : osm.children("node")) {
-    const std::int64_t id = n.attribute("id").as_llong();
-    const pugi::xml_attribute la = n.attribute("lat"), lo = n.attribute("lon");
-    if (!la || !lo) throw FormatError(name, 0, "node " + std::to_string(id) + " without lat/lon");
-    GeoPoint g{la.as_double(), lo.as_double(), 0.0};
-    for (pugi::xml_node t : n.children("tag")) {
-      if (std::string_view(t.attribute("k").as_string()) == "ele") g.alt_m = t.attribute("v").as_double();
-    }
-    geo[id] = g;
-    lat_min = std::min(lat_min, g.lat_deg);
-    lat_max = std::max(lat_max, g.lat_deg);
-    lon_min = std::min(lon_min, g.lon_deg);
-    lon_max = std::max(lon_max, g.lon_deg);
+  for (const auto& n : osm.nodes) {
+    lat_min = std::min(lat_min, n.position.lat_deg);
+    lat_max = std::max(lat_max, n.position.lat_deg);
+    lon_min = std::min(lon_min, n.position.lon_deg);
+    lon_max = std::max(lon_max, n.position.lon_deg);
   }
-  if (geo.empty()) throw FormatError(name, 0, "no nodes");
+  if (osm.nodes.empty()) throw FormatError(name, 0, "no nodes");
   const GeoPoint origin{0.5 * (lat_min + lat_max), 0.5 * (lon_min + lon_max), 0.0};
   auto world = std::make_shared<World>(path.filename().string(), origin);
   World& w = *world;
   std::unordered_map<std::int64_t, Eigen::Vector2d> xy;
-  xy.reserve(geo.size());
-  for (const auto& [id, g] : geo) xy[id] = w.frame.to_local(g);
+  xy.reserve(osm.node_index.size());
+  for (const auto& [id, index] : osm.node_index) {
+    GeoPoint g = osm.nodes[index].position;
+    g.alt_m = osm.nodes[index].ele_m;
+    xy[id] = w.frame.to_local(g);
+  }
 
   std::unordered_map<std::int64_t, OsmWay> ways;
   std::vector<std::int64_t> way_order;
-  for (pugi::xml_node wn : osm.children("way")) {
-    OsmWay way;
-    const std::int64_t id = wn.attribute("id").as_llong();
-    for (pugi::xml_node nd : wn.children("nd")) {
-      const std::int64_t ref = nd.attribute("ref").as_llong();
+  for (const auto& ow : osm.ways) {
+    for (const std::int64_t ref : ow.node_refs) {
       if (!xy.count(ref)) {
-        throw FormatError(name, 0, "way " + std::to_string(id) + " references missing node " +
+        throw FormatError(name, 0, "way " + std::to_string(ow.id) + " references missing node " +
                                        std::to_string(ref));
       }
-      way.nodes.push_back(ref);
     }
-    for (pugi::xml_node t : wn.children("tag")) {
-      const std::string_view k = t.attribute("k").as_string();
-      if (k == "type") way.type = t.attribute("v").as_string();
-      if (k == "subtype") way.subtype = t.attribute("v").as_string();
-    }
-    ways[id] = std::move(way);
-    way_order.push_back(id);
+    ways[ow.id] = OsmWay{ow.node_refs, ow.type, ow.subtype};
+    way_order.push_back(ow.id);
   }
   auto way_xy = [&](const OsmWay& way) {
     std::vector<Eigen::Vector2d> p;
@@ -124,22 +100,16 @@ std::shared_ptr<World> load_lanelet2_world(const std::filesystem::path& path, co
 
   // Road lanelets with their centrelines.
   std::vector<Lanelet> lanelets;
-  for (pugi::xml_node r : osm.children("relation")) {
-    std::string type, subtype;
-    for (pugi::xml_node t : r.children("tag")) {
-      const std::string_view k = t.attribute("k").as_string();
-      if (k == "type") type = t.attribute("v").as_string();
-      if (k == "subtype") subtype = t.attribute("v").as_string();
-    }
-    if (type != "lanelet") continue;
-    if (!(subtype.empty() || subtype == "road" || subtype == "highway" || subtype == "play_street")) {
+  for (const auto& r : osm.relations) {
+    if (r.type != "lanelet") continue;
+    if (!(r.subtype.empty() || r.subtype == "road" || r.subtype == "highway" ||
+          r.subtype == "play_street")) {
       continue;
     }
     std::int64_t left = 0, right = 0;
-    for (pugi::xml_node m : r.children("member")) {
-      const std::string_view role = m.attribute("role").as_string();
-      if (role == "left") left = m.attribute("ref").as_llong();
-      if (role == "right") right = m.attribute("ref").as_llong();
+    for (const auto& m : r.members) {
+      if (m.role == "left") left = m.ref;
+      if (m.role == "right") right = m.ref;
     }
     if (!ways.count(left) || !ways.count(right)) continue;
     std::vector<Eigen::Vector2d> l = way_xy(ways[left]), rt = way_xy(ways[right]);
@@ -151,7 +121,7 @@ std::shared_ptr<World> load_lanelet2_world(const std::filesystem::path& path, co
     const int n = std::max(2, static_cast<int>(std::ceil(std::max(poly_length(l), poly_length(rt)))) + 1);
     const auto lr = resample(l, n), rr = resample(rt, n);
     Lanelet ll;
-    ll.id = r.attribute("id").as_llong();
+    ll.id = r.id;
     for (int k = 0; k < n; ++k) ll.centre.push_back(0.5 * (lr[k] + rr[k]));
     // Driving direction: the right bound lies to the right of the centreline.
     const Eigen::Vector2d d = ll.centre.back() - ll.centre.front();

@@ -1,0 +1,44 @@
+#pragma once
+/// @file gdal.hpp
+/// GDAL adapter helpers shared by the package and GIS targets (not part of the public
+/// API: detail/ headers may change without notice).
+#include <string>
+
+namespace polmap::mapping::detail {
+
+/// GDALAllRegister() once per process.
+void ensure_gdal();
+
+/// While alive, GDAL errors of this thread are captured (not printed); last_message()
+/// returns the most recent one.
+class GdalErrorCapture {
+ public:
+  GdalErrorCapture();
+  ~GdalErrorCapture();
+  GdalErrorCapture(const GdalErrorCapture&) = delete;
+  GdalErrorCapture& operator=(const GdalErrorCapture&) = delete;
+  [[nodiscard]] std::string last_message() const;
+
+ private:
+  std::string message_;
+  static void handler(int eclass, int code, const char* msg);
+};
+
+/// Sets a GDAL config option for this thread for the scope's lifetime.
+class ScopedGdalConfig {
+ public:
+  ScopedGdalConfig(const char* key, const char* value);
+  ~ScopedGdalConfig();
+  ScopedGdalConfig(const ScopedGdalConfig&) = delete;
+  ScopedGdalConfig& operator=(const ScopedGdalConfig&) = delete;
+
+ private:
+  std::string key_;
+  std::string old_;
+  bool had_old_ = false;
+};
+
+/// True if two PROJ/WKT CRS definitions describe the same CRS (OSRIsSame).
+bool same_crs(const std::string& a, const std::string& b);
+
+}  // namespace polmap::mapping::detail

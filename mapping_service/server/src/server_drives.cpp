@@ -1,0 +1,229 @@
+// Drive endpoints: POST /v1/drives (package upload), GET /v1/drives, GET/DELETE /v1/drives/{id}.
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstdlib>
+#include <cstring>
+
+#include "polmap/mapping_service/drive_package_io.hpp"
+#include "polmap/schema/errors.hpp"
+#include "polmap/util/sha256.hpp"
+#include "server_impl.hpp"
+
+namespace polmap::mapping {
+namespace {
+
+// A file created for one upload and removed when the request ends, whatever happens.
+class TempUpload {
+ public:
+  explicit TempUpload(const std::filesystem::path& dir) {
+    std::string templ = (dir / "polmap-upload-XXXXXX.tar").string();
+    fd_ = ::mkstemps(templ.data(), 4);
+    if (fd_ < 0) throw IoError("cannot create upload file in " + dir.string() + ": " + std::strerror(errno));
+    path_ = templ;
+  }
+  ~TempUpload() {
+    if (fd_ >= 0) ::close(fd_);
+    std::error_code ec;
+    std::filesystem::remove(path_, ec);
+  }
+  TempUpload(const TempUpload&) = delete;
+  TempUpload& operator=(const TempUpload&) = delete;
+
+  bool write(const char* data, std::size_t n) {
+    while (n > 0) {
+      const ssize_t w = ::write(fd_, data, n);
+      if (w < 0) {
+        if (errno == EINTR) continue;
+        return false;
+      }
+      data += w;
+      n -= static_cast<std::size_t>(w);
+    }
+    return true;
+  }
+  bool close() {
+    const int rc = ::close(fd_);
+    fd_ = -1;
+    return rc == 0;
+  }
+  [[nodiscard]] const std::filesystem::path& path() const { return path_; }
+
+ private:
+  int fd_ = -1;
+  std::filesystem::path path_;
+};
+
+bool acceptable_upload_type(const std::string& content_type) {
+  const std::string t = content_type.substr(0, content_type.find(';'));
+  return t.empty() || t == "application/x-tar" || t == "application/tar" ||
+         t == "application/octet-stream";
+}
+
+}  // namespace
+
+nlohmann::json drive_to_json(const DriveRecord& d, bool with_manifest) {
+  nlohmann::json j{{"drive_id", d.drive_id},
+                   {"content_hash", d.content_hash},
+                   {"vehicle_id", d.vehicle_id},
+                   {"start_time_s", d.start_time_s},
+                   {"end_time_s", d.end_time_s},
+                   {"bbox", geobox_to_json(d.bbox)},
+                   {"pol_level", std::string(to_string(d.pol_level))},
+                   {"distance_m", d.distance_m},
+                   {"num_points", d.num_points},
+                   {"num_lines", d.num_lines},
+                   {"ingested_at", d.ingested_at},
+                   {"href", "/v1/drives/" + d.drive_id}};
+  if (with_manifest) j["manifest"] = d.manifest;
+  return j;
+}
+
+void Server::Impl::register_drive_routes() {
+  http.Post("/v1/drives", [this](const httplib::Request& req, httplib::Response& res,
+                                 const httplib::ContentReader& reader) {
+    set_route("drives_upload");
+    // Rejections before the body is read: drain a small body so the keep-alive
+    // connection stays usable, otherwise close the connection after replying.
+    auto reject_unread = [&](const char* outcome) {
+      metrics.upload(outcome, 0);
+      const auto len = std::strtoull(req.get_header_value("Content-Length").c_str(), nullptr, 10);
+      if (req.has_header("Content-Length") && len <= (1u << 20)) {
+        reader([](const char*, std::size_t) { return true; });
+      } else {
+        res.set_header("Connection", "close");
+      }
+    };
+    if (!require_key(req, res)) return reject_unread("unauthorized");
+    if (!acceptable_upload_type(req.get_header_value("Content-Type"))) {
+      reply_error(res, 415,
+                  "Content-Type must be application/x-tar (the package as one ustar archive), got '" +
+                      req.get_header_value("Content-Type") + "'",
+                  "Content-Type");
+      return reject_unread("bad_request");
+    }
+    if (req.has_header("Content-Length")) {
+      const auto len = std::strtoull(req.get_header_value("Content-Length").c_str(), nullptr, 10);
+      if (len > cfg.max_upload_bytes) {
+        reply_error(res, 413,
+                    "package of " + std::to_string(len) + " bytes exceeds the upload limit of " +
+                        std::to_string(cfg.max_upload_bytes) + " bytes",
+                    "Content-Length", {{"limit_bytes", cfg.max_upload_bytes}});
+        return reject_unread("too_large");
+      }
+    }
+
+    const std::filesystem::path dir =
+        cfg.upload_dir.empty() ? std::filesystem::temp_directory_path() : cfg.upload_dir;
+    TempUpload upload(dir);
+    util::Sha256 sha;
+    std::uint64_t received = 0;
+    bool too_large = false, write_failed = false;
+    const bool complete = reader([&](const char* data, std::size_t n) {
+      received += n;
+      if (received > cfg.max_upload_bytes) {
+        too_large = true;
+        return false;
+      }
+      sha.update(std::string_view(data, n));
+      if (!upload.write(data, n)) {
+        write_failed = true;
+        return false;
+      }
+      return true;
+    });
+    if (too_large) {
+      metrics.upload("too_large", received);
+      res.set_header("Connection", "close");
+      return reply_error(res, 413,
+                         "package exceeds the upload limit of " +
+                             std::to_string(cfg.max_upload_bytes) + " bytes",
+                         "body", {{"limit_bytes", cfg.max_upload_bytes}});
+    }
+    if (write_failed || !upload.close()) {
+      metrics.upload("server_error", received);
+      log("error", "upload: cannot write " + upload.path().string() + ": " + std::strerror(errno));
+      return reply_error(res, 507, "the server cannot store the upload (disk full?)");
+    }
+    if (!complete) {
+      // The client went away or sent a malformed/short chunked body: nothing is kept.
+      metrics.upload("interrupted", received);
+      res.set_header("Connection", "close");
+      return reply_error(res, 400, "upload interrupted after " + std::to_string(received) + " bytes",
+                         "body");
+    }
+    if (received == 0) {
+      metrics.upload("bad_request", 0);
+      return reply_error(res, 400, "empty body: send the drive package as one ustar archive",
+                         "body");
+    }
+    const std::string hash = sha.hex();
+    if (auto existing = store.find_drive_by_hash(hash)) {
+      metrics.upload("already_present", received);
+      nlohmann::json j = drive_to_json(*existing, false);
+      j["status"] = "already_present";
+      res.set_header("Location", "/v1/drives/" + existing->drive_id);
+      return reply_json(res, 200, j);
+    }
+    auto pkg = try_read_and_validate_package(upload.path());
+    if (!pkg) {
+      const PackageError& e = pkg.error();
+      metrics.upload(e.http_status == 422 ? "invalid" : "bad_request", received);
+      log("info", "upload rejected: " + e.what());
+      nlohmann::json extra{{"file", e.file}};
+      return reply_error(res, e.http_status == 422 ? 422 : 400, e.what(), e.field, extra);
+    }
+    PutDriveResult put;
+    try {
+      put = store.put_drive(*pkg, upload.path(), hash);
+    } catch (const ConflictError& e) {
+      metrics.upload("conflict", received);
+      return reply_error(res, 409, e.what(), "drive_id");
+    }
+    nlohmann::json j = drive_to_json(put.drive, false);
+    res.set_header("Location", "/v1/drives/" + put.drive.drive_id);
+    if (put.status == PutDriveResult::Status::Inserted) {
+      drives_generation.fetch_add(1);
+      metrics.upload("inserted", received);
+      log("info", "drive " + put.drive.drive_id + " ingested (" + std::to_string(received) +
+                      " bytes, " + std::to_string(put.drive.num_points) + " points, " +
+                      std::to_string(put.drive.num_lines) + " lines)");
+      j["status"] = "inserted";
+      reply_json(res, 201, j);
+    } else {
+      metrics.upload("already_present", received);
+      j["status"] = "already_present";
+      reply_json(res, 200, j);
+    }
+  });
+
+  http.Get("/v1/drives", [this](const httplib::Request&, httplib::Response& res) {
+    set_route("drives_list");
+    nlohmann::json list = nlohmann::json::array();
+    for (const DriveRecord& d : store.list_drives()) list.push_back(drive_to_json(d, false));
+    reply_json(res, 200, {{"drives", list}, {"count", list.size()}});
+  });
+
+  http.Get(R"(/v1/drives/([^/]+))", [this](const httplib::Request& req, httplib::Response& res) {
+    set_route("drives_get");
+    const std::string id = req.matches[1];
+    if (auto d = store.get_drive(id)) return reply_json(res, 200, drive_to_json(*d, true));
+    reply_error(res, 404, "drive '" + id + "' does not exist", "drive_id");
+  });
+
+  http.Delete(R"(/v1/drives/([^/]+))", [this](const httplib::Request& req,
+                                              httplib::Response& res) {
+    set_route("drives_delete");
+    if (!require_key(req, res)) return;
+    const std::string id = req.matches[1];
+    if (!store.delete_drive(id)) {
+      return reply_error(res, 404, "drive '" + id + "' does not exist", "drive_id");
+    }
+    drives_generation.fetch_add(1);
+    log("info", "drive " + id + " deleted");
+    res.status = 204;
+  });
+}
+
+}  // namespace polmap::mapping

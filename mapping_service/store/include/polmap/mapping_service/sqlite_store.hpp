@@ -1,0 +1,128 @@
+#pragma once
+/// @file sqlite_store.hpp
+/// The embedded MapStore: one SQLite database file plus a drive store
+/// directory beside it.
+///
+///   <db>                 SQLite database (schema/store.sql), WAL mode
+///   <db>-wal, <db>-shm   SQLite's write-ahead log (do not delete while open)
+///   <db>.drives/<sha256>/<package files>   ingested packages, by content hash
+///
+/// Connections: a small pool. Each call takes an idle connection (or opens a
+/// new one), so concurrent readers run in parallel on their own connections
+/// and read a consistent snapshot (WAL). Writers take an in-process write
+/// mutex and `BEGIN IMMEDIATE`, so they never deadlock on lock upgrades;
+/// other processes writing the same file wait up to busy_timeout_ms.
+/// Every connection: `PRAGMA foreign_keys = ON`, `journal_mode = WAL`,
+/// `synchronous = NORMAL` (durable across process crashes; the last
+/// transactions may roll back on power loss, never corrupt), busy timeout.
+///
+/// Schema migrations run on open, in one transaction, recorded in
+/// `schema_migrations`; reopening an up-to-date database changes nothing.
+///
+/// Crash safety of put_drive: files are copied into `<db>.drives/.tmp-*`,
+/// rows inserted in a transaction, the directory renamed to its final name,
+/// then the transaction commits; any failure rolls back and removes the files.
+/// After a hard crash between rename and commit, the orphaned directory (no
+/// drives row) is removed by the next open (older than orphan_grace_s).
+#include <filesystem>
+#include <functional>
+#include <memory>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "polmap/mapping_service/store.hpp"
+
+namespace polmap::mapping {
+
+struct SqliteStoreOptions {
+  /// How long a statement waits for another process's write lock.
+  int busy_timeout_ms = 10000;
+  /// Idle connections kept open for reuse (more are opened on demand).
+  std::size_t max_idle_connections = 8;
+  /// Drive store directory; empty = "<db path>.drives".
+  std::filesystem::path drive_store_dir;
+  /// Orphaned drive store entries (crash leftovers) older than this are
+  /// removed on open. 0 removes all (tests; single-process use).
+  double orphan_grace_s = 600.0;
+  /// Test hook: called at the named stages of put_drive ("files_copied",
+  /// "rows_inserted", "files_renamed"); throwing from it simulates a crash
+  /// at that point. Empty in production.
+  std::function<void(std::string_view stage)> fault_hook;
+};
+
+/// One migration of the store schema (schema/store.sql holds them all).
+struct StoreMigration {
+  int version;
+  std::string_view name;
+  std::string_view sql;
+};
+/// The migrations this build applies, ascending: schema/store.sql, embedded at build
+/// time, cut at its section headers ("-- bootstrap ...", "-- migration N: name").
+const std::vector<StoreMigration>& sqlite_store_migrations();
+/// Cuts a store.sql text into its sections (the views point into `sql`). Throws
+/// FormatError for a missing bootstrap, an empty section, or versions out of order.
+[[nodiscard]] std::vector<StoreMigration> parse_store_migrations(std::string_view sql);
+
+class SqliteMapStore final : public MapStore {
+ public:
+  /// Opens (creating if needed) the database and drive store, applies
+  /// pending migrations. Throws IoError if the file cannot be opened.
+  explicit SqliteMapStore(const std::filesystem::path& db_path, SqliteStoreOptions options = {});
+  ~SqliteMapStore() override;
+  SqliteMapStore(const SqliteMapStore&) = delete;
+  SqliteMapStore& operator=(const SqliteMapStore&) = delete;
+
+  [[nodiscard]] const std::filesystem::path& path() const;
+  [[nodiscard]] const std::filesystem::path& drive_store_dir() const;
+  /// Schema version of the open database (highest applied migration).
+  [[nodiscard]] int schema_version() const;
+  /// Value of a PRAGMA on a pooled connection (tests: "journal_mode", "foreign_keys").
+  [[nodiscard]] std::string pragma(std::string_view name) const;
+
+  PutDriveResult put_drive(const DrivePackage& package,
+                           const std::filesystem::path& package_location,
+                           const std::string& content_hash) override;
+  [[nodiscard]] std::vector<DriveRecord> list_drives() const override;
+  [[nodiscard]] std::optional<DriveRecord> get_drive(std::string_view drive_id) const override;
+  [[nodiscard]] std::optional<DriveRecord> find_drive_by_hash(
+      std::string_view content_hash) const override;
+  [[nodiscard]] std::vector<TrajectorySample> drive_trajectory(
+      std::string_view drive_id) const override;
+  [[nodiscard]] std::vector<DriveRecord> drives_in(const GeoBox& box) const override;
+  bool delete_drive(std::string_view drive_id) override;
+
+  [[nodiscard]] CandidateSet candidates_in(
+      const std::optional<GeoBox>& region,
+      std::span<const std::string> excluded_drive_ids = {}) const override;
+
+  std::int64_t begin_map_version(const nlohmann::json& parameters) override;
+  void put_landmarks(std::int64_t version, std::span<const StoredPointLandmark> points,
+                     std::span<const StoredLineLandmark> lines) override;
+  void put_tiles(std::int64_t version, TileLayer layer, std::span<const TileWrite> tiles) override;
+  void publish_map_version(std::int64_t version, const nlohmann::json& statistics,
+                           bool make_current = true) override;
+  void fail_map_version(std::int64_t version, std::string_view error) override;
+  void set_current_map_version(std::int64_t version) override;
+  bool delete_map_version(std::int64_t version) override;
+  [[nodiscard]] std::optional<std::int64_t> current_map_version() const override;
+  [[nodiscard]] std::optional<MapVersionInfo> get_map_version(std::int64_t version) const override;
+  [[nodiscard]] std::vector<MapVersionInfo> list_map_versions() const override;
+
+  [[nodiscard]] LandmarkSet landmarks_in(std::int64_t version, const std::optional<GeoBox>& box,
+                                         bool with_support = true) const override;
+  [[nodiscard]] std::optional<StoredTile> get_tile(std::int64_t version, TileLayer layer,
+                                                   const tiles::TileKey& key) const override;
+  [[nodiscard]] std::optional<std::string> get_tile_etag(std::int64_t version, TileLayer layer,
+                                                         const tiles::TileKey& key) const override;
+  [[nodiscard]] std::vector<TileInfo> list_tiles(std::int64_t version,
+                                                 TileLayer layer) const override;
+
+  [[nodiscard]] StoreStats stats() const override;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace polmap::mapping

@@ -1,0 +1,261 @@
+// SqliteMapStore: the embedded MapStore (see sqlite_store.hpp for the connection,
+// transaction and crash-safety rules; schema/store.sql, embedded at build time, for the
+// DDL). This file: open, migrations, crash sweep, helpers; drives and candidates in
+// sqlite_store_drives.cpp, map versions and published content in sqlite_store_maps.cpp.
+#include <charconv>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <ctime>
+#include <set>
+
+#include "polmap/schema/json.hpp"
+#include "polmap/util/sha256.hpp"
+#include "polmap/util/text.hpp"
+#include "sqlite_store_impl.hpp"
+
+namespace polmap::mapping {
+namespace fs = std::filesystem;
+
+namespace sqlite_store_detail {
+
+extern const std::string_view kStoreSql;  // store_sql.cpp, generated from schema/store.sql
+
+std::string now_iso() {
+  const std::time_t t = std::chrono::system_clock::to_time_t(std::chrono::system_clock::now());
+  std::tm tm{};
+  gmtime_r(&t, &tm);
+  char buf[32];
+  std::strftime(buf, sizeof buf, "%Y-%m-%dT%H:%M:%SZ", &tm);
+  return buf;
+}
+
+std::vector<GeoBox> split_box(const GeoBox& b) {
+  if (!b.crosses_antimeridian()) return {b};
+  GeoBox east = b, west = b;
+  east.max_lon_deg = 180.0;
+  west.min_lon_deg = -180.0;
+  return {east, west};
+}
+
+bool box_contains(const GeoBox& b, double lat, double lon) {
+  for (const GeoBox& p : split_box(b)) {
+    if (lat >= p.min_lat_deg && lat <= p.max_lat_deg && lon >= p.min_lon_deg && lon <= p.max_lon_deg) {
+      return true;
+    }
+  }
+  return false;
+}
+
+bool box_intersects(const GeoBox& b, double lat0, double lon0, double lat1, double lon1) {
+  for (const GeoBox& p : split_box(b)) {
+    if (lat1 >= p.min_lat_deg && lat0 <= p.max_lat_deg && lon1 >= p.min_lon_deg &&
+        lon0 <= p.max_lon_deg) {
+      return true;
+    }
+  }
+  return false;
+}
+
+void insert_rtree(Connection& c, const char* table, std::int64_t id, double min_lat, double max_lat,
+                  double min_lon, double max_lon) {
+  c.stmt(std::string("INSERT INTO ") + table +
+         "(id, min_lat, max_lat, min_lon, max_lon) VALUES (?1, ?2, ?3, ?4, ?5)")
+      .bind(1, id)
+      .bind(2, min_lat)
+      .bind(3, max_lat)
+      .bind(4, min_lon)
+      .bind(5, max_lon)
+      .run();
+}
+
+nlohmann::json manifest_json(const DriveManifest& m) {
+  nlohmann::json j;
+  j["format_version"] = m.format_version;
+  j["drive_id"] = m.drive_id;
+  j["vehicle_id"] = m.vehicle_id;
+  j["start_time_s"] = m.start_time_s;
+  j["end_time_s"] = m.end_time_s;
+  j["origin"] = m.origin;
+  j["crs_proj"] = m.crs_proj;
+  j["sensors"] = m.sensors;
+  j["pol_level"] = std::string(to_string(m.pol_level));
+  j["cell_size_m"] = m.cell_size_m;
+  j["distance_m"] = m.distance_m;
+  j["producer"] = m.producer;
+  return j;
+}
+
+std::int64_t dir_bytes(const fs::path& p) {
+  std::error_code ec;
+  if (fs::is_regular_file(p, ec)) return static_cast<std::int64_t>(fs::file_size(p, ec));
+  std::int64_t n = 0;
+  for (auto it = fs::recursive_directory_iterator(p, ec); !ec && it != fs::end(it);
+       it.increment(ec)) {
+    if (it->is_regular_file(ec)) n += static_cast<std::int64_t>(it->file_size(ec));
+  }
+  return n;
+}
+
+const char* tile_table(TileLayer layer) {
+  return layer == TileLayer::Localization ? "tiles" : "gridmap_tiles";
+}
+
+MapVersionStatus parse_status(const std::string& s) {
+  if (s == "published") return MapVersionStatus::Published;
+  if (s == "failed") return MapVersionStatus::Failed;
+  return MapVersionStatus::Building;
+}
+
+
+}  // namespace sqlite_store_detail
+
+std::string_view to_string(MapVersionStatus s) {
+  switch (s) {
+    case MapVersionStatus::Published: return "published";
+    case MapVersionStatus::Failed: return "failed";
+    default: return "building";
+  }
+}
+
+std::string content_etag(std::string_view payload) { return util::sha256_hex(payload); }
+
+std::vector<StoreMigration> parse_store_migrations(std::string_view sql) {
+  std::vector<StoreMigration> out;
+  std::size_t body = std::string_view::npos;
+  auto close = [&](std::size_t end) {
+    if (out.empty()) return;
+    std::string_view s = sql.substr(body, end - body);
+    while (!s.empty() && util::is_ascii_space(s.back())) s.remove_suffix(1);
+    while (!s.empty() && util::is_ascii_space(s.front())) s.remove_prefix(1);
+    if (s.empty()) {
+      throw FormatError("schema/store.sql: section '" + std::string(out.back().name) + "' is empty");
+    }
+    out.back().sql = s;
+  };
+  std::size_t pos = 0;
+  while (pos < sql.size()) {
+    const std::size_t eol = std::min(sql.find('\n', pos), sql.size());
+    const std::string_view line = sql.substr(pos, eol - pos);
+    const bool bootstrap = line.starts_with("-- bootstrap");
+    const bool migration = line.starts_with("-- migration ");
+    if (bootstrap || migration) {
+      close(pos);
+      StoreMigration m{0, "bootstrap", {}};
+      if (migration) {
+        const std::string_view rest = line.substr(13);
+        const std::size_t colon = rest.find(':');
+        int v = 0;
+        const auto [p, ec] = std::from_chars(rest.data(), rest.data() + rest.size(), v);
+        if (ec != std::errc{} || colon == std::string_view::npos || p != rest.data() + colon) {
+          throw FormatError("schema/store.sql: malformed section header '" + std::string(line) + "'");
+        }
+        m.version = v;
+        m.name = util::trim(rest.substr(colon + 1));
+      }
+      const int expected = out.empty() ? 0 : out.back().version + 1;
+      if (m.version != expected || (out.empty() != bootstrap)) {
+        throw FormatError("schema/store.sql: sections must be the bootstrap, then migrations 1, 2, ... in "
+                          "order; found '" + std::string(line) + "'");
+      }
+      out.push_back(m);
+      body = eol;
+    }
+    pos = eol + 1;
+  }
+  close(sql.size());
+  if (out.empty()) throw FormatError("schema/store.sql: no bootstrap section");
+  return out;
+}
+
+const std::vector<StoreMigration>& sqlite_store_migrations() {
+  static const std::vector<StoreMigration> m = parse_store_migrations(kStoreSql);
+  return m;
+}
+
+void SqliteMapStore::Impl::migrate() {
+  std::lock_guard lock(write_mu);
+  Lease c = lease();
+  const auto& migrations = sqlite_store_migrations();
+  c->exec(migrations.front().sql);
+  sqlite::Transaction tx(*c, sqlite::Transaction::Mode::Immediate);
+  std::int64_t have = 0;
+  {
+    auto s = c->stmt("SELECT COALESCE(MAX(version), 0) FROM schema_migrations");
+    if (s.step()) have = s.i64(0);
+  }
+  for (const auto& m : migrations) {
+    if (m.version == 0 || m.version <= have) continue;
+    c->exec(m.sql);
+    c->stmt("INSERT INTO schema_migrations(version, name, applied_at) VALUES (?1, ?2, ?3)")
+        .bind(1, m.version)
+        .bind(2, m.name)
+        .bind(3, now_iso())
+        .run();
+  }
+  tx.commit();
+}
+
+void SqliteMapStore::Impl::sweep_orphans() {
+  std::set<std::string> known;
+  read([&](Connection& c) {
+    auto s = c.stmt("SELECT content_hash FROM drives");
+    while (s.step()) known.insert(s.text(0));
+    return 0;
+  });
+  const auto now = fs::file_time_type::clock::now();
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator(drives_dir, ec)) {
+    const std::string name = e.path().filename().string();
+    const bool tmp = name.starts_with(".tmp-");
+    if (!tmp && known.contains(name)) continue;
+    if (!tmp && !util::is_lower_hex(name)) continue;  // not ours
+    const auto age = std::chrono::duration<double>(now - e.last_write_time(ec)).count();
+    if (age >= opt.orphan_grace_s) fs::remove_all(e.path(), ec);
+  }
+  write([&](Connection& c) {
+    char grace_modifier[48];
+    std::snprintf(grace_modifier, sizeof grace_modifier, "-%lld seconds",
+                  static_cast<long long>(std::ceil(opt.orphan_grace_s)));
+    c.stmt(
+         "UPDATE map_versions SET status = 'failed', error = 'interrupted (found building on open)' "
+         "WHERE status = 'building' AND created_at <= strftime('%Y-%m-%dT%H:%M:%SZ', 'now', ?1)")
+        .bind(1, grace_modifier)
+        .run();
+    drop_failed_content(c);
+  });
+}
+
+SqliteMapStore::SqliteMapStore(const fs::path& db_path, SqliteStoreOptions options)
+    : impl_(std::make_unique<Impl>()) {
+  impl_->path = db_path;
+  impl_->opt = std::move(options);
+  impl_->drives_dir = impl_->opt.drive_store_dir.empty() ? fs::path(db_path.string() + ".drives")
+                                                         : impl_->opt.drive_store_dir;
+  std::error_code ec;
+  if (db_path.has_parent_path()) fs::create_directories(db_path.parent_path(), ec);
+  fs::create_directories(impl_->drives_dir, ec);
+  if (ec) throw IoError("cannot create drive store " + impl_->drives_dir.string() + ": " + ec.message());
+  impl_->migrate();
+  impl_->sweep_orphans();
+}
+
+SqliteMapStore::~SqliteMapStore() = default;
+
+const fs::path& SqliteMapStore::path() const { return impl_->path; }
+const fs::path& SqliteMapStore::drive_store_dir() const { return impl_->drives_dir; }
+
+int SqliteMapStore::schema_version() const {
+  return impl_->read([](Connection& c) {
+    auto s = c.stmt("SELECT COALESCE(MAX(version), 0) FROM schema_migrations");
+    return s.step() ? static_cast<int>(s.i64(0)) : 0;
+  });
+}
+
+std::string SqliteMapStore::pragma(std::string_view name) const {
+  auto c = impl_->lease();
+  auto s = c->stmt("PRAGMA " + std::string(name));
+  return s.step() ? s.text(0) : std::string();
+}
+
+}  // namespace polmap::mapping

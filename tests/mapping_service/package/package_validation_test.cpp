@@ -1,0 +1,401 @@
+// Drive package validation: every corruption gives an error naming the file and the field.
+#include <gdal_priv.h>
+#include <gtest/gtest.h>
+#include <ogr_spatialref.h>
+#include <ogrsf_frmts.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <functional>
+#include <limits>
+#include <nlohmann/json.hpp>
+
+#include "mapping_service/package_fixture.hpp"
+#include "polmap/mapping_service/drive_package_io.hpp"
+#include "polmap/mapping_service/ustar.hpp"
+#include "polmap/tiles/local_frame.hpp"
+
+namespace polmap::mapping {
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+using testing::make_synthetic_drive;
+
+std::string slurp(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  return {std::istreambuf_iterator<char>(in), {}};
+}
+void spit(const fs::path& p, const std::string& s) {
+  std::ofstream out(p, std::ios::binary | std::ios::trunc);
+  out << s;
+}
+
+class PackageValidationTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    GDALAllRegister();
+    root_ = fs::temp_directory_path() /
+            ("polmap_val_test_" + std::to_string(::getpid()) + "_" +
+             ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(root_);
+    fs::create_directories(root_);
+    drive_ = make_synthetic_drive();
+    dir_ = root_ / "pkg";
+    // One written package per suite; each test corrupts its own copy.
+    if (template_dir().empty()) {
+      template_dir() =
+          fs::temp_directory_path() / ("polmap_val_template_" + std::to_string(::getpid()));
+      fs::remove_all(template_dir());
+      write_drive_package(drive_.pkg, drive_.raster, template_dir());
+    }
+    fs::copy(template_dir(), dir_);
+  }
+  void TearDown() override { fs::remove_all(root_); }
+  static void TearDownTestSuite() {
+    if (!template_dir().empty()) fs::remove_all(template_dir());
+    template_dir().clear();
+  }
+  static fs::path& template_dir() {
+    static fs::path dir;
+    return dir;
+  }
+
+  void edit_manifest(const std::function<void(json&)>& fn) {
+    json j = json::parse(slurp(dir_ / "manifest.json"));
+    fn(j);
+    spit(dir_ / "manifest.json", j.dump(2));
+  }
+  /// Re-hashes the data files so only the injected defect remains.
+  void refresh_manifest() {
+    edit_manifest([&](json& j) {
+      for (auto& f : j["files"]) {
+        const std::string data = slurp(dir_ / f["name"].get<std::string>());
+        f["size_bytes"] = data.size();
+        f["sha256"] = sha256_hex(data);
+      }
+    });
+  }
+  /// Validation must fail with exception type E, naming `file` and `field`.
+  template <typename E>
+  PackageError expect_error(const std::string& file, const std::string& field,
+                            const std::string& fragment, int status) {
+    try {
+      (void)read_and_validate_package(dir_);
+      ADD_FAILURE() << "no error for " << file << " " << field;
+    } catch (const E& e) {
+      const PackageError& err = e.error();
+      EXPECT_EQ(err.file, file) << e.what();
+      EXPECT_EQ(err.field, field) << e.what();
+      EXPECT_NE(std::string(e.what()).find(fragment), std::string::npos) << e.what();
+      EXPECT_EQ(err.http_status, status);
+      EXPECT_EQ(err.what(), std::string(e.what()));
+      // The non-throwing variant reports the same.
+      const auto r = try_read_and_validate_package(dir_);
+      EXPECT_FALSE(r.has_value());
+      if (!r.has_value()) {
+        EXPECT_EQ(r.error().file, file);
+        EXPECT_EQ(r.error().field, field);
+        EXPECT_EQ(r.error().http_status, status);
+      }
+      return err;
+    } catch (const std::exception& e) {
+      ADD_FAILURE() << "unexpected exception type: " << e.what();
+    }
+    return {};
+  }
+
+  fs::path root_;
+  fs::path dir_;
+  testing::SyntheticDrive drive_;
+};
+
+TEST_F(PackageValidationTest, ValidPackagePasses) {
+  EXPECT_NO_THROW((void)read_and_validate_package(dir_));
+  EXPECT_TRUE(try_read_and_validate_package(dir_).has_value());
+}
+
+TEST_F(PackageValidationTest, MissingManifestField) {
+  edit_manifest([](json& j) { j.erase("pol_level"); });
+  expect_error<PackageValidationError>("manifest.json", "pol_level", "missing required field", 422);
+}
+
+TEST_F(PackageValidationTest, MissingNestedField) {
+  edit_manifest([](json& j) { j["origin"].erase("lat_deg"); });
+  expect_error<PackageValidationError>("manifest.json", "origin.lat_deg", "missing", 422);
+}
+
+TEST_F(PackageValidationTest, WrongFieldType) {
+  edit_manifest([](json& j) { j["cell_size_m"] = "0.1"; });
+  expect_error<PackageFormatError>("manifest.json", "cell_size_m", "expected number, got string",
+                                   400);
+}
+
+TEST_F(PackageValidationTest, WrongTypeInsideSensor) {
+  edit_manifest([](json& j) { j["sensors"][1]["spec"]["bandwidth_hz"] = true; });
+  expect_error<PackageFormatError>("manifest.json", "sensors[1].spec.bandwidth_hz", "expected",
+                                   400);
+}
+
+TEST_F(PackageValidationTest, UnknownPolLevel) {
+  edit_manifest([](json& j) { j["pol_level"] = "xx"; });
+  const auto err =
+      expect_error<PackageValidationError>("manifest.json", "pol_level", "unknown level 'xx'", 422);
+  EXPECT_EQ(err.what().rfind("manifest.json: field 'pol_level': unknown level 'xx'", 0), 0U);
+}
+
+TEST_F(PackageValidationTest, UnsupportedFormatVersion) {
+  edit_manifest([](json& j) { j["format_version"] = 2; });
+  expect_error<PackageValidationError>("manifest.json", "format_version", "unsupported version 2",
+                                       422);
+}
+
+TEST_F(PackageValidationTest, CrsNotTheDriveFrame) {
+  edit_manifest([](json& j) { j["origin"]["lat_deg"] = 35.3; });
+  expect_error<PackageValidationError>("manifest.json", "crs_proj", "LocalFrame", 422);
+}
+
+TEST_F(PackageValidationTest, BadDriveId) {
+  edit_manifest([](json& j) { j["drive_id"] = "../etc/passwd"; });
+  expect_error<PackageValidationError>("manifest.json", "drive_id", "[A-Za-z0-9._-]", 422);
+}
+
+TEST_F(PackageValidationTest, ManifestNotJson) {
+  spit(dir_ / "manifest.json", "{\"drive_id\": ");
+  expect_error<PackageFormatError>("manifest.json", "", "not valid JSON", 400);
+}
+
+TEST_F(PackageValidationTest, BadSha256) {
+  std::string gpkg = slurp(dir_ / "candidates.gpkg");
+  gpkg[gpkg.size() / 2] ^= 0x01;
+  spit(dir_ / "candidates.gpkg", gpkg);
+  expect_error<PackageValidationError>("candidates.gpkg", "sha256",
+                                       "does not match manifest.json files[1].sha256", 422);
+}
+
+TEST_F(PackageValidationTest, SizeMismatch) {
+  spit(dir_ / "gridmap.tif", slurp(dir_ / "gridmap.tif") + "x");
+  expect_error<PackageValidationError>("gridmap.tif", "size_bytes", "manifest.json files[0]", 422);
+}
+
+TEST_F(PackageValidationTest, MissingFile) {
+  fs::remove(dir_ / "candidates.gpkg");
+  expect_error<PackageValidationError>("candidates.gpkg", "", "missing", 422);
+}
+
+TEST_F(PackageValidationTest, TruncatedArchive) {
+  const std::string tar = pack_drive_package(dir_);
+  for (std::size_t cut : {tar.size() / 2, tar.size() - 1024, std::size_t{300}}) {
+    const std::string_view truncated = std::string_view(tar).substr(0, cut);
+    try {
+      (void)validate_package_bytes(truncated);
+      ADD_FAILURE() << "cut " << cut;
+    } catch (const PackageFormatError& e) {
+      EXPECT_EQ(e.error().file, "archive");
+      EXPECT_NE(std::string(e.what()).find("truncated"), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("byte"), std::string::npos) << e.what();
+    }
+    const auto r = try_validate_package_bytes(truncated);
+    ASSERT_FALSE(r.has_value());
+    EXPECT_EQ(r.error().http_status, 400);
+    EXPECT_EQ(r.error().file, "archive");
+  }
+  // Same through a file on disk.
+  spit(root_ / "t.tar", tar.substr(0, tar.size() / 3));
+  EXPECT_THROW((void)read_and_validate_package(root_ / "t.tar"), PackageFormatError);
+}
+
+TEST_F(PackageValidationTest, ArchiveMemberSet) {
+  std::vector<TarMember> members{{"manifest.json", slurp(dir_ / "manifest.json")},
+                                 {"gridmap.tif", slurp(dir_ / "gridmap.tif")}};
+  auto r = try_validate_package_bytes(write_ustar(members));
+  ASSERT_FALSE(r.has_value());
+  EXPECT_EQ(r.error().file, "candidates.gpkg");
+  EXPECT_EQ(r.error().http_status, 422);
+  members.push_back({"candidates.gpkg", slurp(dir_ / "candidates.gpkg")});
+  EXPECT_TRUE(try_validate_package_bytes(write_ustar(members)).has_value());
+  members.push_back({"evil.sh", "rm -rf /"});
+  r = try_validate_package_bytes(write_ustar(members));
+  ASSERT_FALSE(r.has_value());
+  EXPECT_EQ(r.error().file, "archive");
+  EXPECT_NE(r.error().message.find("evil.sh"), std::string::npos);
+}
+
+TEST_F(PackageValidationTest, NotAnArchive) {
+  const auto r = try_validate_package_bytes("this is not a tar file at all");
+  ASSERT_FALSE(r.has_value());
+  EXPECT_EQ(r.error().file, "archive");
+  EXPECT_EQ(r.error().http_status, 400);
+}
+
+/// Rewrites gridmap.tif with `bands` bands (same size, tiling, CRS, geotransform).
+void rewrite_tiff(const fs::path& path, int bands, const std::string& proj) {
+  GDALDatasetUniquePtr src(GDALDataset::Open(path.c_str()));
+  ASSERT_TRUE(src);
+  const int w = src->GetRasterXSize(), h = src->GetRasterYSize();
+  double gt[6];
+  src->GetGeoTransform(gt);
+  std::vector<std::string> desc;
+  for (int b = 1; b <= src->GetRasterCount(); ++b)
+    desc.push_back(src->GetRasterBand(b)->GetDescription());
+  std::vector<float> band1(static_cast<std::size_t>(w) * h);
+  ASSERT_EQ(
+      src->GetRasterBand(1)->RasterIO(GF_Read, 0, 0, w, h, band1.data(), w, h, GDT_Float32, 0, 0),
+      CE_None);
+  src.reset();
+  fs::remove(path);
+  const char* opts[] = {"TILED=YES", "BLOCKXSIZE=256", "BLOCKYSIZE=256", "COMPRESS=DEFLATE",
+                        nullptr};
+  GDALDatasetUniquePtr dst(GetGDALDriverManager()->GetDriverByName("GTiff")->Create(
+      path.c_str(), w, h, bands, GDT_Float32, const_cast<char**>(opts)));
+  ASSERT_TRUE(dst);
+  dst->SetGeoTransform(gt);
+  OGRSpatialReference srs;
+  srs.SetFromUserInput(proj.c_str());
+  dst->SetSpatialRef(&srs);
+  for (int b = 1; b <= bands; ++b) {
+    if (b <= static_cast<int>(desc.size()))
+      dst->GetRasterBand(b)->SetDescription(desc[b - 1].c_str());
+  }
+  ASSERT_EQ(
+      dst->GetRasterBand(1)->RasterIO(GF_Write, 0, 0, w, h, band1.data(), w, h, GDT_Float32, 0, 0),
+      CE_None);
+}
+
+TEST_F(PackageValidationTest, GeoTiffWithWrongBandCount) {
+  rewrite_tiff(dir_ / "gridmap.tif", 7,
+               tiles::LocalFrame(drive_.pkg.manifest.origin).proj_string());
+  refresh_manifest();
+  const auto err = expect_error<PackageValidationError>(
+      "gridmap.tif", "bands", "has 7 bands, pol_level 'full' needs 10", 422);
+  EXPECT_EQ(err.what(), "gridmap.tif: field 'bands': has 7 bands, pol_level 'full' needs 10");
+}
+
+TEST_F(PackageValidationTest, GeoTiffWithWrongCrs) {
+  rewrite_tiff(dir_ / "gridmap.tif", 10, tiles::LocalFrame({35.3, 138.8, 0}).proj_string());
+  refresh_manifest();
+  expect_error<PackageValidationError>("gridmap.tif", "crs", "is not manifest.json crs_proj", 422);
+}
+
+TEST_F(PackageValidationTest, NotAGeoTiff) {
+  spit(dir_ / "gridmap.tif", "II*\0garbage");
+  refresh_manifest();
+  expect_error<PackageFormatError>("gridmap.tif", "", "not a readable GeoTIFF", 400);
+}
+
+TEST_F(PackageValidationTest, CovarianceWhereNothingWasObserved) {
+  {
+    GDALDatasetUniquePtr ds(GDALDataset::Open((dir_ / "gridmap.tif").c_str(), GDAL_OF_UPDATE));
+    ASSERT_TRUE(ds);
+    // Cell (col 10, row 10) lies in the observed band: zero its count only.
+    float zero = 0.0F;
+    ASSERT_EQ(
+        ds->GetRasterBand(1)->RasterIO(GF_Write, 10, 10, 1, 1, &zero, 1, 1, GDT_Float32, 0, 0),
+        CE_None);
+  }
+  refresh_manifest();
+  expect_error<PackageValidationError>("gridmap.tif", "C_LL_LL", "at column 10 row 10 where N = 0",
+                                       422);
+}
+
+/// Applies fn to feature `index` (0-based) of a layer of candidates.gpkg, in place.
+void edit_feature(const fs::path& gpkg, const char* layer, int index,
+                  const std::function<void(OGRFeature&)>& fn) {
+  GDALDatasetUniquePtr ds(GDALDataset::Open(gpkg.c_str(), GDAL_OF_VECTOR | GDAL_OF_UPDATE));
+  ASSERT_TRUE(ds);
+  OGRLayer* l = ds->GetLayerByName(layer);
+  ASSERT_NE(l, nullptr);
+  std::unique_ptr<OGRFeature> f(l->GetFeature(index + 1));  // FIDs start at 1
+  ASSERT_TRUE(f);
+  fn(*f);
+  ASSERT_EQ(l->SetFeature(f.get()), OGRERR_NONE);
+}
+
+TEST_F(PackageValidationTest, NanCoordinateAttribute) {
+  edit_feature(dir_ / "candidates.gpkg", "points", 3,
+               [](OGRFeature& f) { f.SetField("x_m", std::numeric_limits<double>::quiet_NaN()); });
+  refresh_manifest();
+  // SQLite stores NaN as NULL; either way the field is named.
+  expect_error<PackageValidationError>("candidates.gpkg", "points.x_m", "feature 3", 422);
+}
+
+TEST_F(PackageValidationTest, NanGeometry) {
+  CPLPushErrorHandler(CPLQuietErrorHandler);  // GDAL complains updating the NaN extent
+  edit_feature(dir_ / "candidates.gpkg", "lines", 2, [](OGRFeature& f) {
+    OGRLineString ls;
+    ls.addPoint(std::numeric_limits<double>::quiet_NaN(), 35.2);
+    ls.addPoint(138.8, 35.2);
+    f.SetGeometry(&ls);
+  });
+  CPLPopErrorHandler();
+  refresh_manifest();
+  expect_error<PackageValidationError>("candidates.gpkg", "lines.geom",
+                                       "feature 2: non-finite coordinate", 422);
+}
+
+TEST_F(PackageValidationTest, GeometryInconsistentWithFrameCoordinates) {
+  edit_feature(dir_ / "candidates.gpkg", "points", 0, [](OGRFeature& f) {
+    OGRPoint p(138.81, 35.23);  // ~700 m away from x_m/y_m
+    f.SetGeometry(&p);
+  });
+  refresh_manifest();
+  expect_error<PackageValidationError>("candidates.gpkg", "points.x_m",
+                                       "from the drive-frame position", 422);
+}
+
+TEST_F(PackageValidationTest, PointOutsideGridmap) {
+  const tiles::LocalFrame frame(drive_.pkg.manifest.origin);
+  edit_feature(dir_ / "candidates.gpkg", "points", 5, [&](OGRFeature& f) {
+    const Eigen::Vector2d xy{500.0, 500.0};
+    const GeoPoint g = frame.to_geo(xy);
+    f.SetField("x_m", xy.x());
+    f.SetField("y_m", xy.y());
+    OGRPoint p(g.lon_deg, g.lat_deg);
+    f.SetGeometry(&p);
+  });
+  refresh_manifest();
+  expect_error<PackageValidationError>("candidates.gpkg", "points.x_m",
+                                       "feature 5: (500, 500) outside the gridmap extent", 422);
+}
+
+TEST_F(PackageValidationTest, TrajectoryTimesNotMonotonic) {
+  const double t4 = drive_.pkg.trajectory[4].time_s;
+  edit_feature(dir_ / "candidates.gpkg", "trajectory", 5,
+               [&](OGRFeature& f) { f.SetField("time_s", t4); });
+  refresh_manifest();
+  expect_error<PackageValidationError>("candidates.gpkg", "trajectory.time_s", "feature 5: time",
+                                       422);
+}
+
+TEST_F(PackageValidationTest, UnknownScatteringClass) {
+  edit_feature(dir_ / "candidates.gpkg", "points", 1,
+               [](OGRFeature& f) { f.SetField("scattering", "triple"); });
+  refresh_manifest();
+  expect_error<PackageValidationError>("candidates.gpkg", "points.scattering",
+                                       "unknown class 'triple'", 422);
+}
+
+TEST_F(PackageValidationTest, CountsDisagreeWithManifest) {
+  edit_manifest([](json& j) { j["counts"]["points"] = 24; });
+  expect_error<PackageValidationError>("candidates.gpkg", "points",
+                                       "25 features, manifest.json counts say 24", 422);
+}
+
+TEST_F(PackageValidationTest, MissingLayer) {
+  {
+    GDALDatasetUniquePtr ds(
+        GDALDataset::Open((dir_ / "candidates.gpkg").c_str(), GDAL_OF_VECTOR | GDAL_OF_UPDATE));
+    ASSERT_TRUE(ds);
+    for (int i = 0; i < ds->GetLayerCount(); ++i) {
+      if (std::string(ds->GetLayer(i)->GetName()) == "lines") {
+        ASSERT_EQ(ds->DeleteLayer(i), OGRERR_NONE);
+      }
+    }
+  }
+  refresh_manifest();
+  expect_error<PackageValidationError>("candidates.gpkg", "lines", "layer missing", 422);
+}
+
+}  // namespace
+}  // namespace polmap::mapping

@@ -1,0 +1,57 @@
+#pragma once
+/// @file file.hpp
+/// Whole-file reads and writes and scoped temporary directories (the one rollback
+/// helper: a directory that is removed unless the code that filled it commits it).
+#include <filesystem>
+#include <string>
+#include <string_view>
+
+namespace polmap::util {
+
+/// The whole file as bytes. Throws IoError naming the file.
+[[nodiscard]] std::string read_file_bytes(const std::filesystem::path& path);
+
+/// Writes bytes to path (truncating). Throws IoError naming the file.
+void write_file_bytes(const std::filesystem::path& path, std::string_view bytes);
+
+/// A new, unique directory `<parent>/<stem>-XXXXXX` (mkdtemp; the system temporary
+/// directory when `parent` is empty). Throws IoError.
+[[nodiscard]] std::filesystem::path make_unique_dir(const std::filesystem::path& parent,
+                                                    std::string_view stem);
+
+/// Owns a directory and removes it (recursively, errors ignored) when destroyed, unless
+/// release() was called: the guard of every "build in a temporary directory, then
+/// commit by rename" sequence, and of the test fixtures.
+class ScopedTempDir {
+ public:
+  /// A new unique directory (see make_unique_dir).
+  [[nodiscard]] static ScopedTempDir create(const std::filesystem::path& parent,
+                                            std::string_view stem);
+  /// A new unique directory below the system temporary directory.
+  [[nodiscard]] static ScopedTempDir create(std::string_view stem) { return create({}, stem); }
+
+  /// Adopts `path` (which may not exist yet): it is removed on destruction.
+  explicit ScopedTempDir(std::filesystem::path path) : path_(std::move(path)) {}
+  ~ScopedTempDir() { remove(); }
+  ScopedTempDir(ScopedTempDir&& other) noexcept : path_(std::move(other.path_)) {
+    other.path_.clear();
+  }
+  ScopedTempDir& operator=(ScopedTempDir&& other) noexcept;
+  ScopedTempDir(const ScopedTempDir&) = delete;
+  ScopedTempDir& operator=(const ScopedTempDir&) = delete;
+
+  [[nodiscard]] const std::filesystem::path& path() const { return path_; }
+  /// Keeps the directory (it was committed or handed on); returns its path.
+  std::filesystem::path release() {
+    std::filesystem::path p = std::move(path_);
+    path_.clear();
+    return p;
+  }
+  /// Removes the directory now (no-op after release()).
+  void remove() noexcept;
+
+ private:
+  std::filesystem::path path_;
+};
+
+}  // namespace polmap::util

@@ -1,0 +1,24 @@
+#pragma once
+/// @file text.hpp
+/// Text helpers shared by every parser of ours (key files, HTTP headers, CSV).
+#include <string_view>
+#include <vector>
+
+namespace polmap::util {
+
+/// True for the ASCII whitespace characters " \t\n\v\f\r" (C locale isspace, without
+/// locale lookups).
+[[nodiscard]] constexpr bool is_ascii_space(char c) {
+  return c == ' ' || c == '\t' || c == '\n' || c == '\v' || c == '\f' || c == '\r';
+}
+
+/// `s` without leading and trailing ASCII whitespace.
+[[nodiscard]] std::string_view trim(std::string_view s);
+
+/// Splits at every `sep`, trimming each field; "" gives one empty field, "a," two.
+[[nodiscard]] std::vector<std::string_view> split_trimmed(std::string_view s, char sep);
+
+/// True if `s` is non-empty and consists of lower-case hex digits only.
+[[nodiscard]] bool is_lower_hex(std::string_view s);
+
+}  // namespace polmap::util

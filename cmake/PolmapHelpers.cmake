@@ -9,8 +9,25 @@ function(polmap_target_defaults target)
   endif()
 endfunction()
 
+# polmap_export_target(TARGET): puts a library target into the installed CMake
+# package (export set polmapTargets, see the top-level CMakeLists.txt). polmap_<x>
+# gets the alias polmap::<x> for in-tree use and is imported by find_package(polmap)
+# consumers under the same name. Only module libraries (and the helper targets they
+# link) are exported; tools/ (polmap_sim, polmap_eval), tests and benches are not.
+function(polmap_export_target name)
+  string(REGEX REPLACE "^polmap_" "" _export_name ${name})
+  add_library(polmap::${_export_name} ALIAS ${name})
+  set_target_properties(${name} PROPERTIES EXPORT_NAME ${_export_name})
+  install(TARGETS ${name} EXPORT polmapTargets
+    ARCHIVE DESTINATION ${CMAKE_INSTALL_LIBDIR}
+    LIBRARY DESTINATION ${CMAKE_INSTALL_LIBDIR}
+    RUNTIME DESTINATION ${CMAKE_INSTALL_BINDIR})
+  # tools/check-install builds exactly these (target polmap_installable).
+  set_property(GLOBAL APPEND PROPERTY POLMAP_EXPORTED_TARGETS ${name})
+endfunction()
+
 # polmap_add_library(NAME SOURCES ... DEPS ...): a module library with
-# include/ as its public include root.
+# include/ as its public include root (installed into <prefix>/include).
 function(polmap_add_library name)
   cmake_parse_arguments(ARG "" "" "SOURCES;DEPS;PRIVATE_DEPS" ${ARGN})
   if(NOT ARG_SOURCES)
@@ -19,9 +36,18 @@ function(polmap_add_library name)
     set(ARG_SOURCES ${CMAKE_CURRENT_BINARY_DIR}/${name}_anchor.cpp)
   endif()
   add_library(${name} ${ARG_SOURCES})
-  target_include_directories(${name} PUBLIC ${CMAKE_CURRENT_SOURCE_DIR}/include)
+  target_include_directories(${name} PUBLIC
+    $<BUILD_INTERFACE:${CMAKE_CURRENT_SOURCE_DIR}/include>
+    $<INSTALL_INTERFACE:${CMAKE_INSTALL_INCLUDEDIR}>)
   target_link_libraries(${name} PUBLIC ${ARG_DEPS} PRIVATE ${ARG_PRIVATE_DEPS})
   polmap_target_defaults(${name})
+  polmap_export_target(${name})
+  if(EXISTS ${CMAKE_CURRENT_SOURCE_DIR}/include)
+    # Modules share include/polmap/<module>/ trees (e.g. localization_client and
+    # its fetch/ target); the installed directories merge.
+    install(DIRECTORY ${CMAKE_CURRENT_SOURCE_DIR}/include/
+      DESTINATION ${CMAKE_INSTALL_INCLUDEDIR})
+  endif()
 endfunction()
 
 # polmap_add_test(NAME SOURCES ... DEPS ... [LABELS ...]): one GoogleTest binary
@@ -30,7 +56,7 @@ endfunction()
 function(polmap_add_test name)
   cmake_parse_arguments(ARG "" "TIMEOUT" "SOURCES;DEPS;LABELS" ${ARGN})
   add_executable(${name} ${ARG_SOURCES})
-  target_link_libraries(${name} PRIVATE ${ARG_DEPS} GTest::gtest_main)
+  target_link_libraries(${name} PRIVATE ${ARG_DEPS} polmap_util GTest::gtest_main)
   # Shared fixtures are included as "<module>/<fixture>.hpp" from the tests/ root.
   target_include_directories(${name} PRIVATE ${CMAKE_SOURCE_DIR}/tests)
   target_compile_definitions(${name} PRIVATE
@@ -42,6 +68,10 @@ function(polmap_add_test name)
   if(NOT ARG_TIMEOUT)
     set(ARG_TIMEOUT 300)
   endif()
+  # CMake 3.25's test discovery cannot pass a list in PROPERTIES, so the labels are joined
+  # into one ("fast:radar"); ctest -L takes a regular expression, so `-L fast` and
+  # `-L radar` both select it.
+  string(REPLACE ";" ":" _labels "${ARG_LABELS}")
   gtest_discover_tests(${name} DISCOVERY_TIMEOUT 60
-    PROPERTIES TIMEOUT ${ARG_TIMEOUT} LABELS "${ARG_LABELS}")
+    PROPERTIES TIMEOUT ${ARG_TIMEOUT} LABELS "${_labels}")
 endfunction()

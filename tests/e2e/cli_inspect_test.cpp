@@ -14,6 +14,7 @@
 #include <sstream>
 #include <string>
 
+#include "test_dir.hpp"
 #include "polmap/schema/recording_io.hpp"
 #include "polmap/sim/drive_simulator.hpp"
 #include "polmap/sim/world.hpp"
@@ -69,10 +70,7 @@ int count_lines(const std::string& s) {
 class CliInspect : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
-    dir_ = std::filesystem::temp_directory_path() /
-           ("polmap-e2e-inspect-" + std::to_string(::getpid()));
-    std::filesystem::remove_all(dir_);
-    std::filesystem::create_directories(dir_);
+    dir_ = polmap::test::unique_test_dir("e2e-inspect");
     // A short simulated drive (2 s: 60 sensor frames, 200 GNSS samples).
     sim::SimConfig cfg;
     cfg.seed = 5;

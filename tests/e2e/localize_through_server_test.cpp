@@ -16,6 +16,7 @@
 #include <thread>
 #include <vector>
 
+#include "test_dir.hpp"
 #include "polmap/eval/study.hpp"
 #include "polmap/localization_client/tile_fetcher.hpp"
 #include "polmap/mapping_service/drive_package_io.hpp"
@@ -77,10 +78,7 @@ class LoopbackServer {
 class LocalizeThroughServer : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
-    dir_ = std::filesystem::temp_directory_path() /
-           ("polmap-e2e-localize-" + std::to_string(::getpid()));
-    std::filesystem::remove_all(dir_);
-    std::filesystem::create_directories(dir_);
+    dir_ = polmap::test::unique_test_dir("e2e-localize");
     sim_cfg_.seed = kSeed;
     world_ = sim::load_world("urban", kRouteLength_m, kSeed, sim_cfg_);
     store_ = std::make_unique<mapping::SqliteMapStore>(dir_ / "map.sqlite");

@@ -146,7 +146,7 @@ class SyntheticDrive {
       SpectrumCell c;
       c.azimuth_bin = static_cast<std::uint16_t>(ji.first);
       c.range_bin = static_cast<std::uint16_t>(ji.second);
-      // Odd bounce: LR = RL = j * amplitude, LL = RR = 0 (SIMULATION.md).
+      // Odd bounce: LR = RL = j * amplitude, LL = RR = 0 (radar/polarimetry.hpp).
       c.s = {cfloat{}, a * cfloat(0, 1), a * cfloat(0, 1), cfloat{}};
       sp.cells.push_back(c);
     }

@@ -15,6 +15,7 @@
 #include <thread>
 #include <vector>
 
+#include "test_dir.hpp"
 #include "mapping_service/package_fixture.hpp"
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/mapping_service/server.hpp"
@@ -81,10 +82,7 @@ class ServerFixture : public ::testing::Test {
   void SetUp() override { start(ServerConfig{}); }
 
   void start(ServerConfig cfg) {
-    dir_ = std::filesystem::temp_directory_path() /
-           ("polmap-server-test-" + std::to_string(::getpid()) + "-" +
-            std::to_string(counter()++));
-    std::filesystem::remove_all(dir_);
+    dir_ = polmap::test::unique_test_dir("server");
     std::filesystem::create_directories(dir_ / "uploads");
     SqliteStoreOptions so;
     so.orphan_grace_s = 0;
@@ -159,12 +157,9 @@ class ServerFixture : public ::testing::Test {
     std::lock_guard lock(m);
     auto it = cache.find(drive_id);
     if (it == cache.end()) {
-      const auto base = std::filesystem::temp_directory_path() /
-                        ("polmap-server-pkgs-" + std::to_string(::getpid()));
-      const auto dir = write_scene_package(base, drive_id, seed);
+      const util::ScopedTempDir base(polmap::test::unique_test_dir("server-pkgs"));
+      const auto dir = write_scene_package(base.path(), drive_id, seed);
       it = cache.emplace(drive_id, pack_drive_package(dir)).first;
-      std::error_code ec;
-      std::filesystem::remove_all(dir, ec);
     }
     return it->second;
   }

@@ -1,4 +1,4 @@
-// Polarimetric conventions: LR <-> HV transforms (SIMULATION.md), unitary Pauli-like
+// Polarimetric conventions: LR <-> HV transforms (polarimetry.hpp), unitary Pauli-like
 // reductions, covariance transforms C' = A C A^H, partial levels and the scattering
 // class from a covariance.
 #include <gtest/gtest.h>

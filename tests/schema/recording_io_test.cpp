@@ -1,5 +1,6 @@
 // Recording format: round trips within the documented quantization,
 // determinism, and that every truncation / corruption is a FormatError.
+#include "test_dir.hpp"
 #include "polmap/schema/recording_io.hpp"
 
 #include <gtest/gtest.h>
@@ -26,11 +27,7 @@ namespace fs = std::filesystem;
 class TempDir {
  public:
   TempDir() {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    path_ = fs::temp_directory_path() /
-            ("polmap_recording_" + std::string(info->name()) + "_" + std::to_string(::getpid()));
-    fs::remove_all(path_);
-    fs::create_directories(path_);
+    path_ = polmap::test::unique_test_dir("recording");
   }
   ~TempDir() { fs::remove_all(path_); }
   [[nodiscard]] fs::path operator/(const std::string& name) const { return path_ / name; }

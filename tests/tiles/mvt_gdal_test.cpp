@@ -11,6 +11,7 @@
 #include <fstream>
 #include <memory>
 
+#include "test_dir.hpp"
 #include "polmap/tiles/local_frame.hpp"
 #include "polmap/tiles/mvt.hpp"
 
@@ -21,8 +22,7 @@ class MvtGdal : public ::testing::Test {
  protected:
   void SetUp() override {
     GDALAllRegister();
-    dir_ = std::filesystem::temp_directory_path() / ("polmap-mvt-gdal-" + std::to_string(::getpid()));
-    std::filesystem::remove_all(dir_);
+    dir_ = polmap::test::unique_test_dir("mvt-gdal");
   }
   void TearDown() override { std::filesystem::remove_all(dir_); }
 

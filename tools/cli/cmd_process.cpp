@@ -12,6 +12,7 @@
 #include <string>
 
 #include "command.hpp"
+#include "polmap/util/file.hpp"
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/radar/drive_processor.hpp"
 #include "polmap/schema/errors.hpp"
@@ -85,16 +86,10 @@ void run(const ProcessOptions& o) {
     const fs::path parent = fs::absolute(out).parent_path();
     std::string tmp_name(1, '.');
     tmp_name += out.filename().string() + ".pkgdir";
-    const fs::path tmp = parent / tmp_name;
-    fs::remove_all(tmp, ec);
-    try {
-      manifest = mapping::write_drive_package(result, tmp, wopts);
-      mapping::write_drive_package_archive(tmp, out);
-    } catch (...) {
-      fs::remove_all(tmp, ec);
-      throw;
-    }
-    fs::remove_all(tmp, ec);
+    const util::ScopedTempDir tmp(parent / tmp_name);  // removed however this block ends
+    fs::remove_all(tmp.path(), ec);                     // a leftover of an interrupted run
+    manifest = mapping::write_drive_package(result, tmp.path(), wopts);
+    mapping::write_drive_package_archive(tmp.path(), out);
     package_bytes = fs::file_size(out);
   } else {
     manifest = mapping::write_drive_package(result, out, wopts);

@@ -330,17 +330,8 @@ ExportSummary export_landmarks(const LandmarkSet& lm, ExportFormat format, const
     }
     case ExportFormat::Shapefile: {
       if (ends_with_zip(out)) {
-        const fs::path tmp = util::make_unique_dir({}, "polmap_shp");
-        try {
-          const auto files = write_shapefiles(lm, tmp, version);
-          write_zip(files, out);
-        } catch (...) {
-          std::error_code ec;
-          fs::remove_all(tmp, ec);
-          throw;
-        }
-        std::error_code ec;
-        fs::remove_all(tmp, ec);
+        const util::ScopedTempDir tmp = util::ScopedTempDir::create("polmap_shp");
+        write_zip(write_shapefiles(lm, tmp.path(), version), out);
         summary.files = {out};
       } else {
         summary.files = write_shapefiles(lm, out, version);

@@ -85,8 +85,8 @@ void check_package_destination(const fs::path& dir, bool overwrite) {
   check_empty_or_absent(dir, overwrite);
 }
 
-fs::path make_package_temp_dir(const fs::path& dir) {
-  return make_unique_dir(parent_for_temp(dir), hidden_stem(dir, ".tmp"));
+util::ScopedTempDir make_package_temp_dir(const fs::path& dir) {
+  return util::ScopedTempDir::create(parent_for_temp(dir), hidden_stem(dir, ".tmp"));
 }
 
 /// Shared tail of both writers: the gridmap.tif is already in `tmp`; writes the
@@ -172,8 +172,9 @@ DriveManifest write_drive_package(const DrivePackage& pkg, const GridmapRaster& 
                detail::kGridmapBlockSize,
                std::clamp(options.mantissa_bits, 1, 23)};
 
-  const fs::path tmp = detail::make_unique_dir(parent_for_temp(dir), hidden_stem(dir, ".tmp"));
-  try {
+  const util::ScopedTempDir staging = detail::make_package_temp_dir(dir);
+  const fs::path& tmp = staging.path();
+  {
     GridmapTiffSpec spec;
     spec.width = r->width;
     spec.height = r->height;
@@ -186,11 +187,7 @@ DriveManifest write_drive_package(const DrivePackage& pkg, const GridmapRaster& 
     spec.mantissa_bits = std::clamp(options.mantissa_bits, 1, 23);
     spec.metadata = detail::tiff_metadata(m);
     detail::write_gridmap_tiff(*r, spec, (tmp / kGridmapFileName).string());
-    return detail::finish_package(std::move(m), pkg, tmp, dir, options);
-  } catch (...) {
-    std::error_code ec;
-    fs::remove_all(tmp, ec);
-    throw;
+    return detail::finish_package(std::move(m), pkg, tmp, dir, options);  // renames tmp
   }
 }
 
@@ -284,15 +281,9 @@ void unpack_drive_package(std::string_view tar_bytes, const fs::path& dir) {
 
 fs::path unpack_drive_package_to_temp(std::string_view tar_bytes) {
   const auto members = detail::read_package_members(tar_bytes);
-  const fs::path dir = detail::make_unique_dir({}, "polmap_pkg");
-  try {
-    for (const auto& mb : members) detail::write_file_bytes(dir / mb.name, mb.data);
-  } catch (...) {
-    std::error_code ec;
-    fs::remove_all(dir, ec);
-    throw;
-  }
-  return dir;
+  util::ScopedTempDir dir = util::ScopedTempDir::create("polmap_pkg");
+  for (const auto& mb : members) detail::write_file_bytes(dir.path() / mb.name, mb.data);
+  return dir.release();
 }
 
 std::string package_member_gdal_path(const fs::path& location, const std::string& name) {

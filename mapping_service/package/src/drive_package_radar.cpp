@@ -17,7 +17,7 @@ DriveManifest finish_package(DriveManifest m, const DrivePackage& values, const 
                              const fs::path& dir, const PackageWriteOptions& options);
 std::vector<std::pair<std::string, std::string>> tiff_metadata(const DriveManifest& m);
 void check_package_destination(const fs::path& dir, bool overwrite);
-fs::path make_package_temp_dir(const fs::path& dir);
+util::ScopedTempDir make_package_temp_dir(const fs::path& dir);
 }  // namespace detail
 
 DriveManifest write_drive_package(const DrivePackage& pkg, const radar::CovarianceGridmap& gridmap,
@@ -62,8 +62,9 @@ DriveManifest write_drive_package(const DrivePackage& pkg, const radar::Covarian
     }
   }
 
-  const fs::path tmp = detail::make_package_temp_dir(dir);
-  try {
+  const util::ScopedTempDir staging = detail::make_package_temp_dir(dir);
+  const fs::path& tmp = staging.path();
+  {
     detail::GridmapTiffSpec spec;
     spec.width = width;
     spec.height = height;
@@ -110,11 +111,7 @@ DriveManifest write_drive_package(const DrivePackage& pkg, const radar::Covarian
       writer.write_block(bx, by, block);
     }
     writer.close();
-    return detail::finish_package(std::move(m), pkg, tmp, dir, options);
-  } catch (...) {
-    std::error_code ec;
-    fs::remove_all(tmp, ec);
-    throw;
+    return detail::finish_package(std::move(m), pkg, tmp, dir, options);  // renames tmp
   }
 }
 

@@ -11,6 +11,7 @@
 
 #include "polmap/mapping_service/export.hpp"
 #include "polmap/schema/errors.hpp"
+#include "polmap/util/file.hpp"
 #include "server_impl.hpp"
 
 namespace polmap::mapping {
@@ -67,26 +68,15 @@ void Server::Impl::register_gis_routes() {
 
     // Export into a private temp dir; the response streams the file and the releaser
     // removes the directory when the response is done (or the client went away).
-    const std::filesystem::path base =
-        cfg.upload_dir.empty() ? std::filesystem::temp_directory_path() : cfg.upload_dir;
-    std::string templ = (base / "polmap-export-XXXXXX").string();
-    if (::mkdtemp(templ.data()) == nullptr) {
-      throw IoError("cannot create an export directory in " + base.string());
-    }
-    const std::filesystem::path dir = templ;
+    util::ScopedTempDir export_dir = util::ScopedTempDir::create(cfg.upload_dir, "polmap-export");
+    const std::filesystem::path dir = export_dir.path();
     const std::string name = "polmap-map-v" + std::to_string(idx->version) +
                              std::string(export_file_extension(*format));
     const std::filesystem::path file = dir / name;
-    try {
-      const ExportSummary summary = export_map(store, idx->version, *format, bbox, file);
-      log("info", "export " + name + ": " + std::to_string(summary.points) + " points, " +
-                      std::to_string(summary.lines) + " lines, " +
-                      std::to_string(summary.gridmap_tiles) + " gridmap tiles");
-    } catch (...) {
-      std::error_code ec;
-      std::filesystem::remove_all(dir, ec);
-      throw;
-    }
+    const ExportSummary summary = export_map(store, idx->version, *format, bbox, file);
+    log("info", "export " + name + ": " + std::to_string(summary.points) + " points, " +
+                    std::to_string(summary.lines) + " lines, " +
+                    std::to_string(summary.gridmap_tiles) + " gridmap tiles");
     const auto size = std::filesystem::file_size(file);
     auto in = std::make_shared<std::ifstream>(file, std::ios::binary);
     if (!*in) throw IoError("cannot read the export " + file.string());
@@ -103,10 +93,9 @@ void Server::Impl::register_gis_routes() {
           if (got == 0) return false;
           return sink.write(buf.data(), got);
         },
-        [dir, in](bool) {
+        [owned = std::make_shared<util::ScopedTempDir>(std::move(export_dir)), in](bool) {
           in->close();
-          std::error_code ec;
-          std::filesystem::remove_all(dir, ec);
+          owned->remove();
         });
   });
 }

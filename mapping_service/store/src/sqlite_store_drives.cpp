@@ -8,6 +8,7 @@
 
 #include "polmap/schema/json.hpp"
 #include "polmap/tiles/local_frame.hpp"
+#include "polmap/util/file.hpp"
 #include "polmap/util/text.hpp"
 #include "sqlite_store_impl.hpp"
 
@@ -15,6 +16,32 @@ namespace polmap::mapping {
 namespace fs = std::filesystem;
 
 // --------------------------------------------------------------------- drives
+
+namespace {
+
+/// drive_trajectories.samples_json: a sample is kept kTrajectorySpacingM from the last kept
+/// one or kTrajectoryMaxGapS after it; the first and last samples always.
+nlohmann::json decimated_trajectory_json(const std::vector<TrajectorySample>& trajectory) {
+  nlohmann::json samples = nlohmann::json::array();
+  const TrajectorySample* last = nullptr;
+  for (std::size_t i = 0; i < trajectory.size(); ++i) {
+    const auto& t = trajectory[i];
+    bool keep = last == nullptr || i + 1 == trajectory.size() ||
+                t.time_s - last->time_s >= kTrajectoryMaxGapS;
+    if (!keep) {
+      const double dn = (t.lat_deg - last->lat_deg) * 111320.0;
+      const double de =
+          (t.lon_deg - last->lon_deg) * 111320.0 * std::cos(t.lat_deg * 3.14159265358979 / 180.0);
+      keep = dn * dn + de * de >= kTrajectorySpacingM * kTrajectorySpacingM;
+    }
+    if (!keep) continue;
+    samples.push_back({t.time_s, t.lat_deg, t.lon_deg, t.yaw_enu_rad, t.speed_mps});
+    last = &t;
+  }
+  return samples;
+}
+
+}  // namespace
 
 PutDriveResult SqliteMapStore::put_drive(const DrivePackage& package,
                                          const fs::path& package_location,
@@ -65,17 +92,15 @@ PutDriveResult SqliteMapStore::put_drive(const DrivePackage& package,
                                                    m.origin.lat_deg, m.origin.lon_deg};
 
   // 1. Files into a temp dir of the drive store (same file system: rename is atomic).
+  // Both guards remove their directory unless released: the staging directory always,
+  // the renamed package directory unless the transaction that names it committed.
   const std::string rand_suffix = std::to_string(std::random_device{}());
-  const fs::path tmp = I.drives_dir / (".tmp-" + content_hash + "-" + rand_suffix);
+  util::ScopedTempDir staging(I.drives_dir / (".tmp-" + content_hash + "-" + rand_suffix));
+  util::ScopedTempDir placed(fs::path{});
+  const fs::path& tmp = staging.path();
   const fs::path final_dir = I.drives_dir / content_hash;
   std::string rel_path = content_hash;
-  bool renamed = false;
-  auto cleanup = [&] {
-    std::error_code e2;
-    fs::remove_all(tmp, e2);
-    if (renamed) fs::remove_all(final_dir, e2);
-  };
-  try {
+  {
     fs::create_directories(tmp);
     if (fs::is_directory(package_location)) {
       fs::copy(package_location, tmp, fs::copy_options::recursive);
@@ -170,46 +195,24 @@ PutDriveResult SqliteMapStore::put_drive(const DrivePackage& package,
                      std::max(a.lat_deg, b.lat_deg), std::min(a.lon_deg, b.lon_deg),
                      std::max(a.lon_deg, b.lon_deg));
       }
-      {
-        nlohmann::json samples = nlohmann::json::array();
-        const TrajectorySample* last = nullptr;
-        for (std::size_t i = 0; i < package.trajectory.size(); ++i) {
-          const auto& t = package.trajectory[i];
-          bool keep = last == nullptr || i + 1 == package.trajectory.size() ||
-                      t.time_s - last->time_s >= kTrajectoryMaxGapS;
-          if (!keep) {
-            const double dn = (t.lat_deg - last->lat_deg) * 111320.0;
-            const double de = (t.lon_deg - last->lon_deg) * 111320.0 *
-                              std::cos(t.lat_deg * 3.14159265358979 / 180.0);
-            keep = dn * dn + de * de >= kTrajectorySpacingM * kTrajectorySpacingM;
-          }
-          if (!keep) continue;
-          samples.push_back({t.time_s, t.lat_deg, t.lon_deg, t.yaw_enu_rad, t.speed_mps});
-          last = &t;
-        }
-        c.stmt(
-             "INSERT INTO drive_trajectories(drive, min_spacing_m, samples_json) VALUES (?1, ?2, "
-             "?3)")
-            .bind(1, drive_row)
-            .bind(2, kTrajectorySpacingM)
-            .bind(3, samples.dump())
-            .run();
-      }
+      c.stmt(
+           "INSERT INTO drive_trajectories(drive, min_spacing_m, samples_json) VALUES (?1, ?2, "
+           "?3)")
+          .bind(1, drive_row)
+          .bind(2, kTrajectorySpacingM)
+          .bind(3, decimated_trajectory_json(package.trajectory).dump())
+          .run();
       I.hook("rows_inserted");
       std::error_code e;
       if (fs::exists(final_dir, e)) fs::remove_all(final_dir, e);  // crash leftover
       fs::rename(tmp, final_dir);
-      renamed = true;
+      staging.release();
+      placed = util::ScopedTempDir(final_dir);
       I.hook("files_renamed");
       return std::nullopt;
     });
-    if (result) {  // raced with an identical upload
-      cleanup();
-      return {PutDriveResult::Status::AlreadyPresent, *result};
-    }
-  } catch (...) {
-    cleanup();
-    throw;
+    if (result) return {PutDriveResult::Status::AlreadyPresent, *result};  // raced, same bytes
+    placed.release();  // committed: the package directory is the store's now
   }
   auto rec = get_drive(m.drive_id);
   if (!rec) throw IoError("put_drive: drive '" + m.drive_id + "' vanished after insert");

@@ -2,6 +2,7 @@
 // cache hit, 304 revalidation, 204/404, retries after 5xx, offline operation from
 // the disk cache when the server stops, pickup of a new map version, and tile()
 // never blocking while the server is slow.
+#include "test_dir.hpp"
 #include "polmap/localization_client/tile_fetcher.hpp"
 
 #include <gtest/gtest.h>
@@ -137,10 +138,7 @@ class FakeTileServer {
 class TileFetcherTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    std::random_device rd;
-    dir_ = std::filesystem::temp_directory_path() /
-           ("polmap_tile_fetcher_test_" + std::to_string(rd()));
-    std::filesystem::remove_all(dir_);
+    dir_ = polmap::test::unique_test_dir("tile-fetcher");
   }
   void TearDown() override { std::filesystem::remove_all(dir_); }
 

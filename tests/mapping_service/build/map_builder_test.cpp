@@ -1,6 +1,7 @@
 // MapBuilder against a real SqliteMapStore: consensus over synthetic drives,
 // landmarks and localization tiles, incremental tile reuse, leave-one-out,
 // region builds, cancellation; fleet gridmap accumulation and PNG tiles.
+#include "test_dir.hpp"
 #include "polmap/mapping_service/map_builder.hpp"
 
 #include <gtest/gtest.h>
@@ -20,9 +21,7 @@ namespace fs = std::filesystem;
 class TempDir {
  public:
   TempDir() {
-    path_ = fs::temp_directory_path() /
-            ("polmap_builder_test_" + std::to_string(std::random_device{}()));
-    fs::create_directories(path_);
+    path_ = polmap::test::unique_test_dir("builder");
   }
   ~TempDir() {
     std::error_code ec;

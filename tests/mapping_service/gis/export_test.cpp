@@ -1,4 +1,5 @@
 // GIS export: files open with GDAL/OGR with the right layers, counts, attributes and CRS.
+#include "test_dir.hpp"
 #include "polmap/mapping_service/export.hpp"
 
 #include <gdal_priv.h>
@@ -26,11 +27,7 @@ class ExportTest : public ::testing::Test {
  protected:
   void SetUp() override {
     GDALAllRegister();
-    root_ = fs::temp_directory_path() /
-            ("polmap_export_test_" + std::to_string(::getpid()) + "_" +
-             ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::remove_all(root_);
-    fs::create_directories(root_);
+    root_ = polmap::test::unique_test_dir("export");
     const tiles::LocalFrame frame({35.2240, 138.8045, 0.0});
     for (int i = 0; i < 7; ++i) {
       StoredPointLandmark p;

@@ -1,5 +1,6 @@
 // HD-map comparison on real Lanelet2 maps with synthetic radar landmarks placed at the
 // HD-map features (known offsets, gaps and outliers), checked against brute force.
+#include "test_dir.hpp"
 #include "polmap/mapping_service/hdmap_compare.hpp"
 
 #include <gtest/gtest.h>
@@ -113,8 +114,8 @@ TEST(HdMapRead, IntersectionPointFeaturesAreCentroids) {
 
 TEST(HdMapRead, Errors) {
   EXPECT_THROW((void)read_lanelet2_osm("/nonexistent/map.osm"), IoError);
-  const fs::path bad =
-      fs::temp_directory_path() / ("polmap_bad_" + std::to_string(::getpid()) + ".osm");
+  const util::ScopedTempDir dir(polmap::test::unique_test_dir("hdmap"));
+  const fs::path bad = dir.path() / "bad.osm";
   std::ofstream(bad) << "<osm><node id='1' lat='x' lon='2'/></osm>";
   try {
     (void)read_lanelet2_osm(bad);

@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <fstream>
 
+#include "test_dir.hpp"
 #include "mapping_service/package_fixture.hpp"
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/mapping_service/ustar.hpp"
@@ -22,11 +23,7 @@ class DrivePackageTest : public ::testing::Test {
  protected:
   void SetUp() override {
     GDALAllRegister();
-    root_ = fs::temp_directory_path() /
-            ("polmap_pkg_test_" + std::to_string(::getpid()) + "_" +
-             ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::remove_all(root_);
-    fs::create_directories(root_);
+    root_ = polmap::test::unique_test_dir("pkg");
   }
   void TearDown() override { fs::remove_all(root_); }
   fs::path root_;

@@ -11,6 +11,7 @@
 #include <limits>
 #include <nlohmann/json.hpp>
 
+#include "test_dir.hpp"
 #include "mapping_service/package_fixture.hpp"
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/mapping_service/ustar.hpp"
@@ -36,25 +37,19 @@ class PackageValidationTest : public ::testing::Test {
  protected:
   void SetUp() override {
     GDALAllRegister();
-    root_ = fs::temp_directory_path() /
-            ("polmap_val_test_" + std::to_string(::getpid()) + "_" +
-             ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::remove_all(root_);
-    fs::create_directories(root_);
+    root_ = polmap::test::unique_test_dir("val");
     drive_ = make_synthetic_drive();
     dir_ = root_ / "pkg";
     // One written package per suite; each test corrupts its own copy.
     if (template_dir().empty()) {
-      template_dir() =
-          fs::temp_directory_path() / ("polmap_val_template_" + std::to_string(::getpid()));
-      fs::remove_all(template_dir());
+      template_dir() = polmap::test::unique_test_dir("val-template") / "pkg";
       write_drive_package(drive_.pkg, drive_.raster, template_dir());
     }
     fs::copy(template_dir(), dir_);
   }
   void TearDown() override { fs::remove_all(root_); }
   static void TearDownTestSuite() {
-    if (!template_dir().empty()) fs::remove_all(template_dir());
+    if (!template_dir().empty()) fs::remove_all(template_dir().parent_path());
     template_dir().clear();
   }
   static fs::path& template_dir() {

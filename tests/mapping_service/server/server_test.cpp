@@ -10,6 +10,7 @@
 #include <nlohmann/json.hpp>
 #include <set>
 
+#include "test_dir.hpp"
 #include "polmap/mapping_service/ustar.hpp"
 #include "polmap/tiles/localization_tile.hpp"
 #include "polmap/tiles/tile_key.hpp"
@@ -589,8 +590,8 @@ TEST_F(ServerTest, ExportStreamsGisFiles) {
 }
 
 TEST(ApiKeyFile, CommentsBlankLinesAndWhitespace) {
-  const auto f = std::filesystem::temp_directory_path() /
-                 ("polmap-keys-" + std::to_string(::getpid()));
+  const util::ScopedTempDir dir(polmap::test::unique_test_dir("keys"));
+  const auto f = dir.path() / "keys";
   std::ofstream(f) << "# fleet keys\n\n  key-one  \n#disabled\nkey-two\r\n\t\n";
   EXPECT_EQ(read_api_key_file(f), (std::vector<std::string>{"key-one", "key-two"}));
   std::ofstream(f) << "# nothing here\n\n";

@@ -1,6 +1,7 @@
 // SqliteMapStore against a real SQLite file in a temp dir: schema/migrations,
 // WAL + foreign keys, drive ingest (idempotent, all-or-nothing), deletes,
 // R*Tree region queries vs brute force, map version atomicity, tile blobs.
+#include "test_dir.hpp"
 #include "polmap/mapping_service/sqlite_store.hpp"
 
 #include <gtest/gtest.h>
@@ -21,9 +22,7 @@ namespace fs = std::filesystem;
 class TempDir {
  public:
   TempDir() {
-    path_ = fs::temp_directory_path() /
-            ("polmap_store_test_" + std::to_string(std::random_device{}()));
-    fs::create_directories(path_);
+    path_ = polmap::test::unique_test_dir("store");
   }
   ~TempDir() {
     std::error_code ec;

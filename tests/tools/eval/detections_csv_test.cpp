@@ -1,4 +1,5 @@
 // Detections CSV and sensor mounts JSON: round trips and error messages.
+#include "test_dir.hpp"
 #include "polmap/eval/detections_csv.hpp"
 
 #include <gtest/gtest.h>
@@ -66,7 +67,8 @@ TEST(DetectionsCsv, RoundTripIsExact) {
     }
   }
   // Through a file, streaming.
-  const auto path = std::filesystem::temp_directory_path() / "polmap_detections_csv_test.csv";
+  const util::ScopedTempDir owned(polmap::test::unique_test_dir("detections-csv"));
+  const auto path = owned.path() / "detections.csv";
   write_detections_csv(path, frames);
   DetectionsCsvReader reader(path);
   int n = 0;

@@ -1,5 +1,6 @@
 // Ego-motion evaluation: truth handling and the error / drift metrics on
 // records with known errors.
+#include "test_dir.hpp"
 #include "polmap/eval/egomotion_eval.hpp"
 
 #include <gtest/gtest.h>
@@ -107,7 +108,8 @@ TEST(EgoMotionEval, NonOkEstimatesAreCountedNotCompared) {
 }
 
 TEST(TruthCsv, ReadsBothFormatsAndNamesBadCells) {
-  const auto dir = std::filesystem::temp_directory_path();
+  const util::ScopedTempDir owned(polmap::test::unique_test_dir("truth-csv"));
+  const auto dir = owned.path();
   const auto simple = dir / "polmap_truth_simple.csv";
   {
     std::ofstream f(simple);

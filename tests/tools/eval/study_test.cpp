@@ -1,12 +1,14 @@
 // Study building blocks that run fast: StoreTileSource against a real SQLite
 // store, pooled error summaries against a brute-force computation, tables,
 // JSON and CCDF figures of a synthetic result, config validation.
+#include "test_dir.hpp"
 #include "polmap/eval/study.hpp"
 
 #include <gtest/gtest.h>
 #include <unistd.h>
 
 #include <cmath>
+#include <algorithm>
 #include <filesystem>
 #include <fstream>
 #include <random>
@@ -21,11 +23,7 @@ namespace polmap::eval {
 namespace {
 
 std::filesystem::path temp_dir(const std::string& name) {
-  auto d = std::filesystem::temp_directory_path() /
-           ("polmap-study-test-" + name + "-" + std::to_string(::getpid()));
-  std::filesystem::remove_all(d);
-  std::filesystem::create_directories(d);
-  return d;
+  return polmap::test::unique_test_dir("study-" + name);
 }
 
 TEST(StoreTileSource, ReadsPublishedTilesAndEmptyWhereNone) {
@@ -181,7 +179,17 @@ TEST(StudyOutput, TablesJsonAndFigures) {
   const std::string lv = format_level_table(r);
   EXPECT_NE(lv.find("full"), std::string::npos);
   EXPECT_NE(lv.find("rr"), std::string::npos);
-  EXPECT_FALSE(format_speed_table(r).empty());
+  r.results[1].realtime_factor = 12.5;
+  r.results[1].realtime_factor_wall = 10.25;
+  r.results[1].tile_bytes_per_km = 4321.0;
+  const std::string sp = format_speed_table(r);
+  EXPECT_NE(sp.find("read from the store"), std::string::npos) << sp;
+  EXPECT_EQ(std::count(sp.begin(), sp.end(), '\n'), 2 + 6) << sp;  // title, header, one per drive
+  const std::size_t row = sp.find("#2");
+  ASSERT_NE(row, std::string::npos) << sp;
+  const std::string line = sp.substr(row, sp.find('\n', row) - row);
+  EXPECT_NE(line.find("12.5 ( 10.2)"), std::string::npos) << line;
+  EXPECT_NE(line.find("4321"), std::string::npos) << line;
 
   const nlohmann::json j = to_json(r);
   ASSERT_EQ(j["results"].size(), 6u);

@@ -1,5 +1,6 @@
 // SVG plot writer: tick math, axis mapping, CCDF series against a brute-force
 // definition, rendered document structure, escaping.
+#include "test_dir.hpp"
 #include "polmap/eval/svg_plot.hpp"
 
 #include <gtest/gtest.h>
@@ -151,8 +152,8 @@ TEST(RenderSvg, EmptyAndDegenerateInputsStillRender) {
 }
 
 TEST(WriteSvg, WritesTheFile) {
-  const auto dir = std::filesystem::temp_directory_path() / "polmap_svg_plot_test";
-  std::filesystem::create_directories(dir);
+  const util::ScopedTempDir owned(polmap::test::unique_test_dir("svg-plot"));
+  const auto dir = owned.path();
   const auto path = dir / "x.svg";
   write_svg("<svg/>", path);
   std::ifstream f(path);

@@ -36,7 +36,7 @@ TEST(Cube, StaticReductionOfCubeMatchesDirectSpectrum) {
   EXPECT_NEAR(cube.chirp_interval_s, 299792458.0 / 78e9 / 20.0, 1e-9);
   ASSERT_EQ(cube.data.size(), static_cast<std::size_t>(4) * nv * nc * nr);
 
-  // Static velocity of each beam from the sensor velocity (SIMULATION.md kinematics).
+  // Static velocity of each beam from the sensor velocity v_s = (v - w y_m, w x_m).
   const Eigen::Vector2d vs(st.v_mps - st.yaw_rate_rps * m.T_vehicle_sensor.y_m,
                            st.yaw_rate_rps * m.T_vehicle_sensor.x_m);
   const double v_ua = 5.0;

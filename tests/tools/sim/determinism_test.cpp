@@ -6,6 +6,7 @@
 #include <fstream>
 #include <sstream>
 
+#include "test_dir.hpp"
 #include "polmap/schema/recording_io.hpp"
 #include "polmap/sim/drive_simulator.hpp"
 #include "polmap/sim/truth.hpp"
@@ -78,8 +79,8 @@ std::string file_bytes(const std::filesystem::path& p) {
 }
 
 TEST(Determinism, SameSeedByteIdenticalRecordingFiles) {
-  const auto dir = std::filesystem::temp_directory_path() / "polmap_sim_determinism";
-  std::filesystem::create_directories(dir);
+  const util::ScopedTempDir owned(polmap::test::unique_test_dir("sim-determinism"));
+  const auto dir = owned.path();
   for (int k = 0; k < 2; ++k) {
     SimConfig cfg;
     cfg.seed = 5;

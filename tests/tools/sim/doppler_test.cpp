@@ -13,7 +13,7 @@ namespace {
 using test::kDeg;
 using test::wrap5;
 
-/// Independent kinematic prediction (SIMULATION.md): v_s = (v - w y_m, w x_m) in the
+/// Independent kinematic prediction (zero side slip): v_s = (v - w y_m, w x_m) in the
 /// vehicle frame, v_r = -v_s . u, u the vehicle-frame unit vector towards the target.
 double predicted_vr(const ExactState& st, const SensorMount& m, const Eigen::Vector2d& target_w) {
   const Eigen::Vector2d vs(st.v_mps - st.yaw_rate_rps * m.T_vehicle_sensor.y_m,

@@ -8,6 +8,7 @@
 #include <regex>
 #include <sstream>
 
+#include "test_dir.hpp"
 #include "polmap/schema/errors.hpp"
 #include "polmap/sim/drive_simulator.hpp"
 #include "polmap/sim/world.hpp"
@@ -108,7 +109,8 @@ TEST(HdMap, ErrorsNameTheFile) {
   } catch (const IoError& e) {
     EXPECT_NE(std::string(e.what()).find("/nonexistent/map.osm"), std::string::npos);
   }
-  const auto bad = std::filesystem::temp_directory_path() / "polmap_bad_map.osm";
+  const util::ScopedTempDir dir(polmap::test::unique_test_dir("sim-hdmap"));
+  const auto bad = dir.path() / "bad_map.osm";
   {
     std::ofstream o(bad);
     o << "<osm><node id='1' lat='1' lon='2'></osm";

@@ -1,4 +1,4 @@
-// Polarimetric conventions of the simulator (SIMULATION.md) and what isolated
+// Polarimetric conventions of the simulator (sim/scattering.hpp) and what isolated
 // odd / even scatterers look like in the rendered spectrum.
 #include <gtest/gtest.h>
 

@@ -31,7 +31,7 @@ TEST(Psf, RangeResponseIsHannWith1_5BinWidth) {
   EXPECT_NEAR(SpectrumSynthesizer::range_response(1.0), 0.5, 1e-9);
   EXPECT_NEAR(SpectrumSynthesizer::range_response(2.0), 0.0, 1e-9);
   const double w = minus3db_width([](double x) { return SpectrumSynthesizer::range_response(x); }, 1.0);
-  // Hann: 1.44 bins = 10.8 cm at 7.5 cm bins (SIMULATION.md: ~1.5 dr).
+  // Hann: 1.44 bins = 10.8 cm at 7.5 cm bins (tools/sim/README.md: ~1.5 dr).
   EXPECT_NEAR(w, 1.44, 0.02);
   // Brute force: the DTFT of a Hann-windowed tone over N = 256 samples agrees.
   const int n = 256;

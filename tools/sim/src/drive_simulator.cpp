@@ -109,7 +109,7 @@ SensorFrame FrameRenderer::render(const SensorMount& mount, const ExactState& st
   const World& w = *world_;
   const RadarSimConfig& rc = cfg_.radar;
   Rng rng(frame_seed);
-  // Sensor pose in the world and its velocity (SIMULATION.md: v_s = (v - w y_m, w x_m)).
+  // Sensor pose in the world and its velocity (zero side slip: v_s = (v - w y_m, w x_m)).
   const double cy = std::cos(st.yaw_rad), sy = std::sin(st.yaw_rad);
   const Pose2& m = mount.T_vehicle_sensor;
   const Eigen::Vector2d ps(st.x_m + cy * m.x_m - sy * m.y_m, st.y_m + sy * m.x_m + cy * m.y_m);

@@ -1,5 +1,5 @@
 #pragma once
-// Internal: adds objects of the documented classes (SIMULATION.md table) to a
+// Internal: adds objects of the documented classes (tools/sim/README.md) to a
 // world, either relative to the route (station s, lateral d, left positive)
 // or in world coordinates (HD maps). RCS values are drawn uniformly in dB
 // within the class range, once per object.

@@ -6,7 +6,7 @@
 /// manifold) and landmark nodes in the map frame (R²): one node per associated
 /// point landmark (shared by all its observations in the window) and two nodes
 /// per line observation (its end points, paper Fig. 8).
-/// Factors (residuals in graph_factors.hpp, σ from DESIGN.md §4 / paper Table II):
+/// Factors (residuals in graph_factors.hpp, σ from the paper's §IV-B / Table II):
 ///  - odometry between consecutive poses, σ_t = 0.05 m, σ_φ = 0.01 rad;
 ///  - bearing-range observations in the vehicle frame, σ_φ = 0.03 rad, σ_r = 0.5 m
 ///    (Huber-robustified, see GraphConfig);
@@ -36,7 +36,7 @@
 
 namespace polmap::loc {
 
-/// Noise and solver parameters. Defaults: paper Table II / DESIGN.md §4, except
+/// Noise and solver parameters. Defaults: paper §IV-B / Table II, except
 /// the odometry factor: the paper's 0.05 m / 0.01 rad per factor are far looser
 /// than our radar odometry over one factor (0.3 s at the default extraction
 /// rate: yaw-rate error 0.12-0.22 deg/s -> 0.0006-0.0012 rad, drift 0.1 % of

@@ -4,7 +4,7 @@
 /// graph's line factors: the line distance of the paper (§III-D, Werber et al.),
 /// segment merging, projections.
 ///
-/// Line distance (our reading, identical to DESIGN.md §4 "line consensus"):
+/// Line distance (our reading of the paper; the line consensus uses the same measures):
 /// the reference axis is the direction of the longer segment;
 ///  - convex-hull distance = area of the convex hull of the four end points
 ///    divided by the merged length (extent of all end points along the axis),

@@ -1,6 +1,6 @@
 #pragma once
 /// @file localizer.hpp
-/// Radar-only map-based localization (paper §III, DESIGN.md §3), the facade
+/// Radar-only map-based localization (paper §III, docs/architecture.md), the facade
 /// of the client library. Per sensor frame:
 ///
 ///   ego-motion (radar::EgoMotionEstimator) -> integrated odometry
@@ -64,7 +64,7 @@
 namespace polmap::loc {
 
 /// All parameters of the pipeline; defaults are the paper's where it gives
-/// them (DESIGN.md §4), otherwise documented choices.
+/// them (Weishaupt et al. 2024, §IV-B), otherwise documented choices.
 struct LocalizerConfig {
   radar::EgoMotionConfig egomotion;
   radar::OdometryConfig odometry;

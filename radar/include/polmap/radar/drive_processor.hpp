@@ -1,6 +1,6 @@
 #pragma once
 /// @file drive_processor.hpp
-/// Mapping-mode processing of one drive (DESIGN.md §3): recording -> poses from
+/// Mapping-mode processing of one drive (paper §III-B, §III-C): recording -> poses from
 /// the georeferenced GNSS/IMU trajectory -> per-frame static-reduced spectra into a
 /// full-history covariance gridmap -> pCFAR points and ridge/Hough lines.
 ///

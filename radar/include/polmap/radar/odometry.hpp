@@ -1,7 +1,7 @@
 #pragma once
 /// @file odometry.hpp
 /// Dead reckoning from radar ego-motion estimates: the odometry frame in which
-/// localization builds its sliding-window gridmap (DESIGN.md §3).
+/// localization builds its sliding-window gridmap (paper §III-B1).
 ///
 /// Integration. Between consecutive accepted estimates (t₀, v₀, ω₀) and
 /// (t₁, v₁, ω₁) the vehicle is taken to move on an arc with the mean state

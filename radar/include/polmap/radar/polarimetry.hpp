@@ -3,7 +3,7 @@
 /// Polarimetric levels, LR <-> HV basis transforms, covariance transforms and
 /// the scattering-mechanism class of a covariance.
 ///
-/// Conventions (SIMULATION.md "Polarimetry", reciprocal, backscatter alignment):
+/// Conventions (shared with the simulator; reciprocal, backscatter alignment):
 ///   S_LL = (S_HH − S_VV + 2j·S_HV) / 2
 ///   S_RR = (S_VV − S_HH + 2j·S_HV) / 2
 ///   S_LR = S_RL = j·(S_HH + S_VV) / 2

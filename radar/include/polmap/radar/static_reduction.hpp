@@ -19,7 +19,7 @@
 /// echo whose Doppler differs by more than ~2 Doppler bins is suppressed by the
 /// window's sidelobes (Hann: ≤ −31 dB).
 ///
-/// Static radial velocity (SIMULATION.md "Kinematics"): sensor velocity in the
+/// Static radial velocity (zero side slip, as in egomotion.hpp): sensor velocity in the
 /// vehicle frame v_s = (v − ω·y_m, ω·x_m), rotated into the sensor frame;
 /// v_static(φ) = −v_s·(cos φ, sin φ) (approaching targets negative).
 #include <optional>
@@ -34,7 +34,7 @@ struct StaticReductionConfig {
   /// Beam centres (sensor azimuth, ascending). Empty: uniform over ±spec.fov_half_rad
   /// at beam_spacing_rad.
   std::vector<float> azimuth_bins_rad;
-  /// Spacing of the default beams: 1.5° (≤ half the ~3° beamwidth, SIMULATION.md).
+  /// Spacing of the default beams: 1.5° (≤ half the ~3° beamwidth of RadarSpec).
   double beam_spacing_rad = 1.5 * 3.14159265358979323846 / 180.0;
   /// Array taper w_v = p + (1−p)·cos²(π x_v), x_v ∈ [−½, ½]: pedestal 0.7 gives ~3.5°
   /// beamwidth at boresight with −17 dB sidelobes from 31 elements at λ/2.

@@ -1,7 +1,7 @@
 #pragma once
 /// @file polarimetry.hpp
 /// Polarization channels and polarimetric levels. Scattering vectors are in the
-/// LR circular basis: Omega = (S_LL, S_LR, S_RL, S_RR) (SIMULATION.md).
+/// LR circular basis: Omega = (S_LL, S_LR, S_RL, S_RR) (Weishaupt et al. 2024, §III-B2).
 #include <array>
 #include <complex>
 #include <optional>

@@ -38,7 +38,7 @@ struct SensorMount {
   RadarSpec spec;
 };
 
-/// The three front sensors of the paper's vehicle (SIMULATION.md "Frames").
+/// The three front sensors of the paper's vehicle (tools/sim/README.md "Frames and time").
 inline std::vector<SensorMount> default_front_mounts() {
   constexpr double deg = std::numbers::pi / 180.0;
   return {

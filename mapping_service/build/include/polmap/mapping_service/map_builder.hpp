@@ -18,8 +18,8 @@
 ///
 /// The build runs in a region frame: tiles::LocalFrame at the centre of the
 /// region (or of the candidates' extent), which keeps scale errors below 2e-6
-/// for regions up to ~10 km (DESIGN.md §7: larger areas are partitioned by
-/// region).
+/// for regions up to ~10 km (larger areas are partitioned into regions, each
+/// built in its own frame).
 ///
 /// Incremental tiles ("a new drive rebuilds only the tiles it touches"):
 /// consensus is local — a landmark depends only on candidates within

@@ -1,7 +1,7 @@
 #pragma once
 /// @file consensus.hpp
 /// Landmark consensus over the candidates of many drives (paper §III-D,
-/// DESIGN.md §4). Pure core: values in, values out, no I/O, deterministic
+/// parameters §IV-B). Pure core: values in, values out, no I/O, deterministic
 /// (the result does not depend on the order of the input: candidates are
 /// processed in candidate-id order).
 ///

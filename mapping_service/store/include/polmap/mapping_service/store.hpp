@@ -281,7 +281,7 @@ class MapStore {
   [[nodiscard]] virtual StoreStats stats() const = 0;
 };
 
-// PostgreSQL/PostGIS adapter (DESIGN.md §7; not implemented). The same
+// PostgreSQL/PostGIS adapter (the scale-out store; not implemented). The same
 // interface maps 1:1 onto the tables of schema/store.sql:
 //  - geometry columns become PostGIS `geometry(Point|LineString, 4326)` with
 //    GiST indexes instead of the SQLite R*Tree side tables (candidates_rtree,

@@ -64,7 +64,7 @@ WorldTruth parse_world_truth(const std::string& json_text, const tiles::LocalFra
                              const std::string& source_name = "world.json");
 
 struct DetectEvalConfig {
-  double point_radius_m = 0.3;  ///< = consensus radius d_p (DESIGN.md §4)
+  double point_radius_m = 0.3;  ///< = consensus radius d_p (paper §IV-B)
   double line_radius_m = 0.3;
   double sample_step_m = 0.25;
   /// Truth farther than this from the trajectory is not expected to be seen.

@@ -1,9 +1,9 @@
 #pragma once
 /// @file config.hpp
 /// Every noise model, physical constant and default of the simulator in ONE
-/// place (mirrored in tools/sim/README.md). Physics per shared/SIMULATION.md;
-/// where a value is not given there, the choice and its reason are documented
-/// here. Units are in the names.
+/// place (mirrored in tools/sim/README.md, which describes the physics). Values
+/// are the paper's or common 77 GHz practice; where a value is our own choice, its
+/// reason is documented here. Units are in the names.
 #include <cstdint>
 #include <vector>
 
@@ -13,7 +13,7 @@ namespace polmap::sim {
 
 /// Signal model of one sensor frame (spectrum, detections, cube).
 struct RadarSimConfig {
-  // --- radar equation (SIMULATION.md) -------------------------------------
+  // --- radar equation (tools/sim/README.md) -------------------------------
   /// SNR of a 0 dBsm point target at r_ref_m in the processed (static-reduced) domain.
   double snr_ref_db = 20.0;
   double r_ref_m = 50.0;
@@ -37,7 +37,7 @@ struct RadarSimConfig {
   /// Virtual uniform linear array: elements, spacing, taper w_n = p + (1-p) cos^2(pi x_n),
   /// x_n in [-1/2, 1/2]. Pedestal 0.7 gives -3 dB width 3.49 deg at boresight and -17 dB
   /// sidelobes; 31 elements at lambda/2 cannot go below 3.28 deg (uniform), so this is the
-  /// closest tapered beam to the ~3 deg of SIMULATION.md. Width grows as 1/cos(phi).
+  /// closest tapered beam to the paper's ~3 deg. Width grows as 1/cos(phi).
   int array_elements = 31;
   double element_spacing_wavelengths = 0.5;
   double taper_pedestal = 0.7;
@@ -69,7 +69,7 @@ struct RadarSimConfig {
 
   // --- ground clutter -----------------------------------------------------
   bool ground_clutter = true;
-  double ground_sigma0_db = -25.0;  ///< SIMULATION.md
+  double ground_sigma0_db = -25.0;  ///< at grazing incidence (tools/sim/README.md)
   /// Ground seen through a Gaussian elevation beam (two-way) from this mount height.
   double sensor_height_m = 0.5;
   double elevation_beamwidth_deg = 20.0;

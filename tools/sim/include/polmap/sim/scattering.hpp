@@ -1,7 +1,7 @@
 #pragma once
 /// @file scattering.hpp
-/// Polarimetric scattering vectors in the LR circular basis, exactly per
-/// SIMULATION.md: Omega = (S_LL, S_LR, S_RL, S_RR) with
+/// Polarimetric scattering vectors in the LR circular basis, the same convention
+/// as radar/polarimetry.hpp: Omega = (S_LL, S_LR, S_RL, S_RR) with
 ///   S_LL = (S_HH - S_VV + 2j S_HV) / 2,
 ///   S_RR = (S_VV - S_HH + 2j S_HV) / 2,
 ///   S_LR = S_RL = j (S_HH + S_VV) / 2.

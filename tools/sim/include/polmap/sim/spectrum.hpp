@@ -56,7 +56,7 @@ class SpectrumSynthesizer {
   [[nodiscard]] double doppler_response(double dv_mps) const;
   /// Expected ground-clutter power (noise units, half span) of a cell of range bin i.
   [[nodiscard]] double clutter_power(int range_bin) const { return clutter_[range_bin]; }
-  /// Linear SNR of a target of rcs_dbsm at range_m (radar equation, SIMULATION.md).
+  /// Linear SNR of a target of rcs_dbsm at range_m (radar equation, tools/sim/README.md).
   [[nodiscard]] double snr_linear(double rcs_dbsm, double range_m) const;
   /// Same for a linear RCS (m^2).
   [[nodiscard]] double snr_linear_sigma(double sigma_m2, double range_m) const {

@@ -155,6 +155,151 @@ nlohmann::json to_json(const MapBuildStats& s) {
   return j;
 }
 
+namespace {
+
+/// Centre of the build's frame: the region's centre, or that of the candidates' extent.
+GeoPoint region_centre(const std::optional<tiles::GeoBox>& region, const CandidateSet& cands) {
+  if (region) {
+    return {0.5 * (region->min_lat_deg + region->max_lat_deg),
+            0.5 * (region->min_lon_deg + region->max_lon_deg), 0.0};
+  }
+  if (cands.points.empty() && cands.lines.empty()) return {};
+  double la0 = 90, la1 = -90, lo0 = 180, lo1 = -180;
+  auto grow = [&](const GeoPoint& g) {
+    la0 = std::min(la0, g.lat_deg);
+    la1 = std::max(la1, g.lat_deg);
+    lo0 = std::min(lo0, g.lon_deg);
+    lo1 = std::max(lo1, g.lon_deg);
+  };
+  for (const auto& p : cands.points) grow(p.position);
+  for (const auto& l : cands.lines) grow(l.start), grow(l.end);
+  return {0.5 * (la0 + la1), 0.5 * (lo0 + lo1), 0.0};
+}
+
+std::vector<TaggedPointCandidate> tagged_points(const CandidateSet& cands,
+                                                const tiles::LocalFrame& frame) {
+  std::vector<TaggedPointCandidate> tp;
+  tp.reserve(cands.points.size());
+  for (const auto& p : cands.points) {
+    TaggedPointCandidate t;
+    t.candidate_id = p.id;
+    t.drive = p.drive;
+    t.candidate = p.candidate;
+    t.candidate.position_m = frame.to_local(p.position);
+    tp.push_back(t);
+  }
+  return tp;
+}
+
+std::vector<TaggedLineCandidate> tagged_lines(const CandidateSet& cands,
+                                              const tiles::LocalFrame& frame) {
+  std::vector<TaggedLineCandidate> tl;
+  tl.reserve(cands.lines.size());
+  for (const auto& l : cands.lines) {
+    TaggedLineCandidate t;
+    t.candidate_id = l.id;
+    t.drive = l.drive;
+    t.candidate = l.candidate;
+    t.candidate.start_m = frame.to_local(l.start);
+    t.candidate.end_m = frame.to_local(l.end);
+    tl.push_back(t);
+  }
+  return tl;
+}
+
+/// The frame position as a geodetic point quantized to 1e-8 degrees (stable keys).
+GeoPoint to_geo_quantized(const tiles::LocalFrame& frame, const Eigen::Vector2d& xy) {
+  const GeoPoint g = frame.to_geo(xy);
+  return GeoPoint{quantize_deg(g.lat_deg), quantize_deg(g.lon_deg), 0.0};
+}
+
+/// Consensus point landmarks as stored rows (inside the region, if one is given).
+std::vector<StoredPointLandmark> stored_points(const PointConsensusResult& pc,
+                                               const tiles::LocalFrame& frame,
+                                               const std::optional<tiles::GeoBox>& region) {
+  std::vector<StoredPointLandmark> points;
+  for (std::size_t i = 0; i < pc.landmarks.size(); ++i) {
+    const auto& lm = pc.landmarks[i];
+    StoredPointLandmark s;
+    s.position = to_geo_quantized(frame, lm.position_m);
+    if (region && !region->contains(s.position.lat_deg, s.position.lon_deg)) continue;
+    s.key = landmark_key(false, std::span<const GeoPoint>(&s.position, 1));
+    s.scattering = lm.scattering;
+    s.support_drives = lm.support_drives;
+    s.spread_m = lm.spread_m;
+    s.support = pc.support[i];
+    points.push_back(std::move(s));
+  }
+  return points;
+}
+
+/// Consensus line landmarks as stored rows (touching the region, if one is given).
+std::vector<StoredLineLandmark> stored_lines(const LineConsensusResult& lc,
+                                             const tiles::LocalFrame& frame,
+                                             const std::optional<tiles::GeoBox>& region) {
+  std::vector<StoredLineLandmark> lines;
+  for (std::size_t i = 0; i < lc.landmarks.size(); ++i) {
+    const auto& lm = lc.landmarks[i];
+    StoredLineLandmark s;
+    for (const auto& v : lm.polyline_m) s.polyline.push_back(to_geo_quantized(frame, v));
+    if (region) {
+      bool inside = false;
+      for (const auto& g : s.polyline) inside = inside || region->contains(g.lat_deg, g.lon_deg);
+      if (!inside) continue;
+    }
+    s.key = landmark_key(true, s.polyline);
+    s.support_drives = lm.support_drives;
+    s.spread_m = lm.spread_m;
+    s.support = lc.support[i];
+    lines.push_back(std::move(s));
+  }
+  return lines;
+}
+
+/// The landmarks cut into localization tiles of zoom z (each in its tile's frame; a line
+/// goes into every tile it passes through).
+std::map<tiles::TileKey, tiles::LocalizationTile> localization_tile_content(
+    const std::vector<StoredPointLandmark>& points, const std::vector<StoredLineLandmark>& lines,
+    const tiles::LocalFrame& frame, int z, double line_sample_m) {
+  std::map<tiles::TileKey, tiles::LocalizationTile> content;
+  std::map<tiles::TileKey, tiles::LocalFrame> frames;
+  auto tile = [&](const tiles::TileKey& k) -> std::pair<tiles::LocalizationTile&, const tiles::LocalFrame&> {
+    auto it = content.find(k);
+    if (it == content.end()) {
+      it = content.emplace(k, tiles::LocalizationTile{}).first;
+      it->second.key = k;
+      frames.emplace(k, tiles::LocalFrame(tiles::tile_center(k)));
+    }
+    return {it->second, frames.at(k)};
+  };
+  for (const auto& p : points) {
+    auto [t, f] = tile(tiles::tile_at(p.position.lat_deg, p.position.lon_deg, z));
+    PointLandmark lm;
+    lm.id = p.key;
+    lm.position_m = f.to_local(p.position);
+    lm.scattering = p.scattering;
+    lm.support_drives = p.support_drives;
+    lm.spread_m = p.spread_m;
+    t.points.push_back(lm);
+  }
+  for (const auto& l : lines) {
+    std::vector<Eigen::Vector2d> pl_m;
+    for (const auto& g : l.polyline) pl_m.push_back(frame.to_local(g));
+    for (const auto& k : tiles_of_polyline(l.polyline, pl_m, z, line_sample_m)) {
+      auto [t, f] = tile(k);
+      LineLandmark lm;
+      lm.id = l.key;
+      for (const auto& g : l.polyline) lm.polyline_m.push_back(f.to_local(g));
+      lm.support_drives = l.support_drives;
+      lm.spread_m = l.spread_m;
+      t.lines.push_back(std::move(lm));
+    }
+  }
+  return content;
+}
+
+}  // namespace
+
 MapBuilder::MapBuilder(MapBuilderConfig cfg) : cfg_(std::move(cfg)) {
   POLMAP_EXPECT(cfg_.tile_zoom >= 0 && cfg_.tile_zoom <= tiles::kMaxZoom);
   POLMAP_EXPECT(cfg_.write_batch > 0 && cfg_.line_tile_sample_m > 0.0);
@@ -203,45 +348,9 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version,
       for (const auto& l : cands.lines) drives.insert(l.drive);
       st.drives_used = static_cast<std::int64_t>(drives.size());
     }
-    // Region frame: centre of the region, or of the candidates' extent.
-    GeoPoint centre{};
-    if (req.region) {
-      centre = {0.5 * (req.region->min_lat_deg + req.region->max_lat_deg),
-                0.5 * (req.region->min_lon_deg + req.region->max_lon_deg), 0.0};
-    } else if (!cands.points.empty() || !cands.lines.empty()) {
-      double la0 = 90, la1 = -90, lo0 = 180, lo1 = -180;
-      auto grow = [&](const GeoPoint& g) {
-        la0 = std::min(la0, g.lat_deg);
-        la1 = std::max(la1, g.lat_deg);
-        lo0 = std::min(lo0, g.lon_deg);
-        lo1 = std::max(lo1, g.lon_deg);
-      };
-      for (const auto& p : cands.points) grow(p.position);
-      for (const auto& l : cands.lines) grow(l.start), grow(l.end);
-      centre = {0.5 * (la0 + la1), 0.5 * (lo0 + lo1), 0.0};
-    }
-    const tiles::LocalFrame frame(centre);
-    std::vector<TaggedPointCandidate> tp;
-    tp.reserve(cands.points.size());
-    for (const auto& p : cands.points) {
-      TaggedPointCandidate t;
-      t.candidate_id = p.id;
-      t.drive = p.drive;
-      t.candidate = p.candidate;
-      t.candidate.position_m = frame.to_local(p.position);
-      tp.push_back(t);
-    }
-    std::vector<TaggedLineCandidate> tl;
-    tl.reserve(cands.lines.size());
-    for (const auto& l : cands.lines) {
-      TaggedLineCandidate t;
-      t.candidate_id = l.id;
-      t.drive = l.drive;
-      t.candidate = l.candidate;
-      t.candidate.start_m = frame.to_local(l.start);
-      t.candidate.end_m = frame.to_local(l.end);
-      tl.push_back(t);
-    }
+    const tiles::LocalFrame frame(region_centre(req.region, cands));
+    const std::vector<TaggedPointCandidate> tp = tagged_points(cands, frame);
+    const std::vector<TaggedLineCandidate> tl = tagged_lines(cands, frame);
     st.seconds_load = clock.lap();
 
     // ---------------------------------------------------------------- consensus
@@ -254,39 +363,8 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version,
 
     // ---------------------------------------------------------------- landmarks
     stage("landmarks", 0.4);
-    auto to_geo_q = [&](const Eigen::Vector2d& xy) {
-      GeoPoint g = frame.to_geo(xy);
-      return GeoPoint{quantize_deg(g.lat_deg), quantize_deg(g.lon_deg), 0.0};
-    };
-    std::vector<StoredPointLandmark> points;
-    for (std::size_t i = 0; i < pc.landmarks.size(); ++i) {
-      const auto& lm = pc.landmarks[i];
-      StoredPointLandmark s;
-      s.position = to_geo_q(lm.position_m);
-      if (req.region && !req.region->contains(s.position.lat_deg, s.position.lon_deg)) continue;
-      s.key = landmark_key(false, std::span<const GeoPoint>(&s.position, 1));
-      s.scattering = lm.scattering;
-      s.support_drives = lm.support_drives;
-      s.spread_m = lm.spread_m;
-      s.support = pc.support[i];
-      points.push_back(std::move(s));
-    }
-    std::vector<StoredLineLandmark> lines;
-    for (std::size_t i = 0; i < lc.landmarks.size(); ++i) {
-      const auto& lm = lc.landmarks[i];
-      StoredLineLandmark s;
-      for (const auto& v : lm.polyline_m) s.polyline.push_back(to_geo_q(v));
-      if (req.region) {
-        bool inside = false;
-        for (const auto& g : s.polyline) inside = inside || req.region->contains(g.lat_deg, g.lon_deg);
-        if (!inside) continue;
-      }
-      s.key = landmark_key(true, s.polyline);
-      s.support_drives = lm.support_drives;
-      s.spread_m = lm.spread_m;
-      s.support = lc.support[i];
-      lines.push_back(std::move(s));
-    }
+    const std::vector<StoredPointLandmark> points = stored_points(pc, frame, req.region);
+    const std::vector<StoredLineLandmark> lines = stored_lines(lc, frame, req.region);
     st.point_landmarks = static_cast<std::int64_t>(points.size());
     st.line_landmarks = static_cast<std::int64_t>(lines.size());
     for (std::size_t b = 0; b < points.size(); b += cfg_.write_batch) {
@@ -304,40 +382,8 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version,
     // ---------------------------------------------------------------- tiles
     stage("tiles", 0.5);
     const int z = cfg_.tile_zoom;
-    std::map<tiles::TileKey, tiles::LocalizationTile> content;
-    std::map<tiles::TileKey, tiles::LocalFrame> frames;
-    auto tile = [&](const tiles::TileKey& k) -> std::pair<tiles::LocalizationTile&, const tiles::LocalFrame&> {
-      auto it = content.find(k);
-      if (it == content.end()) {
-        it = content.emplace(k, tiles::LocalizationTile{}).first;
-        it->second.key = k;
-        frames.emplace(k, tiles::LocalFrame(tiles::tile_center(k)));
-      }
-      return {it->second, frames.at(k)};
-    };
-    for (const auto& p : points) {
-      auto [t, f] = tile(tiles::tile_at(p.position.lat_deg, p.position.lon_deg, z));
-      PointLandmark lm;
-      lm.id = p.key;
-      lm.position_m = f.to_local(p.position);
-      lm.scattering = p.scattering;
-      lm.support_drives = p.support_drives;
-      lm.spread_m = p.spread_m;
-      t.points.push_back(lm);
-    }
-    for (const auto& l : lines) {
-      std::vector<Eigen::Vector2d> pl_m;
-      for (const auto& g : l.polyline) pl_m.push_back(frame.to_local(g));
-      for (const auto& k : tiles_of_polyline(l.polyline, pl_m, z, cfg_.line_tile_sample_m)) {
-        auto [t, f] = tile(k);
-        LineLandmark lm;
-        lm.id = l.key;
-        for (const auto& g : l.polyline) lm.polyline_m.push_back(f.to_local(g));
-        lm.support_drives = l.support_drives;
-        lm.spread_m = l.spread_m;
-        t.lines.push_back(std::move(lm));
-      }
-    }
+    std::map<tiles::TileKey, tiles::LocalizationTile> content =
+        localization_tile_content(points, lines, frame, z, cfg_.line_tile_sample_m);
     std::map<tiles::TileKey, std::string> prev_etags;
     if (req.incremental) {
       st.previous_version = store.current_map_version();

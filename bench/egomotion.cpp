@@ -45,8 +45,8 @@ double accel_at(double t) {
   struct Phase {
     double until_s, a;
   };
-  static const Phase phases[] = {{1, 0},    {7, 2.5}, {17, 0},   {20, -3.0}, {25, 0},
-                                 {29.5, 2}, {40, 0},  {46, -2.5}, {48, 0},   {53, 2.0},
+  static const Phase phases[] = {{1, 0},    {7, 2.5},   {17, 0},    {20, -3.0}, {25, 0},
+                                 {29.5, 2}, {40, 0},    {46, -2.5}, {48, 0},    {53, 2.0},
                                  {63, 0},   {66, -1.5}, {75, 0}};
   auto raw = [&](double tt) {
     for (const auto& p : phases) {
@@ -124,7 +124,8 @@ SynthDrive make_synthetic_drive(std::uint64_t seed, double duration_s) {
   // Path lookup by distance for moving objects (world position on the ego path).
   std::vector<double> path_s(states.size(), 0);
   for (std::size_t k = 1; k < states.size(); ++k) {
-    path_s[k] = path_s[k - 1] + std::hypot(states[k].x - states[k - 1].x, states[k].y - states[k - 1].y);
+    path_s[k] =
+        path_s[k - 1] + std::hypot(states[k].x - states[k - 1].x, states[k].y - states[k - 1].y);
   }
   auto path_at = [&](double sq, Eigen::Vector2d& p, double& yaw) {
     if (sq <= 0 || path_s.back() <= 0) {
@@ -137,7 +138,8 @@ SynthDrive make_synthetic_drive(std::uint64_t seed, double duration_s) {
     const auto& st = states[it - path_s.begin()];
     p = {st.x, st.y};
     yaw = st.yaw;
-    if (sq > path_s.back()) p += (sq - path_s.back()) * Eigen::Vector2d(std::cos(yaw), std::sin(yaw));
+    if (sq > path_s.back())
+      p += (sq - path_s.back()) * Eigen::Vector2d(std::cos(yaw), std::sin(yaw));
   };
 
   std::normal_distribution<double> n_vr(0, 0.05), n_az(0, 0.5 * kDeg), n_r(0, 0.03);
@@ -184,9 +186,11 @@ SynthDrive make_synthetic_drive(std::uint64_t seed, double duration_s) {
         Eigen::Vector2d p;
         double yaw = 0;
         path_at(sc, p, yaw);
-        const Eigen::Vector2d dir(std::cos(yaw), std::sin(yaw)), left(-std::sin(yaw), std::cos(yaw));
+        const Eigen::Vector2d dir(std::cos(yaw), std::sin(yaw)),
+            left(-std::sin(yaw), std::cos(yaw));
         for (int i = 0; i < c.points; ++i) {
-          emit(p + c.lateral * left + (u01(rng) - 0.5) * c.length * dir + (u01(rng) - 0.5) * 1.8 * left,
+          emit(p + c.lateral * left + (u01(rng) - 0.5) * c.length * dir +
+                   (u01(rng) - 0.5) * 1.8 * left,
                c.speed * dir, 0.8);
         }
       }
@@ -195,9 +199,11 @@ SynthDrive make_synthetic_drive(std::uint64_t seed, double duration_s) {
         Eigen::Vector2d p;
         double yaw = 0;
         path_at(s_ego + gap, p, yaw);
-        const Eigen::Vector2d dir(std::cos(yaw), std::sin(yaw)), left(-std::sin(yaw), std::cos(yaw));
+        const Eigen::Vector2d dir(std::cos(yaw), std::sin(yaw)),
+            left(-std::sin(yaw), std::cos(yaw));
         for (int i = 0; i < 40; ++i) {
-          emit(p + (u01(rng) - 0.5) * 2.5 * left + u01(rng) * 1.0 * dir, 0.8 * tr->v_mps * dir, 0.9);
+          emit(p + (u01(rng) - 0.5) * 2.5 * left + u01(rng) * 1.0 * dir, 0.8 * tr->v_mps * dir,
+               0.9);
         }
       }
       const int n_fa = std::poisson_distribution<int>(2.0)(rng);
@@ -223,14 +229,12 @@ void print_metrics(const std::string& name, const eval::EgoMotionMetrics& m) {
   std::printf("  yaw rate: RMSE %.4f deg/s  median %.4f  max %.4f  bias %+.4f\n",
               m.yaw_rate_rmse_dps, m.yaw_rate_median_err_dps, m.yaw_rate_max_err_dps,
               m.yaw_rate_bias_dps);
-  std::printf("  drift:    %s %% (mean over %d sub-paths of 100 m), end point %s %% over %.1f m; "
-              "heading %s deg/100 m\n",
-              m.drift_segment_pct ? std::to_string(*m.drift_segment_pct).c_str() : "n/a",
-              m.drift_segments,
-              m.drift_endpoint_pct ? std::to_string(*m.drift_endpoint_pct).c_str() : "n/a",
-              m.distance_m,
-              m.heading_drift_deg_per_100m ? std::to_string(*m.heading_drift_deg_per_100m).c_str()
-                                           : "n/a");
+  std::printf(
+      "  drift:    %s %% (mean over %d sub-paths of 100 m), end point %s %% over %.1f m; "
+      "heading %s deg/100 m\n",
+      m.drift_segment_pct ? std::to_string(*m.drift_segment_pct).c_str() : "n/a", m.drift_segments,
+      m.drift_endpoint_pct ? std::to_string(*m.drift_endpoint_pct).c_str() : "n/a", m.distance_m,
+      m.heading_drift_deg_per_100m ? std::to_string(*m.heading_drift_deg_per_100m).c_str() : "n/a");
   std::printf("  compute:  %.3f ms/frame mean, %.3f p95, %.3f max\n", m.compute_mean_ms,
               m.compute_p95_ms, m.compute_max_ms);
 }
@@ -247,15 +251,18 @@ int main(int argc, char** argv) {
   app.add_option("inputs", inputs, "simulation output directories or .pmrec recordings");
   app.add_flag("--synthetic", synthetic, "run the built-in kinematic drive");
   app.add_option("--seed", seed, "seed of the synthetic drive")->capture_default_str();
-  app.add_option("--duration-s", duration_s, "length of the synthetic drive")->capture_default_str();
+  app.add_option("--duration-s", duration_s, "length of the synthetic drive")
+      ->capture_default_str();
   app.add_option("--combine-window-s", cfg.combine_window_s)->capture_default_str();
   app.add_option("--accel-window-s", cfg.accel_window_s)->capture_default_str();
   app.add_option("--inlier-threshold-mps", cfg.inlier_threshold_mps)->capture_default_str();
   app.add_option("--accel-uncertainty-mps2", cfg.accel_uncertainty_mps2)->capture_default_str();
-  app.add_option("--yaw-accel-uncertainty-rps2", cfg.yaw_accel_uncertainty_rps2)->capture_default_str();
+  app.add_option("--yaw-accel-uncertainty-rps2", cfg.yaw_accel_uncertainty_rps2)
+      ->capture_default_str();
   app.add_flag("--json", json, "print one JSON document");
   std::string out_csv;
-  app.add_option("--out", out_csv, "per-estimate CSV of the synthetic drive (or the last recording)");
+  app.add_option("--out", out_csv,
+                 "per-estimate CSV of the synthetic drive (or the last recording)");
   CLI11_PARSE(app, argc, argv);
 
   nlohmann::json out = nlohmann::json::array();
@@ -294,7 +301,8 @@ int main(int argc, char** argv) {
         if (const auto* f = std::get_if<SensorFrame>(&*r)) runner.process(*f);
         if (const auto* t = std::get_if<TrajectorySample>(&*r)) traj.push_back(*t);
       }
-      const fs::path truth_csv = rec.parent_path() / "truth" / (rec.stem().string() + "_trajectory.csv");
+      const fs::path truth_csv =
+          rec.parent_path() / "truth" / (rec.stem().string() + "_trajectory.csv");
       const bool exact = fs::exists(truth_csv);
       const eval::MotionTruth truth =
           exact ? eval::read_truth_csv(truth_csv, reader.header().origin)

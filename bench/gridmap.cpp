@@ -15,23 +15,22 @@
 // Times are CPU time of the benchmark thread (the machine is shared).
 //
 //   bench_gridmap [--world urban] [--seconds 60] [--window-s 2] [--speed 10] [--level full]
-#include <CLI/CLI.hpp>
 #include <time.h>
 
+#include <CLI/CLI.hpp>
+#include <Eigen/Geometry>
 #include <chrono>
 #include <cstdio>
-#include <numbers>
 #include <map>
+#include <numbers>
 #include <random>
-
-#include <Eigen/Geometry>
 
 #include "polmap/radar/covariance_gridmap.hpp"
 #include "polmap/radar/line_extractor.hpp"
 #include "polmap/radar/point_extractor.hpp"
+#include "polmap/schema/radar_spec.hpp"
 #include "polmap/sim/drive_simulator.hpp"
 #include "polmap/sim/world.hpp"
-#include "polmap/schema/radar_spec.hpp"
 
 using namespace polmap;
 using namespace polmap::radar;
@@ -102,8 +101,8 @@ PolSpectrum observe(const World& w, const Pose2& T_map_sensor, std::mt19937& rng
     for (int k = static_cast<int>(fa) - 1; k <= static_cast<int>(fa) + 2; ++k) {
       for (int b = static_cast<int>(fr) - 1; b <= static_cast<int>(fr) + 2; ++b) {
         if (k < 0 || k >= kBeams || b < 0 || b >= kBins) continue;
-        const float g = static_cast<float>(std::exp(-0.5 * ((b - fr) * (b - fr) / 0.4 +
-                                                            (k - fa) * (k - fa) / 0.6)));
+        const float g = static_cast<float>(
+            std::exp(-0.5 * ((b - fr) * (b - fr) / 0.4 + (k - fa) * (k - fa) / 0.6)));
         auto& c = polar[k * kBins + b];
         c[1] += e * g;
         c[2] += e * g;
@@ -243,29 +242,35 @@ int main(int argc, char** argv) {
   double bins = 0.0, dist = 0.0;
   for (std::size_t i = 0; i < frames.size(); ++i) {
     bins += frames[i].spectrum.cells.size();
-    if (i >= 3) dist += (frames[i].T_map_sensor.translation() - frames[i - 3].T_map_sensor.translation()).norm() / 3.0;
+    if (i >= 3)
+      dist +=
+          (frames[i].T_map_sensor.translation() - frames[i - 3].T_map_sensor.translation()).norm() /
+          3.0;
   }
-  std::printf("%s drive: %zu sensor frames (%.0f s, ~%.0f m), %.0f stored bins per frame (of %d), "
-              "level %s, cell 0.1 m; CPU time of this thread\n",
-              world.c_str(), frames.size(), frames.size() / 30.0, dist, bins / frames.size(),
-              kBeams * kBins, level_name.c_str());
+  std::printf(
+      "%s drive: %zu sensor frames (%.0f s, ~%.0f m), %.0f stored bins per frame (of %d), "
+      "level %s, cell 0.1 m; CPU time of this thread\n",
+      world.c_str(), frames.size(), frames.size() / 30.0, dist, bins / frames.size(),
+      kBeams * kBins, level_name.c_str());
 
   GridmapConfig map_cfg;
   map_cfg.level = *level;
   const Result m = run(frames, map_cfg);
-  std::printf("mapping      : %.3f ms/sensor frame (max %.2f) -> 10-min drive (18000 frames) %.1f s; "
-              "%zu tiles, %.1f MB; extraction: points %.0f ms (%zu), lines %.0f ms (%zu)\n",
-              m.ms_per_frame, m.max_ms, m.ms_per_frame * 18.0, m.tiles, m.bytes / 1e6, m.points_ms,
-              m.points, m.lines_ms, m.lines);
+  std::printf(
+      "mapping      : %.3f ms/sensor frame (max %.2f) -> 10-min drive (18000 frames) %.1f s; "
+      "%zu tiles, %.1f MB; extraction: points %.0f ms (%zu), lines %.0f ms (%zu)\n",
+      m.ms_per_frame, m.max_ms, m.ms_per_frame * 18.0, m.tiles, m.bytes / 1e6, m.points_ms,
+      m.points, m.lines_ms, m.lines);
 
   GridmapConfig loc_cfg;
   loc_cfg.level = *level;
   loc_cfg.window_s = window_s;
   const Result l = run(frames, loc_cfg);
-  std::printf("localization : %.3f ms/sensor frame incl. expiry (max %.2f) = %.2f ms per "
-              "three-sensor cycle, window %.1f s, %zu tiles, %.1f MB; extraction on the last "
-              "window: points %.0f ms (%zu), lines %.0f ms (%zu)\n",
-              l.ms_per_frame, l.max_ms, 3.0 * l.ms_per_frame, window_s, l.tiles, l.bytes / 1e6,
-              l.points_ms, l.points, l.lines_ms, l.lines);
+  std::printf(
+      "localization : %.3f ms/sensor frame incl. expiry (max %.2f) = %.2f ms per "
+      "three-sensor cycle, window %.1f s, %zu tiles, %.1f MB; extraction on the last "
+      "window: points %.0f ms (%zu), lines %.0f ms (%zu)\n",
+      l.ms_per_frame, l.max_ms, 3.0 * l.ms_per_frame, window_s, l.tiles, l.bytes / 1e6, l.points_ms,
+      l.points, l.lines_ms, l.lines);
   return 0;
 }

@@ -125,7 +125,8 @@ int main(int argc, char** argv) {
   app.add_option("--length-km", length_km, "route length");
   app.add_option("--points-per-km", points_per_km, "permanent point objects per km");
   app.add_option("--walls-per-km", walls_per_km, "wall/kerb segments per km");
-  app.add_option("--temporaries-per-km", temporaries_per_km, "single-drive objects per km and drive");
+  app.add_option("--temporaries-per-km", temporaries_per_km,
+                 "single-drive objects per km and drive");
   app.add_option("--seed", seed, "random seed");
   app.add_option("--keep", keep, "keep the databases in this directory");
   CLI11_PARSE(app, argc, argv);
@@ -133,18 +134,21 @@ int main(int argc, char** argv) {
   const GeoPoint origin{48.7758, 9.1829, 0.0};
   std::mt19937 rng(seed);
   const Route route = make_route(length_km * 1000.0, points_per_km, walls_per_km, rng);
-  const fs::path root = keep.empty() ? fs::temp_directory_path() /
-                                           ("polmap_bench_map_build_" + std::to_string(seed))
-                                     : fs::path(keep);
+  const fs::path root =
+      keep.empty() ? fs::temp_directory_path() / ("polmap_bench_map_build_" + std::to_string(seed))
+                   : fs::path(keep);
   fs::remove_all(root);
   fs::create_directories(root);
 
-  std::printf("route %.1f km: %zu point objects, %zu walls; per drive ~%.0f point + ~%.0f line candidates\n",
-              length_km, route.objects.size(), route.walls.size(),
-              0.9 * route.objects.size() + temporaries_per_km * length_km, 0.9 * 2 * route.walls.size());
-  std::printf("%6s %10s %10s %9s %8s %6s | %9s %9s %9s %9s | %9s %7s %7s | %8s %7s %7s\n",
-              "drives", "cand_pts", "cand_lines", "lm_pts", "lm_lines", "tiles", "ingest_s", "cand/s",
-              "build_s", "consens_s", "incr_s", "written", "reused", "short_s", "written", "reused");
+  std::printf(
+      "route %.1f km: %zu point objects, %zu walls; per drive ~%.0f point + ~%.0f line "
+      "candidates\n",
+      length_km, route.objects.size(), route.walls.size(),
+      0.9 * route.objects.size() + temporaries_per_km * length_km, 0.9 * 2 * route.walls.size());
+  std::printf("%6s %10s %10s %9s %8s %6s | %9s %9s %9s %9s | %9s %7s %7s | %8s %7s %7s\n", "drives",
+              "cand_pts", "cand_lines", "lm_pts", "lm_lines", "tiles", "ingest_s", "cand/s",
+              "build_s", "consens_s", "incr_s", "written", "reused", "short_s", "written",
+              "reused");
   for (int n : counts) {
     const fs::path dir = root / ("n" + std::to_string(n));
     fs::create_directories(dir);
@@ -153,8 +157,8 @@ int main(int argc, char** argv) {
     std::vector<DrivePackage> pkgs;
     for (int k = 0; k <= n; ++k) pkgs.push_back(drive(route, origin, k, temporaries_per_km, drng));
     // A short drive: the first 300 m of the route only.
-    pkgs.push_back(drive(route, origin, n + 1, temporaries_per_km, drng,
-                         -route.length_m / 2 + 300.0));
+    pkgs.push_back(
+        drive(route, origin, n + 1, temporaries_per_km, drng, -route.length_m / 2 + 300.0));
     auto ingest = [&](const DrivePackage& p) {
       const fs::path tar = dir / (p.manifest.drive_id + ".tar");
       std::ofstream(tar) << "bench package " << p.manifest.drive_id;
@@ -164,7 +168,8 @@ int main(int argc, char** argv) {
     auto t0 = std::chrono::steady_clock::now();
     for (int k = 0; k < n; ++k) {
       ingest(pkgs[static_cast<std::size_t>(k)]);
-      cand += pkgs[static_cast<std::size_t>(k)].points.size() + pkgs[static_cast<std::size_t>(k)].lines.size();
+      cand += pkgs[static_cast<std::size_t>(k)].points.size() +
+              pkgs[static_cast<std::size_t>(k)].lines.size();
     }
     const double ingest_s = seconds_since(t0);
     MapBuildRequest req;
@@ -182,18 +187,16 @@ int main(int argc, char** argv) {
     std::printf(
         "%6d %10lld %10lld %9lld %8lld %6lld | %9.3f %9.0f %9.3f %9.3f | %9.3f %7lld %7lld | %8.3f "
         "%7lld %7lld\n",
-        n,
-                static_cast<long long>(r.stats.point_candidates),
-                static_cast<long long>(r.stats.line_candidates),
-                static_cast<long long>(r.stats.point_landmarks),
-                static_cast<long long>(r.stats.line_landmarks),
-                static_cast<long long>(r.stats.tiles_total), ingest_s,
-                static_cast<double>(cand) / ingest_s, r.stats.seconds_total,
-                r.stats.seconds_consensus, inc.stats.seconds_total,
-                static_cast<long long>(inc.stats.tiles_written),
-                static_cast<long long>(inc.stats.tiles_reused), part.stats.seconds_total,
-                static_cast<long long>(part.stats.tiles_written),
-                static_cast<long long>(part.stats.tiles_reused));
+        n, static_cast<long long>(r.stats.point_candidates),
+        static_cast<long long>(r.stats.line_candidates),
+        static_cast<long long>(r.stats.point_landmarks),
+        static_cast<long long>(r.stats.line_landmarks), static_cast<long long>(r.stats.tiles_total),
+        ingest_s, static_cast<double>(cand) / ingest_s, r.stats.seconds_total,
+        r.stats.seconds_consensus, inc.stats.seconds_total,
+        static_cast<long long>(inc.stats.tiles_written),
+        static_cast<long long>(inc.stats.tiles_reused), part.stats.seconds_total,
+        static_cast<long long>(part.stats.tiles_written),
+        static_cast<long long>(part.stats.tiles_reused));
     std::fflush(stdout);
   }
   std::printf(

@@ -1,10 +1,9 @@
 #include "polmap/hdmap/lanelet2_osm.hpp"
 
-#include <pugixml.hpp>
-
 #include <cmath>
 #include <cstdlib>
 #include <limits>
+#include <pugixml.hpp>
 
 #include "polmap/schema/errors.hpp"
 
@@ -54,10 +53,12 @@ Lanelet2Osm read_lanelet2_osm_file(const std::filesystem::path& path) {
     node.position.lon_deg = parse_number(n.attribute("lon"));
     if (!std::isfinite(node.position.lat_deg) || !std::isfinite(node.position.lon_deg) ||
         std::abs(node.position.lat_deg) > 90.0 || std::abs(node.position.lon_deg) > 180.0) {
-      throw FormatError(name + ": node " + std::to_string(node.id) + ": missing or invalid lat/lon");
+      throw FormatError(name + ": node " + std::to_string(node.id) +
+                        ": missing or invalid lat/lon");
     }
     for (const auto& t : n.children("tag")) {
-      if (std::string_view(t.attribute("k").as_string()) == "ele") node.ele_m = t.attribute("v").as_double();
+      if (std::string_view(t.attribute("k").as_string()) == "ele")
+        node.ele_m = t.attribute("v").as_double();
     }
     read_tags(n, node);
     out.node_index[node.id] = out.nodes.size();

@@ -89,8 +89,13 @@ DriveProcessingResult process_drive(RecordSource& source, const DriveProcessingC
   const auto t_start = Clock::now();
   GridmapConfig gcfg = cfg.gridmap;
   gcfg.window_s = 0.0;
-  DriveProcessingResult res{source.header(), tiles::LocalFrame(source.header().origin),
-                            CovarianceGridmap(gcfg), {}, {}, {}, {}};
+  DriveProcessingResult res{source.header(),
+                            tiles::LocalFrame(source.header().origin),
+                            CovarianceGridmap(gcfg),
+                            {},
+                            {},
+                            {},
+                            {}};
   DriveProcessingStats& st = res.stats;
   std::map<std::uint8_t, SensorMount> mounts;
   for (const SensorMount& m : res.header.sensors) mounts[m.sensor_id] = m;
@@ -121,7 +126,8 @@ DriveProcessingResult process_drive(RecordSource& source, const DriveProcessingC
     if (cfg.use_cube && f.cube && vw) {
       StaticReductionConfig sr = cfg.static_reduction;
       if (sr.azimuth_bins_rad.empty()) sr.azimuth_bins_rad = f.spectrum.azimuth_bins_rad;
-      if (!(sr.noise_sigma > 0.0) && f.spectrum.noise_sigma > 0.0F) sr.noise_sigma = f.spectrum.noise_sigma;
+      if (!(sr.noise_sigma > 0.0) && f.spectrum.noise_sigma > 0.0F)
+        sr.noise_sigma = f.spectrum.noise_sigma;
       const PolSpectrum s = static_reduce(*f.cube, mit->second, vw->first, vw->second, sr);
       res.gridmap.add(s, T_frame_sensor, f.time_s);
       ++st.frames_from_cube;

@@ -12,9 +12,12 @@ namespace polmap::radar {
 
 const char* to_string(MotionEstimate::Status s) {
   switch (s) {
-    case MotionEstimate::Status::Ok: return "ok";
-    case MotionEstimate::Status::TooFewDetections: return "too_few_detections";
-    case MotionEstimate::Status::Rejected: return "rejected";
+    case MotionEstimate::Status::Ok:
+      return "ok";
+    case MotionEstimate::Status::TooFewDetections:
+      return "too_few_detections";
+    case MotionEstimate::Status::Rejected:
+      return "rejected";
   }
   return "unknown";
 }
@@ -41,12 +44,12 @@ struct MotionBox {
 /// the scoring loop is a plain vectorizable pass.
 struct Problem {
   // per original detection
-  std::vector<double> h0, h1;    // v_r = h0·v + h1·ω
-  std::vector<double> g0, g1;    // ∂v_r/∂θ = g0·v + g1·ω
-  std::vector<double> vr;        // measured (time-corrected) radial velocity
-  std::vector<double> tau;       // frame time − estimate time (≤ 0)
-  std::vector<double> ext;       // extrapolation variance / σ_vr² (unknown acceleration error)
-  std::vector<int> first, count; // its copies in the augmented arrays
+  std::vector<double> h0, h1;     // v_r = h0·v + h1·ω
+  std::vector<double> g0, g1;     // ∂v_r/∂θ = g0·v + g1·ω
+  std::vector<double> vr;         // measured (time-corrected) radial velocity
+  std::vector<double> tau;        // frame time − estimate time (≤ 0)
+  std::vector<double> ext;        // extrapolation variance / σ_vr² (unknown acceleration error)
+  std::vector<int> first, count;  // its copies in the augmented arrays
   // augmented copies
   std::vector<double> a_h0, a_h1, a_g0, a_g1, a_vr, a_ext;
   std::vector<int> a_det;
@@ -169,7 +172,8 @@ class Ransac {
     std::vector<double> chosen(n_det, 0.0);  // chosen copy's v_r
     fit.inlier.assign(n_det, 0);
     const double s_vr2 = cfg_.vr_sigma_mps * cfg_.vr_sigma_mps;
-    const double prior_a = 1.0 / std::max(cfg_.accel_uncertainty_mps2 * cfg_.accel_uncertainty_mps2, 1e-12);
+    const double prior_a =
+        1.0 / std::max(cfg_.accel_uncertainty_mps2 * cfg_.accel_uncertainty_mps2, 1e-12);
     const double prior_alpha =
         1.0 / std::max(cfg_.yaw_accel_uncertainty_rps2 * cfg_.yaw_accel_uncertainty_rps2, 1e-12);
     using Vec4 = Eigen::Matrix<double, 4, 1>;
@@ -221,9 +225,9 @@ class Ransac {
     // Marginal information of (v, ω) must be well-conditioned (inliers not
     // all along one direction).
     auto marginal_ok = [](const Mat4& N) {
-      const Eigen::Matrix2d S =
-          N.topLeftCorner<2, 2>() -
-          N.topRightCorner<2, 2>() * N.bottomRightCorner<2, 2>().inverse() * N.bottomLeftCorner<2, 2>();
+      const Eigen::Matrix2d S = N.topLeftCorner<2, 2>() -
+                                N.topRightCorner<2, 2>() * N.bottomRightCorner<2, 2>().inverse() *
+                                    N.bottomLeftCorner<2, 2>();
       const Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> es(S);
       return es.eigenvalues()(0) > 1e-9 * std::max(es.eigenvalues()(1), 1e-300);
     };
@@ -413,8 +417,8 @@ MotionEstimate EgoMotionEstimator::process(const SensorFrame& frame) {
       double vr = d.radial_velocity_mps;
       if (accel && age > 0) vr += (h0 * (*accel)(0) + h1 * (*accel)(1)) * age;
       // Variance (relative to σ_vr²) of the shift's error, unknown acceleration error.
-      const double ext = age * age *
-                         (h0 * h0 * sa2 + h1 * h1 * salpha2) / (cfg_.vr_sigma_mps * cfg_.vr_sigma_mps);
+      const double ext =
+          age * age * (h0 * h0 * sa2 + h1 * h1 * salpha2) / (cfg_.vr_sigma_mps * cfg_.vr_sigma_mps);
       const int i = static_cast<int>(prob.vr.size());
       prob.h0.push_back(h0);
       prob.h1.push_back(h1);
@@ -426,8 +430,10 @@ MotionEstimate EgoMotionEstimator::process(const SensorFrame& frame) {
       prob.first.push_back(static_cast<int>(prob.a_vr.size()));
       // Radial velocities this direction can show for any motion in the global
       // box (linear in (v, ω): extremes at the corners), plus a noise margin.
-      const double c1 = h0 * global.v_lo + h1 * global.w_lo, c2 = h0 * global.v_lo + h1 * global.w_hi;
-      const double c3 = h0 * global.v_hi + h1 * global.w_lo, c4 = h0 * global.v_hi + h1 * global.w_hi;
+      const double c1 = h0 * global.v_lo + h1 * global.w_lo,
+                   c2 = h0 * global.v_lo + h1 * global.w_hi;
+      const double c3 = h0 * global.v_hi + h1 * global.w_lo,
+                   c4 = h0 * global.v_hi + h1 * global.w_hi;
       const double lo = std::min({c1, c2, c3, c4}) - thr_margin;
       const double hi = std::max({c1, c2, c3, c4}) + thr_margin;
       int k_lo = 0, k_hi = 0;
@@ -476,11 +482,13 @@ MotionEstimate EgoMotionEstimator::process(const SensorFrame& frame) {
   auto well_constrained = [&](const Fit& f) {
     // The detections themselves must roughly determine both v and ω: the prior
     // may sharpen an estimate, never supply a whole direction of it.
-    if (f.ok && (f.cov_data(0, 0) > cfg_.max_data_v_std_mps * cfg_.max_data_v_std_mps ||
-                 f.cov_data(1, 1) > cfg_.max_data_yaw_rate_std_rps * cfg_.max_data_yaw_rate_std_rps)) {
+    if (f.ok &&
+        (f.cov_data(0, 0) > cfg_.max_data_v_std_mps * cfg_.max_data_v_std_mps ||
+         f.cov_data(1, 1) > cfg_.max_data_yaw_rate_std_rps * cfg_.max_data_yaw_rate_std_rps)) {
       return false;
     }
-    return f.ok && f.inliers >= n_required && f.cov(0, 0) <= cfg_.max_v_std_mps * cfg_.max_v_std_mps &&
+    return f.ok && f.inliers >= n_required &&
+           f.cov(0, 0) <= cfg_.max_v_std_mps * cfg_.max_v_std_mps &&
            f.cov(1, 1) <= cfg_.max_yaw_rate_std_rps * cfg_.max_yaw_rate_std_rps;
   };
 

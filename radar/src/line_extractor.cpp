@@ -252,7 +252,8 @@ std::vector<LineCandidate> merge_collinear(std::vector<LineCandidate> lines,
         const double lb = (b1 - b0).norm();
         if (lb < 1e-9) continue;
         if (std::abs(d.dot((b1 - b0) / lb)) < cos_tol) continue;
-        if (std::abs(n.dot(b0 - a)) > cfg.merge_offset_m || std::abs(n.dot(b1 - a)) > cfg.merge_offset_m) {
+        if (std::abs(n.dot(b0 - a)) > cfg.merge_offset_m ||
+            std::abs(n.dot(b1 - a)) > cfg.merge_offset_m) {
           continue;
         }
         const double t0 = std::min(d.dot(b0 - a), d.dot(b1 - a));
@@ -273,9 +274,9 @@ std::vector<LineCandidate> merge_collinear(std::vector<LineCandidate> lines,
   return lines;
 }
 
-std::vector<LineCandidate> extract_lines(const cv::Mat& power, const CellBox& box,
-                                         double cs, double noise_power, int q,
-                                         const LineExtractorConfig& cfg, const CellBox* core) {
+std::vector<LineCandidate> extract_lines(const cv::Mat& power, const CellBox& box, double cs,
+                                         double noise_power, int q, const LineExtractorConfig& cfg,
+                                         const CellBox* core) {
   POLMAP_EXPECT(power.rows == box.height() && power.cols == box.width());
   const RidgeImages ri = ridgeness(power, cs, noise_power, q, cfg);
   const cv::Mat& r = ri.ridge;
@@ -309,8 +310,7 @@ std::vector<LineCandidate> extract_lines(const cv::Mat& power, const CellBox& bo
   std::vector<cv::Vec4i> hough;
   const int min_votes = std::max(2, static_cast<int>(cfg.hough_min_votes_m / cs));
   cv::HoughLinesP(skel, hough, cfg.hough_rho_m / cs, cfg.hough_theta_deg * std::numbers::pi / 180.0,
-                  min_votes,
-                  cfg.min_length_m / cs * 0.5, cfg.max_gap_m / cs);
+                  min_votes, cfg.min_length_m / cs * 0.5, cfg.max_gap_m / cs);
 
   // Skeleton pixels for the refinement.
   std::vector<cv::Point> pix;

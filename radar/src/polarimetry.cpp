@@ -81,7 +81,7 @@ ScatteringVector lr_from_hv(const LinearScattering& s) {
 Eigen::Matrix3cd pauli_lr_from_hv() {
   // Rows: S_LL, √2 S_LR, S_RR; columns: S_HH, √2 S_HV, S_VV (see header).
   Eigen::Matrix3cd u;
-  u << 0.5, kJ * kInvSqrt2, -0.5,  //
+  u << 0.5, kJ * kInvSqrt2, -0.5,           //
       kJ * kInvSqrt2, 0.0, kJ * kInvSqrt2,  //
       -0.5, kJ * kInvSqrt2, 0.5;
   return u;

@@ -29,14 +29,16 @@ PolSpectrum static_reduce(const DataCube& cube, const SensorMount& mount, double
     throw ValidationError("DataCube: data has " + std::to_string(cube.data.size()) +
                           " samples, dimensions give " + std::to_string(expect));
   }
-  if (!(cube.chirp_interval_s > 0.0)) throw ValidationError("DataCube: chirp_interval_s must be > 0");
+  if (!(cube.chirp_interval_s > 0.0))
+    throw ValidationError("DataCube: chirp_interval_s must be > 0");
 
   std::vector<float> beams = cfg.azimuth_bins_rad;
   if (beams.empty()) {
     const double half = mount.spec.fov_half_rad;
     const int n = static_cast<int>(std::floor(2.0 * half / cfg.beam_spacing_rad + 1e-9)) + 1;
     const double start = -0.5 * (n - 1) * cfg.beam_spacing_rad;
-    for (int b = 0; b < n; ++b) beams.push_back(static_cast<float>(start + b * cfg.beam_spacing_rad));
+    for (int b = 0; b < n; ++b)
+      beams.push_back(static_cast<float>(start + b * cfg.beam_spacing_rad));
   }
   const int B = static_cast<int>(beams.size());
   const double lambda = mount.spec.wavelength_m();
@@ -69,9 +71,8 @@ PolSpectrum static_reduce(const DataCube& cube, const SensorMount& mount, double
       for (int c = 0; c < C; ++c) {
         const double pd = 2.0 * std::numbers::pi * f_tc * (c - 0.5 * (C - 1));
         const double w = wv[v] * wc[c] / (swv * swc);
-        W(b, static_cast<Eigen::Index>(v) * C + c) =
-            std::complex<float>(static_cast<float>(w * std::cos(pa + pd)),
-                                static_cast<float>(w * std::sin(pa + pd)));
+        W(b, static_cast<Eigen::Index>(v) * C + c) = std::complex<float>(
+            static_cast<float>(w * std::cos(pa + pd)), static_cast<float>(w * std::sin(pa + pd)));
       }
     }
   }

@@ -84,17 +84,20 @@ void array_field(const json& j, const char* key, std::vector<T>& out) {
 }
 
 void require_object(const json& j, const char* what) {
-  if (!j.is_object()) throw JsonFieldError("", std::string("expected ") + what + " object, got " +
-                                                   j.type_name());
+  if (!j.is_object())
+    throw JsonFieldError("", std::string("expected ") + what + " object, got " + j.type_name());
 }
 
 }  // namespace
 
 std::string_view to_string(GnssSolution s) {
   switch (s) {
-    case GnssSolution::CarrierPhaseFixed: return "carrier_phase_fixed";
-    case GnssSolution::CarrierPhaseFloat: return "carrier_phase_float";
-    case GnssSolution::Standalone: return "standalone";
+    case GnssSolution::CarrierPhaseFixed:
+      return "carrier_phase_fixed";
+    case GnssSolution::CarrierPhaseFloat:
+      return "carrier_phase_float";
+    case GnssSolution::Standalone:
+      return "standalone";
   }
   return "standalone";
 }

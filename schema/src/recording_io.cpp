@@ -161,7 +161,7 @@ int block_exponent(double max_abs, int mantissa_max, int min_e) {
   if (!(max_abs > 0.0)) return min_e;
   int k = 0;
   const double f = std::frexp(max_abs / mantissa_max, &k);  // = f * 2^k, f in [0.5, 1)
-  int e = (f == 0.5) ? k - 1 : k;                              // ceil(log2(max_abs / m))
+  int e = (f == 0.5) ? k - 1 : k;                           // ceil(log2(max_abs / m))
   e = std::max(e, min_e);
   while (std::llround(std::ldexp(max_abs, -e)) > mantissa_max) ++e;
   return e;
@@ -249,8 +249,8 @@ void encode_frame(const SensorFrame& f, const FrameContext& ctx, ByteWriter& w) 
                           std::to_string(sp.num_range_bins));
     }
     if (c.azimuth_bin >= sp.azimuth_bins_rad.size()) {
-      ctx.fail(field, "azimuth_bin " + std::to_string(c.azimuth_bin) + " >= " +
-                          std::to_string(sp.azimuth_bins_rad.size()) + " azimuth bins");
+      ctx.fail(field, "azimuth_bin " + std::to_string(c.azimuth_bin) +
+                          " >= " + std::to_string(sp.azimuth_bins_rad.size()) + " azimuth bins");
     }
     if (i > 0 && (c.azimuth_bin < prev_az || (c.azimuth_bin == prev_az && c.range_bin <= prev_r))) {
       ctx.fail(field, "cells must be sorted by (azimuth_bin, range_bin) without duplicates");
@@ -291,8 +291,8 @@ void encode_frame(const SensorFrame& f, const FrameContext& ctx, ByteWriter& w) 
   if (f.cube) {
     const DataCube& cube = *f.cube;
     const std::uint64_t r = cube.num_range_bins;
-    const std::uint64_t lines = std::uint64_t{kNumPolChannels} * cube.num_virtual_channels *
-                                cube.num_chirps;
+    const std::uint64_t lines =
+        std::uint64_t{kNumPolChannels} * cube.num_virtual_channels * cube.num_chirps;
     if (cube.data.size() != lines * r) {
       ctx.fail("cube.data", "size " + std::to_string(cube.data.size()) + " != 4 * " +
                                 std::to_string(cube.num_virtual_channels) + " * " +
@@ -411,8 +411,8 @@ SensorFrame decode_frame(ByteReader& in, const std::set<std::uint8_t>& sensor_id
     cube.chirp_interval_s = in.f64();
     cube.element_spacing_wavelengths = in.f64();
     const std::uint64_t r = cube.num_range_bins;
-    const std::uint64_t lines = std::uint64_t{kNumPolChannels} * cube.num_virtual_channels *
-                                cube.num_chirps;
+    const std::uint64_t lines =
+        std::uint64_t{kNumPolChannels} * cube.num_virtual_channels * cube.num_chirps;
     const std::uint8_t* ex = in.take(in.count(lines, 2, "cube line") * 2);
     const std::uint8_t* m = in.take(in.count(lines * r, 4, "cube sample") * 4);
     cube.data.resize(lines * r);
@@ -424,7 +424,8 @@ SensorFrame decode_frame(ByteReader& in, const std::set<std::uint8_t>& sensor_id
         const std::uint8_t* p = m + 4 * (l * r + k);
         const auto mi = static_cast<std::int16_t>(load_le(p, 2));
         const auto mq = static_cast<std::int16_t>(load_le(p + 2, 2));
-        cube.data[l * r + k] = cfloat(static_cast<float>(mi * scale), static_cast<float>(mq * scale));
+        cube.data[l * r + k] =
+            cfloat(static_cast<float>(mi * scale), static_cast<float>(mq * scale));
       }
     }
     f.cube = std::move(cube);
@@ -511,7 +512,8 @@ struct RecordingWriter::Impl {
       compressed.resize(len);
       const int rc = compress2(compressed.data(), &len, raw.data(), static_cast<uLong>(raw.size()),
                                options.compression_level);
-      if (rc != Z_OK) throw IoError(source + ": zlib compression failed (" + std::to_string(rc) + ")");
+      if (rc != Z_OK)
+        throw IoError(source + ": zlib compression failed (" + std::to_string(rc) + ")");
       stored = compressed.data();
       stored_len = len;
       enc = Encoding::Zlib;
@@ -566,7 +568,8 @@ RecordingWriter::RecordingWriter(const std::filesystem::path& path, const Record
 RecordingWriter::~RecordingWriter() {
   try {
     close();
-  } catch (...) {  // NOLINT(bugprone-empty-catch): destructors must not throw; call close() to see errors
+  } catch (...) {  // NOLINT(bugprone-empty-catch): destructors must not throw; call close() to see
+                   // errors
   }
 }
 
@@ -782,13 +785,14 @@ std::optional<RecordingRecord> RecordingReader::next_record() {
         const std::uint64_t nt = in.u64();
         const std::uint64_t nf = in.u64();
         if (nt != d.num_trajectory || nf != d.num_frames) {
-          d.fail(rec.offset, "end record counts " + std::to_string(nt) + " trajectory samples and " +
-                                 std::to_string(nf) + " frames, the file holds " +
-                                 std::to_string(d.num_trajectory) + " and " +
-                                 std::to_string(d.num_frames));
+          d.fail(rec.offset, "end record counts " + std::to_string(nt) +
+                                 " trajectory samples and " + std::to_string(nf) +
+                                 " frames, the file holds " + std::to_string(d.num_trajectory) +
+                                 " and " + std::to_string(d.num_frames));
         }
         if (d.offset != d.size) {
-          d.fail(d.offset, std::to_string(d.size - d.offset) + " trailing bytes after the end record");
+          d.fail(d.offset,
+                 std::to_string(d.size - d.offset) + " trailing bytes after the end record");
         }
         d.done = true;
         break;

@@ -14,10 +14,10 @@
 #include <sstream>
 #include <string>
 
-#include "test_dir.hpp"
 #include "polmap/schema/recording_io.hpp"
 #include "polmap/sim/drive_simulator.hpp"
 #include "polmap/sim/world.hpp"
+#include "test_dir.hpp"
 
 namespace polmap {
 namespace {

@@ -16,7 +16,6 @@
 #include <thread>
 #include <vector>
 
-#include "test_dir.hpp"
 #include "polmap/eval/study.hpp"
 #include "polmap/localization_client/tile_fetcher.hpp"
 #include "polmap/mapping_service/drive_package_io.hpp"
@@ -24,6 +23,7 @@
 #include "polmap/mapping_service/sqlite_store.hpp"
 #include "polmap/sim/drive_simulator.hpp"
 #include "polmap/sim/world.hpp"
+#include "test_dir.hpp"
 
 // Last: httplib pulls in <resolv.h>, whose `_res` macro breaks Eigen templates.
 #include <httplib.h>

@@ -15,12 +15,12 @@
 #include <thread>
 #include <vector>
 
-#include "test_dir.hpp"
 #include "mapping_service/package_fixture.hpp"
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/mapping_service/server.hpp"
 #include "polmap/mapping_service/sqlite_store.hpp"
 #include "polmap/tiles/local_frame.hpp"
+#include "test_dir.hpp"
 
 // Last: httplib pulls in <resolv.h>, whose `_res` macro breaks Eigen templates.
 #include <httplib.h>
@@ -74,7 +74,8 @@ inline std::filesystem::path write_scene_package(const std::filesystem::path& di
 
 /// The drive frame shared by all scene packages.
 inline tiles::LocalFrame scene_frame() {
-  return tiles::LocalFrame(make_synthetic_drive("x", PolLevel::Full, 2, 2, 1, 0, 0, 2).pkg.manifest.origin);
+  return tiles::LocalFrame(
+      make_synthetic_drive("x", PolLevel::Full, 2, 2, 1, 0, 0, 2).pkg.manifest.origin);
 }
 
 class ServerFixture : public ::testing::Test {
@@ -132,7 +133,8 @@ class ServerFixture : public ::testing::Test {
   /// Files left in the upload directory (must be none after every request).
   std::size_t upload_leftovers() const {
     std::size_t n = 0;
-    for ([[maybe_unused]] const auto& e : std::filesystem::directory_iterator(dir_ / "uploads")) ++n;
+    for ([[maybe_unused]] const auto& e : std::filesystem::directory_iterator(dir_ / "uploads"))
+      ++n;
     return n;
   }
   /// Entries of the drive store directory (ingested packages).

@@ -2,13 +2,13 @@
 // (LocalFrame at the header origin, ENU yaw plus meridian convergence),
 // interpolated at each sensor frame time and composed with the mount; a static
 // pole seen by a moving sensor ends up as one odd-bounce point at its position.
+#include "polmap/radar/drive_processor.hpp"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <numbers>
 #include <random>
-
-#include "polmap/radar/drive_processor.hpp"
 
 namespace polmap::radar {
 namespace {
@@ -27,7 +27,8 @@ class SyntheticDrive final : public RecordSource {
     // A sensor frame before the first trajectory sample (cannot be posed).
     events_.push_back({-0.05, false});
     for (int k = 0; k <= static_cast<int>(t_end * 100); ++k) events_.push_back({k * 0.01, true});
-    for (int k = 0; k < static_cast<int>(t_end * 10); ++k) events_.push_back({k * 0.1 + 0.033, false});
+    for (int k = 0; k < static_cast<int>(t_end * 10); ++k)
+      events_.push_back({k * 0.1 + 0.033, false});
     std::stable_sort(events_.begin(), events_.end(),
                      [](const Event& a, const Event& b) { return a.t < b.t; });
   }
@@ -71,7 +72,8 @@ class SyntheticDrive final : public RecordSource {
     s.range_bin_m = 0.075;
     s.num_range_bins = 400;  // 30 m
     s.noise_sigma = 1.0F;
-    for (int k = 0; k < 81; ++k) s.azimuth_bins_rad.push_back(static_cast<float>((-60.0 + 1.5 * k) * kDeg));
+    for (int k = 0; k < 81; ++k)
+      s.azimuth_bins_rad.push_back(static_cast<float>((-60.0 + 1.5 * k) * kDeg));
     const Eigen::Vector2d v = T_frame_sensor.inverse() * pole();
     const double fr = v.norm() / s.range_bin_m;
     const double fa = (std::atan2(v.y(), v.x()) / kDeg + 60.0) / 1.5;
@@ -79,7 +81,8 @@ class SyntheticDrive final : public RecordSource {
     for (int k = static_cast<int>(fa) - 2; k <= static_cast<int>(fa) + 3; ++k) {
       for (int i = static_cast<int>(fr) - 2; i <= static_cast<int>(fr) + 3; ++i) {
         if (k < 0 || k > 80) continue;
-        const double g = 30.0 * std::exp(-0.5 * ((i - fr) * (i - fr) / 0.4 + (k - fa) * (k - fa) / 0.5));
+        const double g =
+            30.0 * std::exp(-0.5 * ((i - fr) * (i - fr) / 0.4 + (k - fa) * (k - fa) / 0.5));
         if (g < 3.0) continue;
         SpectrumCell c;
         c.azimuth_bin = static_cast<std::uint16_t>(k);

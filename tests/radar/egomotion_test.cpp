@@ -91,8 +91,8 @@ TEST_P(EgoMotionAliasing, RecoversMotionWithOutliersBeyondUnambiguousRange) {
   EXPECT_NEAR(first.v_mps, truth.v_mps, 0.05);
   EXPECT_NEAR(first.yaw_rate_rps, truth.yaw_rate_rps, 0.03);
   for (int cycle = 0; cycle < 3; ++cycle) {
-    const MotionEstimate e = run_cycle(est, 0.1 * (cycle + 1), truth.v_mps, truth.yaw_rate_rps,
-                                       spec, rng);
+    const MotionEstimate e =
+        run_cycle(est, 0.1 * (cycle + 1), truth.v_mps, truth.yaw_rate_rps, spec, rng);
     ASSERT_EQ(e.status, MotionEstimate::Status::Ok) << "v = " << truth.v_mps;
     EXPECT_EQ(e.num_frames, 3);
     EXPECT_EQ(e.num_detections, 300);
@@ -108,9 +108,8 @@ TEST_P(EgoMotionAliasing, RecoversMotionWithOutliersBeyondUnambiguousRange) {
 }
 
 INSTANTIATE_TEST_SUITE_P(Speeds, EgoMotionAliasing,
-                         ::testing::Values(Motion{3.0, 0.0}, Motion{8.0, 0.15},
-                                           Motion{14.0, -0.1}, Motion{19.0, 0.05},
-                                           Motion{-2.0, 0.1}));
+                         ::testing::Values(Motion{3.0, 0.0}, Motion{8.0, 0.15}, Motion{14.0, -0.1},
+                                           Motion{19.0, 0.05}, Motion{-2.0, 0.1}));
 
 TEST(EgoMotion, AzimuthNoiseAtSpeedIsHandledByScaledThreshold) {
   std::mt19937 rng(7);
@@ -161,8 +160,8 @@ TEST(EgoMotion, TooFewDetectionsNeverInventsAValue) {
   g.time_s = 0.1;
   std::uniform_real_distribution<double> vr(-5.0, 5.0);
   for (int i = 0; i < 8; ++i) {
-    g.detections.push_back({10.0F, static_cast<float>((-50 + 12 * i) * kDeg),
-                            static_cast<float>(vr(rng)), 10.0F});
+    g.detections.push_back(
+        {10.0F, static_cast<float>((-50 + 12 * i) * kDeg), static_cast<float>(vr(rng)), 10.0F});
   }
   EXPECT_EQ(est.process(g).status, MotionEstimate::Status::TooFewDetections);
 }
@@ -218,7 +217,8 @@ TEST(EgoMotion, AccelerationLimitsRejectDominantMovingCluster) {
       // truck's own speed has no radial component (physically indistinguishable).
       const auto& mask = est.last_static_mask();
       int truck_marked = 0, static_marked = 0;
-      for (std::size_t i = 0; i < mask.size(); ++i) (i < 120 ? truck_marked : static_marked) += mask[i];
+      for (std::size_t i = 0; i < mask.size(); ++i)
+        (i < 120 ? truck_marked : static_marked) += mask[i];
       EXPECT_LE(truck_marked, 10);
       EXPECT_GE(static_marked, 20);
     }
@@ -356,7 +356,7 @@ TEST(EgoMotion, CovarianceMatchesEmpiricalScatter) {
   EgoMotionConfig cfg;
   cfg.combine_window_s = 0.0;
   cfg.azimuth_sigma_rad = 0.0;
-  cfg.inlier_threshold_mps = 0.25;  // 5σ: no truncation of the residuals
+  cfg.inlier_threshold_mps = 0.25;   // 5σ: no truncation of the residuals
   cfg.prior_accel_sigma_mps2 = 0.0;  // independent estimates
   std::mt19937 rng(19);
   SynthSpec spec;
@@ -431,7 +431,8 @@ TEST(EgoMotion, LeastSquaresMatchesGridSearch) {
   H(0, 0) = (sse(v0 + hv, w0) - 2 * sse(v0, w0) + sse(v0 - hv, w0)) / (hv * hv) / 2;
   H(1, 1) = (sse(v0, w0 + hw) - 2 * sse(v0, w0) + sse(v0, w0 - hw)) / (hw * hw) / 2;
   H(0, 1) = H(1, 0) = (sse(v0 + hv, w0 + hw) - sse(v0 + hv, w0 - hw) - sse(v0 - hv, w0 + hw) +
-                       sse(v0 - hv, w0 - hw)) / (4 * hv * hw) / 2;
+                       sse(v0 - hv, w0 - hw)) /
+                      (4 * hv * hw) / 2;
   const Eigen::Matrix2d expected = (sse(v0, w0) / (36 - 2)) * H.inverse();
   EXPECT_NEAR(e.covariance(0, 0), expected(0, 0), 1e-6 * expected(0, 0) + 1e-12);
   EXPECT_NEAR(e.covariance(1, 1), expected(1, 1), 1e-6 * expected(1, 1) + 1e-12);
@@ -471,7 +472,7 @@ TEST(EgoMotion, SequentialTriggersAreCorrectedForAcceleration) {
     }
     return std::pair{sum / n, corrected};
   };
-  const auto [both, n_both] = mean_error(0.3, 1.0);        // defaults
+  const auto [both, n_both] = mean_error(0.3, 1.0);         // defaults
   const auto [history, n_history] = mean_error(0.3, 1e-6);  // extrapolation only
   const auto [data, n_data] = mean_error(0.0, 1.0);         // estimated from the frames only
   const auto [none, n_none] = mean_error(0.0, 1e-6);        // no correction at all

@@ -2,6 +2,8 @@
 // clutter is recovered within 0.3 m at its ends and 1° in direction, at any
 // orientation; point-like blobs give no lines; a wall crossing gridmap chunk
 // borders comes out as one segment.
+#include "polmap/radar/line_extractor.hpp"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -9,14 +11,13 @@
 #include <random>
 #include <sstream>
 
-#include "polmap/radar/line_extractor.hpp"
-
 namespace polmap::radar {
 namespace {
 
 constexpr double kCell = 0.1;
 
-double dist_to_segment(const Eigen::Vector2d& p, const Eigen::Vector2d& a, const Eigen::Vector2d& b) {
+double dist_to_segment(const Eigen::Vector2d& p, const Eigen::Vector2d& a,
+                       const Eigen::Vector2d& b) {
   const Eigen::Vector2d d = b - a;
   const double t = std::clamp(d.dot(p - a) / d.squaredNorm(), 0.0, 1.0);
   return (a + t * d - p).norm();
@@ -48,7 +49,8 @@ cv::Mat scene(std::mt19937& rng, const CellBox& box,
 std::string describe(const std::vector<LineCandidate>& lines) {
   std::ostringstream os;
   for (const auto& l : lines) {
-    os << "\n  (" << l.start_m.transpose() << ") -> (" << l.end_m.transpose() << ") R " << l.strength;
+    os << "\n  (" << l.start_m.transpose() << ") -> (" << l.end_m.transpose() << ") R "
+       << l.strength;
   }
   return os.str();
 }
@@ -103,7 +105,8 @@ TEST(LineExtractor, PointBlobsGiveNoLines) {
     const int cx = 20 + 20 * k, cy = 30 + 17 * k;
     for (int r = -3; r <= 3; ++r) {
       for (int c = -3; c <= 3; ++c) {
-        img.ptr<float>(cy + r)[cx + c] += static_cast<float>(1000.0 * std::exp(-0.5 * (r * r + c * c)));
+        img.ptr<float>(cy + r)[cx + c] +=
+            static_cast<float>(1000.0 * std::exp(-0.5 * (r * r + c * c)));
       }
     }
   }

@@ -25,8 +25,9 @@ PolSpectrum random_spectrum(std::mt19937& rng, int num_range_bins, int num_beams
   std::uniform_real_distribution<double> jitter(-0.3, 0.3);
   const double step = 120.0 / (num_beams - 1) * std::numbers::pi / 180.0;
   for (int k = 0; k < num_beams; ++k) {
-    s.azimuth_bins_rad.push_back(static_cast<float>(-60.0 * std::numbers::pi / 180.0 +
-                                                    (k + jitter(rng) * (k > 0 && k < num_beams - 1)) * step));
+    s.azimuth_bins_rad.push_back(
+        static_cast<float>(-60.0 * std::numbers::pi / 180.0 +
+                           (k + jitter(rng) * (k > 0 && k < num_beams - 1)) * step));
   }
   std::uniform_real_distribution<double> u(0.0, 1.0);
   for (int k = 0; k < num_beams; ++k) {

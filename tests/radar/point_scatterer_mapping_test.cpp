@@ -77,7 +77,8 @@ TEST(PointScattererMapping, LandsInTheRightCellForRotatedTranslatedPoses) {
     EXPECT_LT((centroid - truth).norm(), 0.1) << "range " << c.range_m;
     // Peak = |LR|² + |RL|² of the strongest bin = 2·(10·w_max)².
     double w_max = 0.0;
-    for (const auto& cell : point_spectrum(c.range_m, az).cells) w_max = std::max(w_max, cell.s[1].imag() / 10.0);
+    for (const auto& cell : point_spectrum(c.range_m, az).cells)
+      w_max = std::max(w_max, cell.s[1].imag() / 10.0);
     EXPECT_NEAR(best, 200.0 * w_max * w_max, 1e-3 * best);
   }
 }

@@ -1,13 +1,13 @@
 // Polarimetric conventions: LR <-> HV transforms (polarimetry.hpp), unitary Pauli-like
 // reductions, covariance transforms C' = A C A^H, partial levels and the scattering
 // class from a covariance.
+#include "polmap/radar/polarimetry.hpp"
+
 #include <gtest/gtest.h>
 
 #include <Eigen/Dense>
 #include <cmath>
 #include <random>
-
-#include "polmap/radar/polarimetry.hpp"
 
 namespace polmap::radar {
 namespace {
@@ -45,7 +45,8 @@ TEST(Polarimetry, CanonicalMechanismsFollowTheConvention) {
   EXPECT_LT(std::abs(dih[3] + std::polar(1.0, -2 * th)), 1e-12);
   EXPECT_LT(std::abs(dih[1]), 1e-12);
   // Level vectors agree with the Pauli matrix: k_LR = U k_HV.
-  const Eigen::Vector3cd k_hv(std::cos(2 * th), std::sqrt(2.0) * std::sin(2 * th), -std::cos(2 * th));
+  const Eigen::Vector3cd k_hv(std::cos(2 * th), std::sqrt(2.0) * std::sin(2 * th),
+                              -std::cos(2 * th));
   EXPECT_LT((pauli_lr_from_hv() * k_hv - level_vector(dih, PolLevel::Full)).norm(), 1e-12);
 }
 
@@ -53,10 +54,10 @@ TEST(Polarimetry, OddBounceCovarianceShowsHhEqualVvInLinearBasis) {
   const Eigen::VectorXcd k = level_vector(lr_from_hv({2.0, 0.0, 2.0}), PolLevel::Full);
   const Eigen::MatrixXcd c_lr = k * k.adjoint();
   const Eigen::MatrixXcd c_hv = transform_covariance(c_lr, pauli_hv_from_lr());
-  EXPECT_NEAR(c_hv(0, 0).real(), 4.0, 1e-12);          // |HH|²
-  EXPECT_NEAR(c_hv(2, 2).real(), 4.0, 1e-12);          // |VV|²
-  EXPECT_LT(std::abs(c_hv(0, 2) - cdouble(4.0)), 1e-12);  // HH VV* real positive: in phase
-  EXPECT_NEAR(c_hv(1, 1).real(), 0.0, 1e-12);          // no cross-pol
+  EXPECT_NEAR(c_hv(0, 0).real(), 4.0, 1e-12);                    // |HH|²
+  EXPECT_NEAR(c_hv(2, 2).real(), 4.0, 1e-12);                    // |VV|²
+  EXPECT_LT(std::abs(c_hv(0, 2) - cdouble(4.0)), 1e-12);         // HH VV* real positive: in phase
+  EXPECT_NEAR(c_hv(1, 1).real(), 0.0, 1e-12);                    // no cross-pol
   EXPECT_NEAR(c_lr.trace().real(), c_hv.trace().real(), 1e-12);  // span preserved
 }
 
@@ -100,9 +101,12 @@ TEST(Polarimetry, ScatteringClassOfCanonicalCovariances) {
     EXPECT_EQ(classify_scattering(cov(dih, l), l), ScatteringClass::Even);
   }
   const ScatteringVector dih0 = lr_from_hv({1.0, 0.0, -1.0});  // seen by HH/VV
-  EXPECT_EQ(classify_scattering(cov(odd, PolLevel::DualHHVV), PolLevel::DualHHVV), ScatteringClass::Odd);
-  EXPECT_EQ(classify_scattering(cov(dih0, PolLevel::DualHHVV), PolLevel::DualHHVV), ScatteringClass::Even);
-  EXPECT_EQ(classify_scattering(cov(odd, PolLevel::SingleLR), PolLevel::SingleLR), ScatteringClass::Unknown);
+  EXPECT_EQ(classify_scattering(cov(odd, PolLevel::DualHHVV), PolLevel::DualHHVV),
+            ScatteringClass::Odd);
+  EXPECT_EQ(classify_scattering(cov(dih0, PolLevel::DualHHVV), PolLevel::DualHHVV),
+            ScatteringClass::Even);
+  EXPECT_EQ(classify_scattering(cov(odd, PolLevel::SingleLR), PolLevel::SingleLR),
+            ScatteringClass::Unknown);
   // Random-dipole volume: odd = even in the LR basis -> Mixed.
   Eigen::Matrix3cd c_hv;
   c_hv << 1.0, 0.0, 1.0 / 3.0, 0.0, 2.0 / 3.0, 0.0, 1.0 / 3.0, 0.0, 1.0;

@@ -31,7 +31,8 @@ PolSpectrum spectrum_with_points(std::mt19937& rng, int num_points) {
     }
   }
   std::sort(s.cells.begin(), s.cells.end(), [](const auto& a, const auto& b) {
-    return a.azimuth_bin != b.azimuth_bin ? a.azimuth_bin < b.azimuth_bin : a.range_bin < b.range_bin;
+    return a.azimuth_bin != b.azimuth_bin ? a.azimuth_bin < b.azimuth_bin
+                                          : a.range_bin < b.range_bin;
   });
   s.cells.erase(std::unique(s.cells.begin(), s.cells.end(),
                             [](const auto& a, const auto& b) {

@@ -2,13 +2,14 @@
 // tools/sim/README.md): a static scatterer comes back with its complex amplitude
 // in the right beam and range bin for every polarization; a moving one is
 // suppressed by the Doppler mismatch.
+#include "polmap/radar/static_reduction.hpp"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <numbers>
 #include <random>
 
-#include "polmap/radar/static_reduction.hpp"
 #include "polmap/schema/errors.hpp"
 
 namespace polmap::radar {
@@ -38,8 +39,9 @@ DataCube make_cube(const RadarSpec& spec, const std::vector<Echo>& echoes) {
     for (int p = 0; p < 4; ++p) {
       for (int v = 0; v < V; ++v) {
         for (int c = 0; c < C; ++c) {
-          const double ph = 2.0 * std::numbers::pi * 0.5 * (v - 0.5 * (V - 1)) * std::sin(e.azimuth_rad) -
-                            std::numbers::pi * e.radial_velocity_mps * (c - 0.5 * (C - 1)) / v_ua;
+          const double ph =
+              2.0 * std::numbers::pi * 0.5 * (v - 0.5 * (V - 1)) * std::sin(e.azimuth_rad) -
+              std::numbers::pi * e.radial_velocity_mps * (c - 0.5 * (C - 1)) / v_ua;
           const cdouble x = e.a[p] * std::polar(1.0, ph);
           cube.data[((static_cast<std::size_t>(p) * V + v) * C + c) * R + e.range_bin] +=
               cfloat(static_cast<float>(x.real()), static_cast<float>(x.imag()));
@@ -66,8 +68,8 @@ TEST(StaticReduction, RecoversStaticScattererAndSuppressesMovingOne) {
                                         cdouble(5.0, 0.0)};
   // Static: aliased radial velocity (the cube only sees it modulo 2 v_ua).
   ASSERT_GT(std::abs(vr_static), 5.0);
-  const DataCube cube = make_cube(mount.spec, {{12, az_static, vr_static, a_static},
-                                              {25, az_moving, vr_moving, a_moving}});
+  const DataCube cube = make_cube(
+      mount.spec, {{12, az_static, vr_static, a_static}, {25, az_moving, vr_moving, a_moving}});
   const PolSpectrum s = static_reduce(cube, mount, v, w, cfg);
   ASSERT_EQ(s.azimuth_bins_rad.size(), 81U);
   EXPECT_NEAR(s.azimuth_bins_rad[30], az_static, 1e-6);
@@ -88,7 +90,9 @@ TEST(StaticReduction, RecoversStaticScattererAndSuppressesMovingOne) {
 
 TEST(StaticReduction, FloorDropsNoiseCellsAndEstimatesSigma) {
   SensorMount mount{0, "front_center", {3.7, 0.0, 0.0}, 0.0, {}};
-  std::vector<Echo> echoes{{20, 0.0, static_radial_velocity(mount, 5.0, 0.0, 0.0),
+  std::vector<Echo> echoes{{20,
+                            0.0,
+                            static_radial_velocity(mount, 5.0, 0.0, 0.0),
                             {cdouble(0, 0), cdouble(0, 10), cdouble(0, 10), cdouble(0, 0)}}};
   DataCube cube = make_cube(mount.spec, echoes);
   // Add white noise of σ_cube so the reduced noise is about σ_cube·sqrt(ρ_v ρ_c) small.

@@ -1,8 +1,8 @@
+#include "polmap/schema/pose2.hpp"
+
 #include <gtest/gtest.h>
 
 #include <numbers>
-
-#include "polmap/schema/pose2.hpp"
 
 namespace polmap {
 namespace {

@@ -1,6 +1,5 @@
 // Recording format: round trips within the documented quantization,
 // determinism, and that every truncation / corruption is a FormatError.
-#include "test_dir.hpp"
 #include "polmap/schema/recording_io.hpp"
 
 #include <gtest/gtest.h>
@@ -9,15 +8,16 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <fstream>
 #include <iterator>
-#include <cstdio>
 #include <random>
 #include <string>
 #include <vector>
 
 #include "polmap/schema/errors.hpp"
 #include "polmap/schema/json.hpp"
+#include "test_dir.hpp"
 
 namespace polmap {
 namespace {
@@ -26,9 +26,7 @@ namespace fs = std::filesystem;
 
 class TempDir {
  public:
-  TempDir() {
-    path_ = polmap::test::unique_test_dir("recording");
-  }
+  TempDir() { path_ = polmap::test::unique_test_dir("recording"); }
   ~TempDir() { fs::remove_all(path_); }
   [[nodiscard]] fs::path operator/(const std::string& name) const { return path_ / name; }
 
@@ -94,7 +92,8 @@ SensorFrame make_frame(std::mt19937& rng, std::uint32_t cycle, std::uint8_t sens
   PolSpectrum& sp = f.spectrum;
   sp.range_bin_m = 0.075;
   sp.num_range_bins = 1067;
-  for (int a = 0; a < 81; ++a) sp.azimuth_bins_rad.push_back(static_cast<float>(-1.0472 + a * 0.02618));
+  for (int a = 0; a < 81; ++a)
+    sp.azimuth_bins_rad.push_back(static_cast<float>(-1.0472 + a * 0.02618));
   sp.noise_sigma = 0.37F;
   // Choose distinct (az, r) cells, then sort.
   std::vector<std::uint32_t> keys;
@@ -113,7 +112,8 @@ SensorFrame make_frame(std::mt19937& rng, std::uint32_t cycle, std::uint8_t sens
       if (u(rng) < 0.1) continue;  // exactly zero channel
       const double amp = sp.noise_sigma * std::pow(10.0, (-10.0 + 90.0 * u(rng)) / 20.0);
       const double ph = 2.0 * 3.14159265358979 * u(rng);
-      c.s[ch] = cfloat(static_cast<float>(amp * std::cos(ph)), static_cast<float>(amp * std::sin(ph)));
+      c.s[ch] =
+          cfloat(static_cast<float>(amp * std::cos(ph)), static_cast<float>(amp * std::sin(ph)));
     }
     sp.cells.push_back(c);
   }
@@ -174,7 +174,8 @@ void expect_frame_close(const SensorFrame& a, const SensorFrame& b) {
     // Half a step plus float rounding of the decoded value.
     EXPECT_NEAR(x.range_m, y.range_m, kDetectionRangeStep_m / 2 + 1e-5);
     EXPECT_NEAR(x.azimuth_rad, y.azimuth_rad, kDetectionAzimuthStep_rad / 2 + 1e-7);
-    EXPECT_NEAR(x.radial_velocity_mps, y.radial_velocity_mps, kDetectionVelocityStep_mps / 2 + 1e-6);
+    EXPECT_NEAR(x.radial_velocity_mps, y.radial_velocity_mps,
+                kDetectionVelocityStep_mps / 2 + 1e-6);
     EXPECT_NEAR(x.snr_db, y.snr_db, kDetectionSnrStep_db / 2 + 1e-5);
   }
   const PolSpectrum& p = a.spectrum;
@@ -462,8 +463,8 @@ TEST(RecordingIo, WrongMagicAndFutureVersionAreClearErrors) {
   EXPECT_NE(msg.find("newer"), std::string::npos) << msg;
   EXPECT_NE(msg.find("at byte 8"), std::string::npos) << msg;
 
-  write_bytes(path, std::vector<char>{'h', 'e', 'l', 'l', 'o', ' ', 'w', 'o', 'r', 'l', 'd', '!',
-                                      '!', '!', '!', '!', '!', '!', '!', '!', '!'});
+  write_bytes(path, std::vector<char>{'h', 'e', 'l', 'l', 'o', ' ', 'w', 'o', 'r', 'l', 'd',
+                                      '!', '!', '!', '!', '!', '!', '!', '!', '!', '!'});
   EXPECT_NE(read_error(path).find("bad magic"), std::string::npos);
 }
 

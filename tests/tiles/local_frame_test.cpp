@@ -1,8 +1,8 @@
 #include "polmap/tiles/local_frame.hpp"
 
-#include <GeographicLib/Geodesic.hpp>
 #include <gtest/gtest.h>
 
+#include <GeographicLib/Geodesic.hpp>
 #include <cmath>
 #include <numbers>
 

@@ -144,9 +144,10 @@ TEST(LocalizationTile, SizePerLandmarkAndPerKilometre) {
                            static_cast<double>(t.points.size());
   const double per_line = (raw - encode_localization_tile(only_points, stored).size()) /
                           static_cast<double>(t.lines.size());
-  std::printf("1 km urban: %zu points, %zu lines -> %zu bytes (uncompressed %zu); "
-              "%.1f B/point, %.1f B/line uncompressed\n",
-              t.points.size(), t.lines.size(), bytes.size(), raw, per_point, per_line);
+  std::printf(
+      "1 km urban: %zu points, %zu lines -> %zu bytes (uncompressed %zu); "
+      "%.1f B/point, %.1f B/line uncompressed\n",
+      t.points.size(), t.lines.size(), bytes.size(), raw, per_point, per_line);
   EXPECT_LE(bytes.size(), 4096u);
   EXPECT_LE(per_point, 11.0);
   EXPECT_LE(per_line, 18.0);
@@ -203,13 +204,12 @@ TEST(LocalizationTile, CorruptionIsAFormatErrorSayingWhat) {
   }
 }
 
-
 // A stored (uncompressed) tile with a valid CRC around an arbitrary body.
 std::string frame_body(const std::string& body) {
   std::string out = "PMLT";
   out += std::string("\x01\x00\x00\x00", 4);
-  for (std::uint32_t v : {static_cast<std::uint32_t>(body.size()),
-                          static_cast<std::uint32_t>(body.size())}) {
+  for (std::uint32_t v :
+       {static_cast<std::uint32_t>(body.size()), static_cast<std::uint32_t>(body.size())}) {
     for (int i = 0; i < 4; ++i) out.push_back(static_cast<char>((v >> (8 * i)) & 0xFF));
   }
   out += body;
@@ -237,9 +237,9 @@ TEST(LocalizationTile, MalformedBodyWithValidCrc) {
   EXPECT_NE(error_of(frame_body(std::string("\x19\x00\x00\x00\x88\x27\xE8\x07\x00\x00", 10)))
                 .find("invalid tile key"),
             std::string::npos);
-  EXPECT_NE(error_of(frame_body(std::string("\x10\x01\x02\x03\x00\xE8\x07\x00\x00", 9)))
-                .find("quantum"),
-            std::string::npos);
+  EXPECT_NE(
+      error_of(frame_body(std::string("\x10\x01\x02\x03\x00\xE8\x07\x00\x00", 9))).find("quantum"),
+      std::string::npos);
   EXPECT_NE(error_of(frame_body(head + std::string(3, '\0'))).find("trailing"), std::string::npos);
 }
 

@@ -11,9 +11,9 @@
 #include <fstream>
 #include <memory>
 
-#include "test_dir.hpp"
 #include "polmap/tiles/local_frame.hpp"
 #include "polmap/tiles/mvt.hpp"
+#include "test_dir.hpp"
 
 namespace polmap::tiles {
 namespace {
@@ -66,11 +66,11 @@ TEST_F(MvtGdal, LayersFeaturesAttributesAndCoordinates) {
                                 {"spread_m", 0.01 * (i + 1)},
                                 {"offset", std::int64_t(-i)}}});
   }
-  lines.features.push_back({7,
-                            MvtGeometryType::LineString,
-                            {{frame.to_geo({-30.0, -30.0}), frame.to_geo({0.0, -25.0}),
-                              frame.to_geo({30.0, -30.0})}},
-                            {{"support_drives", std::uint64_t(3)}}});
+  lines.features.push_back(
+      {7,
+       MvtGeometryType::LineString,
+       {{frame.to_geo({-30.0, -30.0}), frame.to_geo({0.0, -25.0}), frame.to_geo({30.0, -30.0})}},
+       {{"support_drives", std::uint64_t(3)}}});
   traj.features.push_back({1,
                            MvtGeometryType::LineString,
                            {{frame.to_geo({-500.0, 0.0}), frame.to_geo({500.0, 0.0})}},
@@ -89,8 +89,8 @@ TEST_F(MvtGdal, LayersFeaturesAttributesAndCoordinates) {
   EXPECT_EQ(lt->GetFeatureCount(), 1);
 
   // Pixel size at z18: 2πR / 2^18 / 4096 = 3.7 cm (Mercator metres); ground ≈ 2.5 cm here.
-  const double pixel_m = 2.0 * M_PI * 6378137.0 / std::pow(2.0, 18) / 4096.0 *
-                         std::cos(origin.lat_deg * M_PI / 180.0);
+  const double pixel_m =
+      2.0 * M_PI * 6378137.0 / std::pow(2.0, 18) / 4096.0 * std::cos(origin.lat_deg * M_PI / 180.0);
   int n = 0;
   for (auto& f : *lp) {
     const int i = static_cast<int>(f->GetFieldAsInteger64("mvt_id")) - 100;

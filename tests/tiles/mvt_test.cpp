@@ -35,20 +35,39 @@ std::vector<DecodedLayer> decode(const std::string& data) {
     std::vector<std::pair<DecodedFeature, std::vector<std::uint32_t>>> raw;
     while (layer.next()) {
       switch (layer.tag()) {
-        case 1: dl.name = layer.get_string(); break;
-        case 15: dl.version = layer.get_uint32(); break;
-        case 5: dl.extent = layer.get_uint32(); break;
-        case 3: keys.push_back(layer.get_string()); break;
+        case 1:
+          dl.name = layer.get_string();
+          break;
+        case 15:
+          dl.version = layer.get_uint32();
+          break;
+        case 5:
+          dl.extent = layer.get_uint32();
+          break;
+        case 3:
+          keys.push_back(layer.get_string());
+          break;
         case 4: {
           protozero::pbf_reader v = layer.get_message();
           while (v.next()) {
             switch (v.tag()) {
-              case 1: values.emplace_back(v.get_string()); break;
-              case 3: values.emplace_back(v.get_double()); break;
-              case 5: values.emplace_back(v.get_uint64()); break;
-              case 6: values.emplace_back(v.get_sint64()); break;
-              case 7: values.emplace_back(v.get_bool()); break;
-              default: v.skip();
+              case 1:
+                values.emplace_back(v.get_string());
+                break;
+              case 3:
+                values.emplace_back(v.get_double());
+                break;
+              case 5:
+                values.emplace_back(v.get_uint64());
+                break;
+              case 6:
+                values.emplace_back(v.get_sint64());
+                break;
+              case 7:
+                values.emplace_back(v.get_bool());
+                break;
+              default:
+                v.skip();
             }
           }
           break;
@@ -60,19 +79,24 @@ std::vector<DecodedLayer> decode(const std::string& data) {
           std::vector<std::uint32_t> geom;
           while (f.next()) {
             switch (f.tag()) {
-              case 1: df.id = f.get_uint64(); break;
+              case 1:
+                df.id = f.get_uint64();
+                break;
               case 2: {
                 auto r = f.get_packed_uint32();
                 tags.assign(r.begin(), r.end());
                 break;
               }
-              case 3: df.type = f.get_enum(); break;
+              case 3:
+                df.type = f.get_enum();
+                break;
               case 4: {
                 auto r = f.get_packed_uint32();
                 geom.assign(r.begin(), r.end());
                 break;
               }
-              default: f.skip();
+              default:
+                f.skip();
             }
           }
           int cx = 0, cy = 0;
@@ -95,7 +119,8 @@ std::vector<DecodedLayer> decode(const std::string& data) {
           raw.emplace_back(df, tags);
           break;
         }
-        default: layer.skip();
+        default:
+          layer.skip();
       }
     }
     for (auto& [df, tags] : raw) {
@@ -114,23 +139,28 @@ TEST(Mvt, PointsLinesAndAttributes) {
   const GeoBox b = tile_bounds(key);
   const GeoPoint c = tile_center(key);
   MvtLayer points{"points", {}};
-  points.features.push_back({7, MvtGeometryType::Point, {{c}},
+  points.features.push_back({7,
+                             MvtGeometryType::Point,
+                             {{c}},
                              {{"class", std::string("odd")},
                               {"support", std::uint64_t{5}},
                               {"spread_m", 0.04},
                               {"offset", std::int64_t{-3}},
                               {"permanent", true}}});
-  points.features.push_back({8, MvtGeometryType::Point, {{{b.max_lat_deg, b.min_lon_deg}}},
+  points.features.push_back({8,
+                             MvtGeometryType::Point,
+                             {{{b.max_lat_deg, b.min_lon_deg}}},
                              {{"class", std::string("odd")}}});
   // Far away: dropped.
   points.features.push_back({9, MvtGeometryType::Point, {{{0.0, 0.0}}}, {}});
   MvtLayer lines{"lines", {}};
   // West -> east through the centre, extending well beyond the tile on both sides.
-  lines.features.push_back(
-      {11,
-       MvtGeometryType::LineString,
-       {{{c.lat_deg, b.min_lon_deg - 0.01}, {c.lat_deg, c.lon_deg}, {c.lat_deg, b.max_lon_deg + 0.01}}},
-       {{"support", std::uint64_t{3}}}});
+  lines.features.push_back({11,
+                            MvtGeometryType::LineString,
+                            {{{c.lat_deg, b.min_lon_deg - 0.01},
+                              {c.lat_deg, c.lon_deg},
+                              {c.lat_deg, b.max_lon_deg + 0.01}}},
+                            {{"support", std::uint64_t{3}}}});
   MvtLayer empty{"trajectories", {}};
   const std::string bytes = encode_mvt(key, {points, lines, empty});
   const auto layers = decode(bytes);
@@ -205,7 +235,8 @@ TEST(Mvt, PolygonClippedAndOrientedClockwise) {
   for (std::size_t i = 0; i < ring.size(); ++i) {
     const auto& p = ring[i];
     const auto& q = ring[(i + 1) % ring.size()];
-    area2 += static_cast<long long>(p.first) * q.second - static_cast<long long>(q.first) * p.second;
+    area2 +=
+        static_cast<long long>(p.first) * q.second - static_cast<long long>(q.first) * p.second;
     EXPECT_GE(p.first, -64);
     EXPECT_GE(p.second, -64);
   }

@@ -1,8 +1,8 @@
 #include "polmap/tiles/tile_key.hpp"
 
-#include <GeographicLib/Geodesic.hpp>
 #include <gtest/gtest.h>
 
+#include <GeographicLib/Geodesic.hpp>
 #include <cmath>
 #include <random>
 #include <set>
@@ -131,10 +131,9 @@ TEST(TileKey, TilesCovering) {
   for (int x = nw.x - 2; x <= se.x + 2; ++x) {
     for (int y = nw.y - 2; y <= se.y + 2; ++y) {
       const GeoBox b = tile_bounds({16, x, y});
-      const bool strictly_intersects = b.min_lat_deg < box.max_lat_deg &&
-                                       b.max_lat_deg > box.min_lat_deg &&
-                                       b.min_lon_deg < box.max_lon_deg &&
-                                       b.max_lon_deg > box.min_lon_deg;
+      const bool strictly_intersects =
+          b.min_lat_deg < box.max_lat_deg && b.max_lat_deg > box.min_lat_deg &&
+          b.min_lon_deg < box.max_lon_deg && b.max_lon_deg > box.min_lon_deg;
       EXPECT_EQ(strictly_intersects, listed.count({16, x, y}) == 1) << x << "/" << y;
     }
   }
@@ -197,8 +196,7 @@ TEST(TileKey, RoundTripErrorThroughTileFrameAndCodec) {
     const LocalizationTile back = decode_localization_tile(encode_localization_tile(tile));
     ASSERT_EQ(back.points.size(), truth.size());
     for (const PointLandmark& p : back.points) {
-      max_codec_err =
-          std::max(max_codec_err, geodesic_m(frame.to_geo(p.position_m), truth[p.id]));
+      max_codec_err = std::max(max_codec_err, geodesic_m(frame.to_geo(p.position_m), truth[p.id]));
     }
   }
   std::printf("round trip over %zu z16 tiles: projection only %.3g m, with 5 mm codec %.3g m\n",

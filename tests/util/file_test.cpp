@@ -37,7 +37,8 @@ TEST(ScopedTempDir, RemovesOnExceptionAndMovesOwnership) {
     ScopedTempDir a = ScopedTempDir::create("polmap-util-test");
     p = a.path();
     ScopedTempDir b = std::move(a);  // b owns it now, a nothing
-    EXPECT_TRUE(a.path().empty());   // NOLINT(bugprone-use-after-move): checking the moved-from state
+    EXPECT_TRUE(
+        a.path().empty());  // NOLINT(bugprone-use-after-move): checking the moved-from state
     throw IoError("boom");
   } catch (const IoError&) {
   }

@@ -98,8 +98,7 @@ std::string raw_deflate(std::string_view in, int level) {
 
 class BodyReader {
  public:
-  BodyReader(std::string_view body, const std::string& source)
-      : body_(body), source_(source) {}
+  BodyReader(std::string_view body, const std::string& source) : body_(body), source_(source) {}
 
   std::uint64_t varint(const char* field) {
     std::uint64_t v = 0;
@@ -261,8 +260,8 @@ std::string encode_localization_tile(const LocalizationTile& tile,
     packed = raw_deflate(body, options.compression_level);
     if (packed.size() < body.size()) compression = kRawDeflate;
   }
-  const std::string_view stored = compression == kRawDeflate ? std::string_view(packed)
-                                                             : std::string_view(body);
+  const std::string_view stored =
+      compression == kRawDeflate ? std::string_view(packed) : std::string_view(body);
   std::string out;
   out.reserve(kHeaderBytes + stored.size() + kTrailerBytes);
   out.append(kMagic, 4);
@@ -298,13 +297,13 @@ LocalizationTile decode_localization_tile(std::string_view bytes, const std::str
   const std::uint64_t expected_total = std::uint64_t{kHeaderBytes} + stored_len + kTrailerBytes;
   if (bytes.size() < expected_total) {
     throw FormatError(source, bytes.size(),
-                      "truncated: header announces " + std::to_string(expected_total) +
-                          " bytes, " + std::to_string(bytes.size()) + " present");
+                      "truncated: header announces " + std::to_string(expected_total) + " bytes, " +
+                          std::to_string(bytes.size()) + " present");
   }
   if (bytes.size() > expected_total) {
-    throw FormatError(source, expected_total,
-                      std::to_string(bytes.size() - expected_total) +
-                          " trailing bytes after the CRC-32");
+    throw FormatError(
+        source, expected_total,
+        std::to_string(bytes.size() - expected_total) + " trailing bytes after the CRC-32");
   }
   const std::uint32_t stored_crc = get_u32(bytes, kHeaderBytes + stored_len);
   const std::uint32_t actual_crc = crc32_of(bytes.substr(0, kHeaderBytes + stored_len));
@@ -315,16 +314,17 @@ LocalizationTile decode_localization_tile(std::string_view bytes, const std::str
     throw FormatError(source, kHeaderBytes + stored_len, buf);
   }
   if (body_len > kMaxBodyBytes) {
-    throw FormatError(source, 12, "body length " + std::to_string(body_len) +
-                                      " exceeds the 64 MiB limit");
+    throw FormatError(source, 12,
+                      "body length " + std::to_string(body_len) + " exceeds the 64 MiB limit");
   }
   const std::string_view stored = bytes.substr(kHeaderBytes, stored_len);
   std::string inflated;
   std::string_view body;
   if (compression == kStored) {
     if (stored_len != body_len) {
-      throw FormatError(source, 8, "stored body length " + std::to_string(stored_len) +
-                                       " differs from body length " + std::to_string(body_len));
+      throw FormatError(source, 8,
+                        "stored body length " + std::to_string(stored_len) +
+                            " differs from body length " + std::to_string(body_len));
     }
     body = stored;
   } else if (compression == kRawDeflate) {

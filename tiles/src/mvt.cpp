@@ -147,10 +147,14 @@ std::vector<DPt> clip_ring(std::vector<DPt> ring, const Box& box) {
       return DPt{a.x + t * (b.x - a.x), y};
     };
   };
-  ring = clip_edge(ring, [&](const DPt& p) { return p.x >= box.x0; }, at_x(box.x0));
-  ring = clip_edge(ring, [&](const DPt& p) { return p.x <= box.x1; }, at_x(box.x1));
-  ring = clip_edge(ring, [&](const DPt& p) { return p.y >= box.y0; }, at_y(box.y0));
-  ring = clip_edge(ring, [&](const DPt& p) { return p.y <= box.y1; }, at_y(box.y1));
+  ring = clip_edge(
+      ring, [&](const DPt& p) { return p.x >= box.x0; }, at_x(box.x0));
+  ring = clip_edge(
+      ring, [&](const DPt& p) { return p.x <= box.x1; }, at_x(box.x1));
+  ring = clip_edge(
+      ring, [&](const DPt& p) { return p.y >= box.y0; }, at_y(box.y0));
+  ring = clip_edge(
+      ring, [&](const DPt& p) { return p.y <= box.y1; }, at_y(box.y1));
   return ring;
 }
 

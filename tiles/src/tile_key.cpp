@@ -90,8 +90,8 @@ TileKey tile_at(double lat_deg, double lon_deg, int z) {
   const std::int64_t n = tiles_per_side(z);
   const MercatorXY m = to_mercator_tiles(lat_deg, wrap_lon_deg(lon_deg), z);
   const auto clamp_index = [n](double v) {
-    return static_cast<int>(std::clamp<std::int64_t>(static_cast<std::int64_t>(std::floor(v)), 0,
-                                                     n - 1));
+    return static_cast<int>(
+        std::clamp<std::int64_t>(static_cast<std::int64_t>(std::floor(v)), 0, n - 1));
   };
   return {z, clamp_index(m.x), clamp_index(m.y)};
 }

@@ -70,12 +70,14 @@ nlohmann::json to_json(const eval::DetectEval& e) {
 void run(const DetectEvalOptions& o) {
   const fs::path dir(o.dir);
   const fs::path truth_file = dir / "truth" / "world.json";
-  if (!fs::exists(truth_file)) throw IoError(truth_file.string() + ": not found (simulate with --out DIR)");
+  if (!fs::exists(truth_file))
+    throw IoError(truth_file.string() + ": not found (simulate with --out DIR)");
   std::vector<fs::path> recordings;
   for (int k = 0; o.drives <= 0 || k < o.drives; ++k) {
     const fs::path p = dir / ("drive_" + std::to_string(k) + ".pmrec");
     if (!fs::exists(p)) {
-      if (o.drives > 0) throw IoError(p.string() + ": not found (--drives " + std::to_string(o.drives) + ")");
+      if (o.drives > 0)
+        throw IoError(p.string() + ": not found (--drives " + std::to_string(o.drives) + ")");
       break;
     }
     recordings.push_back(p);
@@ -99,16 +101,16 @@ void run(const DetectEvalOptions& o) {
     std::vector<DriveRun> runs;
     for (std::size_t k = 0; k < recordings.size(); ++k) {
       RecordingReader reader(recordings[k]);
-      Progress progress("detect-eval " + std::string(to_string(level)) + " " +
-                            recordings[k].filename().string(),
-                        static_cast<double>(reader.file_size()));
-      auto res = radar::process_drive(reader, cfg, [&](double) {
-        progress.update(static_cast<double>(reader.offset()));
-      });
+      Progress progress(
+          "detect-eval " + std::string(to_string(level)) + " " + recordings[k].filename().string(),
+          static_cast<double>(reader.file_size()));
+      auto res = radar::process_drive(
+          reader, cfg, [&](double) { progress.update(static_cast<double>(reader.offset())); });
       progress.finish();
       const eval::WorldTruth truth = eval::read_world_truth(truth_file, res.frame);
       DriveRun r{static_cast<int>(k), res.points, {}, {}, res.stats.total_seconds};
-      for (const auto& s : res.trajectory) r.trajectory.push_back(res.frame.to_local(s.lat_deg, s.lon_deg));
+      for (const auto& s : res.trajectory)
+        r.trajectory.push_back(res.frame.to_local(s.lat_deg, s.lon_deg));
       r.ev = eval::evaluate_detections(res.points, res.lines, truth, r.index, r.trajectory);
       runs.push_back(std::move(r));
     }
@@ -120,12 +122,12 @@ void run(const DetectEvalOptions& o) {
       if (!o.json) {
         const auto& p = r.ev.points;
         const auto& l = r.ev.lines;
-        std::printf("%-6s drive %d: points %zu, precision %.2f (structure %.2f), recall %.2f (%zu/%zu), "
-                    "rms %.3f m, class %.2f | lines %zu, precision %.2f, coverage %.2f of %.0f m\n",
-                    std::string(to_string(level)).c_str(), r.index, p.candidates, p.precision,
-                    p.structure_precision, p.recall, p.truth_found, p.truth_observable,
-                    p.rms_error_m, p.class_accuracy, l.candidates, l.precision, l.coverage,
-                    l.truth_length_m);
+        std::printf(
+            "%-6s drive %d: points %zu, precision %.2f (structure %.2f), recall %.2f (%zu/%zu), "
+            "rms %.3f m, class %.2f | lines %zu, precision %.2f, coverage %.2f of %.0f m\n",
+            std::string(to_string(level)).c_str(), r.index, p.candidates, p.precision,
+            p.structure_precision, p.recall, p.truth_found, p.truth_observable, p.rms_error_m,
+            p.class_accuracy, l.candidates, l.precision, l.coverage, l.truth_length_m);
       }
       report.push_back(j);
     }

@@ -32,7 +32,8 @@ struct EgoMotionOptions {
 /// The simulator writes exact truth beside a recording DIR/drive_<k>.pmrec as
 /// DIR/truth/drive_<k>_trajectory.csv; prefer it over the (noisy) GNSS samples.
 std::optional<std::filesystem::path> sibling_truth(const std::filesystem::path& recording) {
-  const auto p = recording.parent_path() / "truth" / (recording.stem().string() + "_trajectory.csv");
+  const auto p =
+      recording.parent_path() / "truth" / (recording.stem().string() + "_trajectory.csv");
   if (std::filesystem::exists(p)) return p;
   return std::nullopt;
 }
@@ -99,9 +100,9 @@ void run(const EgoMotionOptions& o) {
   if (o.json) {
     nlohmann::json j = eval::to_json(m);
     if (!have_truth) {
-      for (const char* k : {"v_rmse_mps", "v_max_err_mps", "v_median_err_mps", "v_bias_mps",
-                            "yaw_rate_rmse_dps", "yaw_rate_max_err_dps",
-                            "yaw_rate_median_err_dps", "yaw_rate_bias_dps", "distance_m"}) {
+      for (const char* k :
+           {"v_rmse_mps", "v_max_err_mps", "v_median_err_mps", "v_bias_mps", "yaw_rate_rmse_dps",
+            "yaw_rate_max_err_dps", "yaw_rate_median_err_dps", "yaw_rate_bias_dps", "distance_m"}) {
         j[k] = nullptr;
       }
     }
@@ -121,15 +122,17 @@ void run(const EgoMotionOptions& o) {
     std::printf("no ground truth: errors not computed (give --truth CSV)\n");
     return;
   }
-  std::printf("velocity:   RMSE %.4f m/s, median |e| %.4f, max |e| %.4f, bias %+.4f (%d estimates)\n",
-              m.v_rmse_mps, m.v_median_err_mps, m.v_max_err_mps, m.v_bias_mps, m.compared);
+  std::printf(
+      "velocity:   RMSE %.4f m/s, median |e| %.4f, max |e| %.4f, bias %+.4f (%d estimates)\n",
+      m.v_rmse_mps, m.v_median_err_mps, m.v_max_err_mps, m.v_bias_mps, m.compared);
   std::printf("yaw rate:   RMSE %.4f deg/s, median |e| %.4f, max |e| %.4f, bias %+.4f\n",
               m.yaw_rate_rmse_dps, m.yaw_rate_median_err_dps, m.yaw_rate_max_err_dps,
               m.yaw_rate_bias_dps);
   if (m.drift_segment_pct) {
-    std::printf("drift:      %.3f %% (mean relative position error over %d sub-paths of 100 m), "
-                "heading %.3f deg/100 m\n",
-                *m.drift_segment_pct, m.drift_segments, *m.heading_drift_deg_per_100m);
+    std::printf(
+        "drift:      %.3f %% (mean relative position error over %d sub-paths of 100 m), "
+        "heading %.3f deg/100 m\n",
+        *m.drift_segment_pct, m.drift_segments, *m.heading_drift_deg_per_100m);
   }
   if (m.drift_endpoint_pct) {
     std::printf("drift:      %.3f %% end point over %.1f m (true path)\n", *m.drift_endpoint_pct,

@@ -127,11 +127,10 @@ nlohmann::json to_json_summary(const std::string& path, const RecordingSummary& 
   j["distance_m"] = s.distance_m;
   j["speed_min_mps"] = s.trajectory_samples ? nlohmann::json(s.speed_min) : nlohmann::json();
   j["speed_max_mps"] = s.trajectory_samples ? nlohmann::json(s.speed_max) : nlohmann::json();
-  j["carrier_phase_share"] =
-      s.trajectory_samples
-          ? nlohmann::json(static_cast<double>(s.carrier_phase_fixed) /
-                           static_cast<double>(s.trajectory_samples))
-          : nlohmann::json();
+  j["carrier_phase_share"] = s.trajectory_samples
+                                 ? nlohmann::json(static_cast<double>(s.carrier_phase_fixed) /
+                                                  static_cast<double>(s.trajectory_samples))
+                                 : nlohmann::json();
   j["detections_per_frame"] = opt(s.per_frame(s.detections));
   j["cells_per_frame"] = opt(s.per_frame(s.cells));
   j["bytes"] = s.bytes;
@@ -162,9 +161,9 @@ void print_text(const std::string& path, const RecordingSummary& s) {
   std::printf("distance             %.1f m\n", s.distance_m);
   if (s.trajectory_samples > 0) {
     std::printf("speed                %.2f .. %.2f m/s\n", s.speed_min, s.speed_max);
-    std::printf("carrier-phase share  %.1f %%\n",
-                100.0 * static_cast<double>(s.carrier_phase_fixed) /
-                    static_cast<double>(s.trajectory_samples));
+    std::printf("carrier-phase share  %.1f %%\n", 100.0 *
+                                                      static_cast<double>(s.carrier_phase_fixed) /
+                                                      static_cast<double>(s.trajectory_samples));
   }
   if (s.frames > 0) {
     std::printf("detections / frame   %.1f\n", *s.per_frame(s.detections));

@@ -12,11 +12,11 @@
 #include <string>
 
 #include "command.hpp"
-#include "polmap/util/file.hpp"
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/radar/drive_processor.hpp"
 #include "polmap/schema/errors.hpp"
 #include "polmap/schema/recording_io.hpp"
+#include "polmap/util/file.hpp"
 #include "progress.hpp"
 
 namespace polmap::cli {
@@ -87,7 +87,7 @@ void run(const ProcessOptions& o) {
     std::string tmp_name(1, '.');
     tmp_name += out.filename().string() + ".pkgdir";
     const util::ScopedTempDir tmp(parent / tmp_name);  // removed however this block ends
-    fs::remove_all(tmp.path(), ec);                     // a leftover of an interrupted run
+    fs::remove_all(tmp.path(), ec);                    // a leftover of an interrupted run
     manifest = mapping::write_drive_package(result, tmp.path(), wopts);
     mapping::write_drive_package_archive(tmp.path(), out);
     package_bytes = fs::file_size(out);

@@ -37,7 +37,8 @@ std::pair<std::string, int> split_listen(const std::string& s) {
     throw ValidationError("--listen '" + s + "': expected HOST:PORT, e.g. 127.0.0.1:8080");
   }
   std::string host = s.substr(0, colon);
-  if (host.size() > 2 && host.front() == '[' && host.back() == ']') host = host.substr(1, host.size() - 2);
+  if (host.size() > 2 && host.front() == '[' && host.back() == ']')
+    host = host.substr(1, host.size() - 2);
   int port = -1;
   try {
     std::size_t used = 0;

@@ -43,7 +43,8 @@ struct DriveSummary {
 
 void run(const SimulateOptions& o) {
   if (o.drives < 1 || o.drives > 1000) {
-    throw ValidationError("simulate: --drives must be within 1..1000, got " + std::to_string(o.drives));
+    throw ValidationError("simulate: --drives must be within 1..1000, got " +
+                          std::to_string(o.drives));
   }
   if (!(o.length_m > 0)) throw ValidationError("simulate: --length-m must be > 0");
   if (o.max_speed_mps < 0 || o.max_speed_mps > 40) {
@@ -63,7 +64,9 @@ void run(const SimulateOptions& o) {
   if (!o.dry_run) {
     std::error_code ec;
     std::filesystem::create_directories(dir, ec);
-    if (ec) throw IoError("simulate: cannot create output directory " + dir.string() + ": " + ec.message());
+    if (ec)
+      throw IoError("simulate: cannot create output directory " + dir.string() + ": " +
+                    ec.message());
   }
   std::shared_ptr<const sim::World> world = sim::load_world(o.world, o.length_m, o.seed, cfg);
   std::fprintf(stderr, "world %s: route %.0f m, %zu objects, %zu point and %zu line scatterers\n",
@@ -80,7 +83,8 @@ void run(const SimulateOptions& o) {
     s.distance_m = simulator.plan().distance_m();
     const std::string name = "drive_" + std::to_string(k);
     std::unique_ptr<RecordingWriter> writer;
-    if (!o.dry_run) writer = std::make_unique<RecordingWriter>(dir / (name + ".pmrec"), simulator.header());
+    if (!o.dry_run)
+      writer = std::make_unique<RecordingWriter>(dir / (name + ".pmrec"), simulator.header());
     Progress progress("simulate " + name, s.duration_s);
     const auto t0 = std::chrono::steady_clock::now();
     s.v_min = std::numeric_limits<double>::max();
@@ -117,7 +121,8 @@ void run(const SimulateOptions& o) {
 
   std::printf("world: %s (%s), route %.0f m, %zu objects, seed %llu%s\n", world->name.c_str(),
               o.world.c_str(), world->route.length_m(), world->objects.size(),
-              static_cast<unsigned long long>(o.seed), o.dry_run ? ", dry run (nothing written)" : "");
+              static_cast<unsigned long long>(o.seed),
+              o.dry_run ? ", dry run (nothing written)" : "");
   std::printf("%-8s %7s %9s %9s %13s %9s %9s %11s %10s %9s\n", "drive", "frames", "duration",
               "distance", "speed m/s", "cells/fr", "dets/fr", "file MB", "MB/min", "sim s/s");
   for (const auto& s : summaries) {
@@ -130,8 +135,9 @@ void run(const SimulateOptions& o) {
                 s.wall_s > 0 ? s.duration_s / s.wall_s : 0.0);
   }
   if (!o.dry_run) {
-    std::printf("written: %s/drive_<k>.pmrec, %s/truth/world.json, %s/truth/drive_<k>_trajectory.csv\n",
-                o.out.c_str(), o.out.c_str(), o.out.c_str());
+    std::printf(
+        "written: %s/drive_<k>.pmrec, %s/truth/world.json, %s/truth/drive_<k>_trajectory.csv\n",
+        o.out.c_str(), o.out.c_str(), o.out.c_str());
   }
 }
 
@@ -151,7 +157,8 @@ void setup(CLI::App& app) {
   cmd->add_option("--max-speed-mps", opts->max_speed_mps,
                   "ego speed limit (0 = preset default: 15 urban, 20 rural)")
       ->capture_default_str();
-  cmd->add_option("--duration-s", opts->duration_s, "stop each drive after T seconds (0 = whole route)")
+  cmd->add_option("--duration-s", opts->duration_s,
+                  "stop each drive after T seconds (0 = whole route)")
       ->capture_default_str();
   cmd->add_flag("--cube", opts->cube, "attach full data cubes to the first --cube-seconds");
   cmd->add_option("--cube-seconds", opts->cube_seconds, "length of the cube sequence")

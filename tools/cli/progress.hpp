@@ -24,7 +24,8 @@ class Progress {
     if (now - last_ < std::chrono::milliseconds(200)) return;
     last_ = now;
     if (total_ > 0) {
-      std::fprintf(stderr, "\r%s: %5.1f%% %s   ", label_.c_str(), 100.0 * done / total_, note.c_str());
+      std::fprintf(stderr, "\r%s: %5.1f%% %s   ", label_.c_str(), 100.0 * done / total_,
+                   note.c_str());
     } else {
       std::fprintf(stderr, "\r%s: %.0f %s   ", label_.c_str(), done, note.c_str());
     }

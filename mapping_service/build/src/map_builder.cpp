@@ -40,7 +40,8 @@ constexpr double kMetresPerDegLat = 111320.0;
 tiles::GeoBox grow_box(const tiles::GeoBox& b, double margin_m) {
   const double mid_lat = 0.5 * (b.min_lat_deg + b.max_lat_deg);
   const double dlat = margin_m / kMetresPerDegLat;
-  const double dlon = margin_m / (kMetresPerDegLat * std::max(0.01, std::cos(mid_lat * M_PI / 180)));
+  const double dlon =
+      margin_m / (kMetresPerDegLat * std::max(0.01, std::cos(mid_lat * M_PI / 180)));
   return {std::max(-90.0, b.min_lat_deg - dlat), b.min_lon_deg - dlon,
           std::min(90.0, b.max_lat_deg + dlat), b.max_lon_deg + dlon};
 }
@@ -117,9 +118,12 @@ std::int64_t landmark_key(bool is_line, std::span<const GeoPoint> vertices) {
 
 std::string_view to_string(MapBuildResult::Status s) {
   switch (s) {
-    case MapBuildResult::Status::Published: return "published";
-    case MapBuildResult::Status::Cancelled: return "cancelled";
-    default: return "failed";
+    case MapBuildResult::Status::Published:
+      return "published";
+    case MapBuildResult::Status::Cancelled:
+      return "cancelled";
+    default:
+      return "failed";
   }
 }
 
@@ -137,18 +141,19 @@ nlohmann::json to_json(const MapBuildStats& s) {
   j["tile_bytes"] = s.tile_bytes;
   j["gridmap_tiles"] = s.gridmap_tiles;
   j["gridmap_drives"] = s.gridmap_drives;
-  j["previous_version"] = s.previous_version ? nlohmann::json(*s.previous_version) : nlohmann::json();
+  j["previous_version"] =
+      s.previous_version ? nlohmann::json(*s.previous_version) : nlohmann::json();
   j["point_consensus"] = {{"candidates", s.point_consensus.candidates},
-                         {"pairs", s.point_consensus.pairs},
-                         {"groups", s.point_consensus.groups},
-                         {"rejected_groups", s.point_consensus.rejected_groups},
-                         {"largest_group", s.point_consensus.largest_group}};
+                          {"pairs", s.point_consensus.pairs},
+                          {"groups", s.point_consensus.groups},
+                          {"rejected_groups", s.point_consensus.rejected_groups},
+                          {"largest_group", s.point_consensus.largest_group}};
   j["line_consensus"] = {{"candidates", s.line_consensus.candidates},
-                        {"pairs", s.line_consensus.pairs},
-                        {"groups", s.line_consensus.groups},
-                        {"rejected_groups", s.line_consensus.rejected_groups},
-                        {"polylines", s.line_consensus.polylines},
-                        {"snapped_ends", s.line_consensus.snapped_ends}};
+                         {"pairs", s.line_consensus.pairs},
+                         {"groups", s.line_consensus.groups},
+                         {"rejected_groups", s.line_consensus.rejected_groups},
+                         {"polylines", s.line_consensus.polylines},
+                         {"snapped_ends", s.line_consensus.snapped_ends}};
   j["seconds"] = {{"load", s.seconds_load},           {"consensus", s.seconds_consensus},
                   {"landmarks", s.seconds_landmarks}, {"tiles", s.seconds_tiles},
                   {"gridmap", s.seconds_gridmap},     {"total", s.seconds_total}};
@@ -263,7 +268,8 @@ std::map<tiles::TileKey, tiles::LocalizationTile> localization_tile_content(
     const tiles::LocalFrame& frame, int z, double line_sample_m) {
   std::map<tiles::TileKey, tiles::LocalizationTile> content;
   std::map<tiles::TileKey, tiles::LocalFrame> frames;
-  auto tile = [&](const tiles::TileKey& k) -> std::pair<tiles::LocalizationTile&, const tiles::LocalFrame&> {
+  auto tile = [&](const tiles::TileKey& k)
+      -> std::pair<tiles::LocalizationTile&, const tiles::LocalFrame&> {
     auto it = content.find(k);
     if (it == content.end()) {
       it = content.emplace(k, tiles::LocalizationTile{}).first;
@@ -307,7 +313,8 @@ MapBuilder::MapBuilder(MapBuilderConfig cfg) : cfg_(std::move(cfg)) {
 
 std::int64_t MapBuilder::begin(MapStore& store, const MapBuildRequest& request) const {
   for (const auto& id : request.excluded_drive_ids) {
-    if (!store.get_drive(id)) throw NotFoundError("excluded drive '" + id + "' is not in the store");
+    if (!store.get_drive(id))
+      throw NotFoundError("excluded drive '" + id + "' is not in the store");
   }
   if (request.region && (request.region->min_lat_deg > request.region->max_lat_deg)) {
     throw ValidationError("region: min_lat_deg > max_lat_deg");
@@ -321,8 +328,8 @@ MapBuildResult MapBuilder::build(MapStore& store, const MapBuildRequest& request
   return run(store, v, request, control);
 }
 
-MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version,
-                               const MapBuildRequest& req, const BuildControl& ctl) const {
+MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version, const MapBuildRequest& req,
+                               const BuildControl& ctl) const {
   MapBuildResult result;
   result.version = version;
   MapBuildStats& st = result.stats;
@@ -433,7 +440,8 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version,
       (reused ? st.tiles_reused : st.tiles_written) += 1;
       batch_bytes += w.payload.size();
       batch.push_back(std::move(w));
-      if (batch.size() >= cfg_.write_batch || batch_bytes > (16U << 20)) flush(TileLayer::Localization);
+      if (batch.size() >= cfg_.write_batch || batch_bytes > (16U << 20))
+        flush(TileLayer::Localization);
     }
     flush(TileLayer::Localization);
     st.tiles_total = static_cast<std::int64_t>(content.size());
@@ -459,7 +467,8 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version,
           pkg.location = d.package_path;
           pkg.manifest.origin = d.manifest.at("origin").get<GeoPoint>();
           const tiles::LocalFrame drive_frame(pkg.manifest.origin);
-          for_each_gridmap_block(pkg, [&](const GridmapRaster& block) { acc.add(block, drive_frame); });
+          for_each_gridmap_block(pkg,
+                                 [&](const GridmapRaster& block) { acc.add(block, drive_frame); });
           ++st.gridmap_drives;
         } catch (const std::exception& e) {
           // A drive without a readable gridmap still contributes its candidates.

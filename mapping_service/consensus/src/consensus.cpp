@@ -3,8 +3,8 @@
 #include "polmap/mapping_service/consensus.hpp"
 
 #include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
-#include <CGAL/convex_hull_2.h>
 #include <CGAL/Polygon_2_algorithms.h>
+#include <CGAL/convex_hull_2.h>
 #include <CGAL/intersections.h>
 
 #include <algorithm>
@@ -367,8 +367,9 @@ std::size_t snap_ends(std::vector<LineLandmark>& lines, const LineConsensusConfi
           if (la <= 0.0 || lb <= 0.0) continue;
           const double sin_angle = std::abs(da.x() * db.y() - da.y() * db.x()) / (la * lb);
           if (sin_angle < std::sin(cfg.snap_min_angle_rad)) continue;
-          const auto res = CGAL::intersection(K::Line_2(CPoint(ia.x(), ia.y()), CPoint(va.x(), va.y())),
-                                              K::Line_2(CPoint(ib.x(), ib.y()), CPoint(vb.x(), vb.y())));
+          const auto res =
+              CGAL::intersection(K::Line_2(CPoint(ia.x(), ia.y()), CPoint(va.x(), va.y())),
+                                 K::Line_2(CPoint(ib.x(), ib.y()), CPoint(vb.x(), vb.y())));
           if (!res) continue;
           const CPoint* ip = boost::get<CPoint>(&*res);
           if (ip == nullptr) continue;
@@ -407,8 +408,9 @@ PointConsensusResult consensus_points(std::span<const TaggedPointCandidate> cand
   const auto pts = sorted_by_id(candidates);
   std::vector<std::pair<std::size_t, std::size_t>> edges;
   if (!pts.empty()) {
-    using Tree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<double, PointCloud>,
-                                                     PointCloud, 2, std::size_t>;
+    using Tree =
+        nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<double, PointCloud>,
+                                            PointCloud, 2, std::size_t>;
     PointCloud cloud{&pts};
     Tree tree(2, cloud, nanoflann::KDTreeSingleIndexAdaptorParams(16));
     tree.buildIndex();
@@ -475,7 +477,8 @@ LinePairDistance line_pair_distance(const LineCandidate& a, const LineCandidate&
   std::vector<CPoint> hull;
   CGAL::convex_hull_2(in.begin(), in.end(), std::back_inserter(hull));
   double area = 0.0;
-  if (hull.size() >= 3) area = std::abs(CGAL::to_double(CGAL::polygon_area_2(hull.begin(), hull.end(), K())));
+  if (hull.size() >= 3)
+    area = std::abs(CGAL::to_double(CGAL::polygon_area_2(hull.begin(), hull.end(), K())));
   if (merged <= 1e-12) {
     out.hull_m = (b.start_m - a.start_m).norm();
   } else {
@@ -504,8 +507,9 @@ LineConsensusResult consensus_lines(std::span<const TaggedLineCandidate> candida
   std::map<std::pair<std::int64_t, std::int64_t>, std::vector<std::size_t>> grid;
   for (std::size_t i = 0; i < lines.size(); ++i) {
     const auto& c = lines[i].candidate;
-    boxes[i] = {std::min(c.start_m.x(), c.end_m.x()) - grow, std::min(c.start_m.y(), c.end_m.y()) - grow,
-                std::max(c.start_m.x(), c.end_m.x()) + grow, std::max(c.start_m.y(), c.end_m.y()) + grow};
+    boxes[i] = {
+        std::min(c.start_m.x(), c.end_m.x()) - grow, std::min(c.start_m.y(), c.end_m.y()) - grow,
+        std::max(c.start_m.x(), c.end_m.x()) + grow, std::max(c.start_m.y(), c.end_m.y()) + grow};
     const auto cx0 = static_cast<std::int64_t>(std::floor(boxes[i].x0 / cell));
     const auto cx1 = static_cast<std::int64_t>(std::floor(boxes[i].x1 / cell));
     const auto cy0 = static_cast<std::int64_t>(std::floor(boxes[i].y0 / cell));

@@ -166,8 +166,8 @@ std::vector<float> decode_gridmap_png_db(std::string_view png, const FleetGridma
     const auto* row = img.ptr<cv::Vec4b>(y);
     for (int x = 0; x < kPx; ++x) {
       if (row[x][3] == 0) continue;
-      out[static_cast<std::size_t>(y) * kPx + x] = static_cast<float>(
-          cfg.db_min + (row[x][0] - 1) / 254.0 * (cfg.db_max - cfg.db_min));
+      out[static_cast<std::size_t>(y) * kPx + x] =
+          static_cast<float>(cfg.db_min + (row[x][0] - 1) / 254.0 * (cfg.db_max - cfg.db_min));
     }
   }
   return out;

@@ -13,10 +13,10 @@
 
 #include "polmap/mapping_service/detail/gdal.hpp"
 #include "polmap/mapping_service/detail/gridmap_tiff.hpp"
-#include "polmap/util/file.hpp"
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/mapping_service/fleet_gridmap.hpp"
 #include "polmap/tiles/local_frame.hpp"
+#include "polmap/util/file.hpp"
 
 namespace polmap::mapping {
 

@@ -10,14 +10,13 @@
 #include <utility>
 #include <vector>
 
-#include "polmap/mapping_service/drive_package.hpp"
-#include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/mapping_service/detail/gdal.hpp"
 #include "polmap/mapping_service/detail/gridmap_tiff.hpp"
+#include "polmap/mapping_service/drive_package.hpp"
+#include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/tiles/local_frame.hpp"
 #include "polmap/util/file.hpp"
 #include "polmap/util/sha256.hpp"
-
 
 namespace polmap::mapping::detail {
 

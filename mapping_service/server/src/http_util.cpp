@@ -160,8 +160,8 @@ void BlobCache::put(const std::string& key, std::shared_ptr<const CachedBlob> bl
   if (size > max_bytes_ / 4) return;  // never let one entry flush the cache
   std::lock_guard lock(mutex_);
   if (const auto it = index_.find(key); it != index_.end()) {
-    bytes_ -= it->second->second->body.size() + it->second->second->gzip_body.size() +
-              key.size() + 128;
+    bytes_ -=
+        it->second->second->body.size() + it->second->second->gzip_body.size() + key.size() + 128;
     lru_.erase(it->second);
     index_.erase(it);
   }
@@ -243,7 +243,9 @@ std::string Metrics::render() const {
                   static_cast<unsigned long long>(n));
     out += buf;
   }
-  out += "# HELP polmap_http_request_duration_seconds Request latency (routing to response written).\n";
+  out +=
+      "# HELP polmap_http_request_duration_seconds Request latency (routing to response "
+      "written).\n";
   out += "# TYPE polmap_http_request_duration_seconds histogram\n";
   for (const auto& [route, h] : latency_) {
     std::uint64_t cumulative = 0;
@@ -270,7 +272,8 @@ std::string Metrics::render() const {
                   prom_label(route).c_str(), static_cast<unsigned long long>(n));
     out += buf;
   }
-  out += "# HELP polmap_tiles_served_total Tiles answered, by kind and status (200, 204, 304, 404).\n";
+  out +=
+      "# HELP polmap_tiles_served_total Tiles answered, by kind and status (200, 204, 304, 404).\n";
   out += "# TYPE polmap_tiles_served_total counter\n";
   for (const auto& [k, n] : tiles_) {
     std::snprintf(buf, sizeof buf, "polmap_tiles_served_total{kind=\"%s\",status=\"%d\"} %llu\n",

@@ -73,8 +73,8 @@ class BlobCache {
 /// Request/tile/build counters and latency histograms, rendered as Prometheus text.
 class Metrics {
  public:
-  void observe_request(std::string_view route, std::string_view method, int status,
-                       double seconds, std::uint64_t bytes);
+  void observe_request(std::string_view route, std::string_view method, int status, double seconds,
+                       std::uint64_t bytes);
   void tile_served(std::string_view kind, int status);
   void upload(std::string_view outcome, std::uint64_t bytes);
   void build_finished(std::string_view outcome);
@@ -82,7 +82,7 @@ class Metrics {
   [[nodiscard]] std::string render() const;
 
   static constexpr double kBuckets[] = {0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05,
-                                        0.1,    0.25,  0.5,    1.0,   2.5,  5.0,  10.0};
+                                        0.1,    0.25,  0.5,    1.0,   2.5,  5.0,   10.0};
   static constexpr std::size_t kNumBuckets = std::size(kBuckets);
 
  private:

@@ -1,12 +1,13 @@
 // mapping::Server: setup, listen/stop, logging, auth, metrics, health, CORS,
 // version resolution and the shared reply helpers. Endpoint groups live in
 // server_drives.cpp, server_maps.cpp, server_tiles.cpp, server_gis.cpp.
+#include "polmap/mapping_service/server.hpp"
+
 #include <algorithm>
 #include <cstdio>
 #include <cstring>
 #include <fstream>
 
-#include "polmap/mapping_service/server.hpp"
 #include "polmap/schema/errors.hpp"
 #include "polmap/util/text.hpp"
 #include "server_impl.hpp"
@@ -47,13 +48,11 @@ nlohmann::json geobox_to_json(const tiles::GeoBox& b) {
 }
 
 nlohmann::json version_to_json(const MapVersionInfo& v) {
-  nlohmann::json j{{"version", v.version},
-                   {"status", status_of(v)},
-                   {"created_at", v.created_at},
-                   {"current", v.current},
-                   {"parameters", v.parameters},
-                   {"statistics", v.statistics}};
-  j["published_at"] = v.published_at.empty() ? nlohmann::json(nullptr) : nlohmann::json(v.published_at);
+  nlohmann::json j{{"version", v.version},       {"status", status_of(v)},
+                   {"created_at", v.created_at}, {"current", v.current},
+                   {"parameters", v.parameters}, {"statistics", v.statistics}};
+  j["published_at"] =
+      v.published_at.empty() ? nlohmann::json(nullptr) : nlohmann::json(v.published_at);
   if (!v.error.empty()) j["error"] = v.error;
   j["href"] = "/v1/maps/" + std::to_string(v.version);
   return j;
@@ -138,9 +137,10 @@ bool Server::Impl::require_key(const httplib::Request& req, httplib::Response& r
   for (const std::string& key : cfg.api_keys) ok |= http::secrets_equal(token, key);
   if (ok && !token.empty()) return true;
   res.set_header("WWW-Authenticate", "Bearer realm=\"polmap\"");
-  reply_error(res, 401,
-              auth.empty() ? "missing API key: send 'Authorization: Bearer KEY'" : "invalid API key",
-              "Authorization");
+  reply_error(
+      res, 401,
+      auth.empty() ? "missing API key: send 'Authorization: Bearer KEY'" : "invalid API key",
+      "Authorization");
   return false;
 }
 
@@ -162,8 +162,7 @@ int Server::Impl::reply_blob(const httplib::Request& req, httplib::Response& res
   const bool gzip =
       !blob.gzip_body.empty() && http::accepts_gzip(req.get_header_value("Accept-Encoding"));
   // Each representation has its own strong validator (RFC 9110 §8.8.3).
-  const std::string etag =
-      gzip ? blob.etag.substr(0, blob.etag.size() - 1) + "-gz\"" : blob.etag;
+  const std::string etag = gzip ? blob.etag.substr(0, blob.etag.size() - 1) + "-gz\"" : blob.etag;
   res.set_header("ETag", etag);
   res.set_header("Cache-Control", cache_control);
   if (!blob.gzip_body.empty()) res.set_header("Vary", "Accept-Encoding");
@@ -278,10 +277,9 @@ void Server::Impl::register_routes() {
     return httplib::Server::HandlerResponse::Unhandled;
   });
   http.set_logger([this](const httplib::Request& req, const httplib::Response& res) {
-    const double seconds =
-        t_start == Clock::time_point{}
-            ? 0.0
-            : std::chrono::duration<double>(Clock::now() - t_start).count();
+    const double seconds = t_start == Clock::time_point{}
+                               ? 0.0
+                               : std::chrono::duration<double>(Clock::now() - t_start).count();
     t_start = {};
     const char* route = t_route != nullptr ? t_route : "unmatched";
     std::uint64_t bytes = res.body.size();
@@ -306,26 +304,26 @@ void Server::Impl::register_routes() {
       reply_error(res, res.status, "request failed with HTTP status " + std::to_string(res.status));
     }
   });
-  http.set_exception_handler([this](const httplib::Request& req, httplib::Response& res,
-                                    std::exception_ptr ep) {
-    try {
-      std::rethrow_exception(ep);
-    } catch (const NotFoundError& e) {
-      reply_error(res, 404, e.what());
-    } catch (const ConflictError& e) {
-      reply_error(res, 409, e.what());
-    } catch (const ValidationError& e) {
-      reply_error(res, 422, e.what());
-    } catch (const FormatError& e) {
-      reply_error(res, 400, e.what());
-    } catch (const std::exception& e) {
-      log("error", req.method + " " + req.path + ": " + e.what());
-      reply_error(res, 500, std::string("internal error: ") + e.what());
-    } catch (...) {
-      log("error", req.method + " " + req.path + ": unknown exception");
-      reply_error(res, 500, "internal error");
-    }
-  });
+  http.set_exception_handler(
+      [this](const httplib::Request& req, httplib::Response& res, std::exception_ptr ep) {
+        try {
+          std::rethrow_exception(ep);
+        } catch (const NotFoundError& e) {
+          reply_error(res, 404, e.what());
+        } catch (const ConflictError& e) {
+          reply_error(res, 409, e.what());
+        } catch (const ValidationError& e) {
+          reply_error(res, 422, e.what());
+        } catch (const FormatError& e) {
+          reply_error(res, 400, e.what());
+        } catch (const std::exception& e) {
+          log("error", req.method + " " + req.path + ": " + e.what());
+          reply_error(res, 500, std::string("internal error: ") + e.what());
+        } catch (...) {
+          log("error", req.method + " " + req.path + ": unknown exception");
+          reply_error(res, 500, "internal error");
+        }
+      });
 
   // cpp-httplib tries the patterns (std::regex) in registration order: the hot tile
   // routes go first.

@@ -20,7 +20,8 @@ class TempUpload {
   explicit TempUpload(const std::filesystem::path& dir) {
     std::string templ = (dir / "polmap-upload-XXXXXX.tar").string();
     fd_ = ::mkstemps(templ.data(), 4);
-    if (fd_ < 0) throw IoError("cannot create upload file in " + dir.string() + ": " + std::strerror(errno));
+    if (fd_ < 0)
+      throw IoError("cannot create upload file in " + dir.string() + ": " + std::strerror(errno));
     path_ = templ;
   }
   ~TempUpload() {
@@ -97,10 +98,11 @@ void Server::Impl::register_drive_routes() {
     };
     if (!require_key(req, res)) return reject_unread("unauthorized");
     if (!acceptable_upload_type(req.get_header_value("Content-Type"))) {
-      reply_error(res, 415,
-                  "Content-Type must be application/x-tar (the package as one ustar archive), got '" +
-                      req.get_header_value("Content-Type") + "'",
-                  "Content-Type");
+      reply_error(
+          res, 415,
+          "Content-Type must be application/x-tar (the package as one ustar archive), got '" +
+              req.get_header_value("Content-Type") + "'",
+          "Content-Type");
       return reject_unread("bad_request");
     }
     if (req.has_header("Content-Length")) {
@@ -136,10 +138,10 @@ void Server::Impl::register_drive_routes() {
     if (too_large) {
       metrics.upload("too_large", received);
       res.set_header("Connection", "close");
-      return reply_error(res, 413,
-                         "package exceeds the upload limit of " +
-                             std::to_string(cfg.max_upload_bytes) + " bytes",
-                         "body", {{"limit_bytes", cfg.max_upload_bytes}});
+      return reply_error(
+          res, 413,
+          "package exceeds the upload limit of " + std::to_string(cfg.max_upload_bytes) + " bytes",
+          "body", {{"limit_bytes", cfg.max_upload_bytes}});
     }
     if (write_failed || !upload.close()) {
       metrics.upload("server_error", received);
@@ -150,8 +152,8 @@ void Server::Impl::register_drive_routes() {
       // The client went away or sent a malformed/short chunked body: nothing is kept.
       metrics.upload("interrupted", received);
       res.set_header("Connection", "close");
-      return reply_error(res, 400, "upload interrupted after " + std::to_string(received) + " bytes",
-                         "body");
+      return reply_error(res, 400,
+                         "upload interrupted after " + std::to_string(received) + " bytes", "body");
     }
     if (received == 0) {
       metrics.upload("bad_request", 0);
@@ -212,8 +214,7 @@ void Server::Impl::register_drive_routes() {
     reply_error(res, 404, "drive '" + id + "' does not exist", "drive_id");
   });
 
-  http.Delete(R"(/v1/drives/([^/]+))", [this](const httplib::Request& req,
-                                              httplib::Response& res) {
+  http.Delete(R"(/v1/drives/([^/]+))", [this](const httplib::Request& req, httplib::Response& res) {
     set_route("drives_delete");
     if (!require_key(req, res)) return;
     const std::string id = req.matches[1];

@@ -70,8 +70,8 @@ void Server::Impl::register_gis_routes() {
     // removes the directory when the response is done (or the client went away).
     util::ScopedTempDir export_dir = util::ScopedTempDir::create(cfg.upload_dir, "polmap-export");
     const std::filesystem::path dir = export_dir.path();
-    const std::string name = "polmap-map-v" + std::to_string(idx->version) +
-                             std::string(export_file_extension(*format));
+    const std::string name =
+        "polmap-map-v" + std::to_string(idx->version) + std::string(export_file_extension(*format));
     const std::filesystem::path file = dir / name;
     const ExportSummary summary = export_map(store, idx->version, *format, bbox, file);
     log("info", "export " + name + ": " + std::to_string(summary.points) + " points, " +

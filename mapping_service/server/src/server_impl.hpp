@@ -36,8 +36,8 @@ struct VersionIndex {
   std::map<tiles::TileKey, TileInfo> localization;  ///< tiles with payload
   std::set<tiles::TileKey> covered;                 ///< tiles with payload + 1-tile margin
   std::map<tiles::TileKey, TileInfo> gridmap;
-  int gridmap_max_zoom = -1;                        ///< base zoom of the fleet gridmap
-  std::optional<tiles::GeoBox> bounds;              ///< of the localization tiles
+  int gridmap_max_zoom = -1;            ///< base zoom of the fleet gridmap
+  std::optional<tiles::GeoBox> bounds;  ///< of the localization tiles
   nlohmann::json parameters;
 };
 

@@ -2,8 +2,8 @@
 #include <cmath>
 
 #include "polmap/schema/errors.hpp"
-#include "server_impl.hpp"
 #include "server_build.hpp"
+#include "server_impl.hpp"
 
 namespace polmap::mapping {
 namespace {
@@ -18,7 +18,8 @@ std::optional<tiles::GeoBox> parse_region(const nlohmann::json& r) {
   if (r.is_null()) return std::nullopt;
   tiles::GeoBox b;
   if (r.is_array()) {
-    if (r.size() != 4 || !std::all_of(r.begin(), r.end(), [](const auto& v) { return v.is_number(); })) {
+    if (r.size() != 4 ||
+        !std::all_of(r.begin(), r.end(), [](const auto& v) { return v.is_number(); })) {
       throw JsonRequestError{"region", "must be [min_lon, min_lat, max_lon, max_lat] (degrees)"};
     }
     b = {r[1].get<double>(), r[0].get<double>(), r[3].get<double>(), r[2].get<double>()};
@@ -38,9 +39,10 @@ std::optional<tiles::GeoBox> parse_region(const nlohmann::json& r) {
                   b.min_lat_deg >= -90 && b.max_lat_deg <= 90 && b.min_lat_deg < b.max_lat_deg &&
                   b.min_lon_deg >= -180 && b.max_lon_deg <= 180 && b.min_lon_deg < b.max_lon_deg;
   if (!ok) {
-    throw JsonRequestError{"region",
-                           "needs -90 <= min_lat < max_lat <= 90 and -180 <= min_lon < max_lon <= 180 "
-                           "(antimeridian-crossing regions: build two maps)"};
+    throw JsonRequestError{
+        "region",
+        "needs -90 <= min_lat < max_lat <= 90 and -180 <= min_lon < max_lon <= 180 "
+        "(antimeridian-crossing regions: build two maps)"};
   }
   return b;
 }
@@ -86,8 +88,8 @@ void Server::Impl::run_build(const BuildJob& job) {
     cache.clear();  // current-version entries may now be stale (versioned keys stay valid)
     metrics.build_finished("published");
     const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    log("info", "map build " + std::to_string(job.version) + " published in " +
-                    std::to_string(s) + " s: " + stats.dump());
+    log("info", "map build " + std::to_string(job.version) + " published in " + std::to_string(s) +
+                    " s: " + stats.dump());
   } catch (const std::exception& e) {
     metrics.build_finished(stopping ? "cancelled" : "failed");
     log(stopping ? "warn" : "error",
@@ -108,8 +110,9 @@ void Server::Impl::register_map_routes() {
     set_route("maps_build");
     if (!require_key(req, res)) return;
     if (req.body.size() > cfg.max_json_bytes) {
-      return reply_error(res, 413, "request body exceeds " + std::to_string(cfg.max_json_bytes) +
-                                       " bytes", "body");
+      return reply_error(res, 413,
+                         "request body exceeds " + std::to_string(cfg.max_json_bytes) + " bytes",
+                         "body");
     }
     nlohmann::json body = nlohmann::json::object();
     if (!req.body.empty()) {
@@ -133,7 +136,8 @@ void Server::Impl::register_map_routes() {
       std::vector<std::string> excluded;
       if (body.contains("exclude_drives")) {
         const auto& ex = body["exclude_drives"];
-        if (!ex.is_array()) throw JsonRequestError{"exclude_drives", "must be an array of drive ids"};
+        if (!ex.is_array())
+          throw JsonRequestError{"exclude_drives", "must be an array of drive ids"};
         for (std::size_t i = 0; i < ex.size(); ++i) {
           if (!ex[i].is_string()) {
             throw JsonRequestError{"exclude_drives[" + std::to_string(i) + "]", "must be a string"};
@@ -170,9 +174,9 @@ void Server::Impl::register_map_routes() {
     nlohmann::json list = nlohmann::json::array();
     for (const MapVersionInfo& v : store.list_map_versions()) list.push_back(version_to_json(v));
     const auto cur = store.current_map_version();
-    reply_json(res, 200,
-               {{"versions", list},
-                {"current", cur ? nlohmann::json(*cur) : nlohmann::json(nullptr)}});
+    reply_json(
+        res, 200,
+        {{"versions", list}, {"current", cur ? nlohmann::json(*cur) : nlohmann::json(nullptr)}});
   });
 
   http.Get(R"(/v1/maps/([^/]+))", [this](const httplib::Request& req, httplib::Response& res) {

@@ -17,8 +17,8 @@ namespace {
 constexpr const char* kImmutable = "public, max-age=31536000, immutable";
 
 std::optional<tiles::TileKey> parse_key(const httplib::Request& req) {
-  const std::string s =
-      std::string(req.matches[1]) + "/" + std::string(req.matches[2]) + "/" + std::string(req.matches[3]);
+  const std::string s = std::string(req.matches[1]) + "/" + std::string(req.matches[2]) + "/" +
+                        std::string(req.matches[3]);
   return tiles::parse_tile_key(s);
 }
 
@@ -65,12 +65,13 @@ std::shared_ptr<const std::vector<GeoPoint>> Server::Impl::drive_trajectory(
     const DriveRecord& drive) {
   {
     std::lock_guard lock(trajectory_mutex);
-    if (auto it = trajectories.find(drive.content_hash); it != trajectories.end()) return it->second;
+    if (auto it = trajectories.find(drive.content_hash); it != trajectories.end())
+      return it->second;
   }
   auto out = std::make_shared<std::vector<GeoPoint>>();
   const std::string path = package_member_gdal_path(drive.package_path, kCandidatesFileName);
-  GDALDatasetUniquePtr ds(
-      GDALDataset::Open(path.c_str(), GDAL_OF_VECTOR | GDAL_OF_READONLY, nullptr, nullptr, nullptr));
+  GDALDatasetUniquePtr ds(GDALDataset::Open(path.c_str(), GDAL_OF_VECTOR | GDAL_OF_READONLY,
+                                            nullptr, nullptr, nullptr));
   OGRLayer* layer = ds ? ds->GetLayerByName("trajectory") : nullptr;
   if (layer == nullptr) {
     log("warn", "drive " + drive.drive_id + ": no trajectory layer in " + path);
@@ -119,15 +120,15 @@ void Server::Impl::register_tile_routes() {
     if (!idx) return metrics.tile_served("localization", res.status);
     if (key->z != tiles::kLocalizationZoom) {
       metrics.tile_served("localization", 404);
-      return reply_error(res, 404,
-                         "localization tiles exist at zoom " +
-                             std::to_string(tiles::kLocalizationZoom) + " only",
-                         "z");
+      return reply_error(
+          res, 404,
+          "localization tiles exist at zoom " + std::to_string(tiles::kLocalizationZoom) + " only",
+          "z");
     }
     const std::string cache_control =
-        is_explicit ? std::string(kImmutable)
-                    : "public, max-age=" + std::to_string(cfg.current_tile_max_age_s) +
-                          ", must-revalidate";
+        is_explicit
+            ? std::string(kImmutable)
+            : "public, max-age=" + std::to_string(cfg.current_tile_max_age_s) + ", must-revalidate";
     const auto it = idx->localization.find(*key);
     if (it == idx->localization.end()) {
       if (idx->covered.count(*key) != 0) {
@@ -138,7 +139,8 @@ void Server::Impl::register_tile_routes() {
       }
       metrics.tile_served("localization", 404);
       return reply_error(res, 404,
-                         "tile " + tiles::to_string(*key) + " is outside the coverage of map version " +
+                         "tile " + tiles::to_string(*key) +
+                             " is outside the coverage of map version " +
                              std::to_string(idx->version));
     }
     // Conditional request: answered from the version index, no payload access.
@@ -171,7 +173,7 @@ void Server::Impl::register_tile_routes() {
 
   // ---- Mapbox Vector Tiles for GIS viewers
   http.Get(R"(/v1/mvt/([^/]+)/([^/]+)/([^/.]+)\.mvt)", [this](const httplib::Request& req,
-                                                               httplib::Response& res) {
+                                                              httplib::Response& res) {
     set_route("mvt");
     const auto key = parse_key(req);
     if (!key) {
@@ -205,15 +207,14 @@ void Server::Impl::register_tile_routes() {
       if (idx) {
         const LandmarkSet lm = store.landmarks_in(version, box);
         for (const StoredPointLandmark& p : lm.points) {
-          points.features.push_back(
-              {static_cast<std::uint64_t>(p.key),
-               tiles::MvtGeometryType::Point,
-               {{p.position}},
-               {{"id", std::int64_t{p.key}},
-                {"class", std::string(to_string(p.scattering))},
-                {"support_drives", std::uint64_t{p.support_drives}},
-                {"spread_m", p.spread_m},
-                {"map_version", version}}});
+          points.features.push_back({static_cast<std::uint64_t>(p.key),
+                                     tiles::MvtGeometryType::Point,
+                                     {{p.position}},
+                                     {{"id", std::int64_t{p.key}},
+                                      {"class", std::string(to_string(p.scattering))},
+                                      {"support_drives", std::uint64_t{p.support_drives}},
+                                      {"spread_m", p.spread_m},
+                                      {"map_version", version}}});
         }
         for (const StoredLineLandmark& l : lm.lines) {
           lines.features.push_back({static_cast<std::uint64_t>(l.key),
@@ -299,7 +300,8 @@ void Server::Impl::register_tile_routes() {
         {"maxzoom", cfg.mvt_max_zoom},
         {"bounds", {b.min_lon_deg, b.min_lat_deg, b.max_lon_deg, b.max_lat_deg}},
         {"center",
-         {0.5 * (b.min_lon_deg + b.max_lon_deg), 0.5 * (b.min_lat_deg + b.max_lat_deg), center_zoom}},
+         {0.5 * (b.min_lon_deg + b.max_lon_deg), 0.5 * (b.min_lat_deg + b.max_lat_deg),
+          center_zoom}},
         {"vector_layers",
          {{{"id", "points"}, {"description", "point landmarks"}, {"fields", point_fields}},
           {{"id", "lines"}, {"description", "line landmarks"}, {"fields", landmark_fields}},
@@ -320,7 +322,7 @@ void Server::Impl::register_tile_routes() {
 
   // ---- fleet gridmap raster tiles
   http.Get(R"(/v1/gridmap/([^/]+)/([^/]+)/([^/.]+)\.png)", [this](const httplib::Request& req,
-                                                                    httplib::Response& res) {
+                                                                  httplib::Response& res) {
     set_route("gridmap");
     const auto key = parse_key(req);
     if (!key) {
@@ -331,9 +333,9 @@ void Server::Impl::register_tile_routes() {
     const auto idx = resolve_version(req, res, is_explicit);
     if (!idx) return metrics.tile_served("gridmap", res.status);
     const std::string cache_control =
-        is_explicit ? std::string(kImmutable)
-                    : "public, max-age=" + std::to_string(cfg.current_tile_max_age_s) +
-                          ", must-revalidate";
+        is_explicit
+            ? std::string(kImmutable)
+            : "public, max-age=" + std::to_string(cfg.current_tile_max_age_s) + ", must-revalidate";
     if (idx->gridmap.empty()) {
       metrics.tile_served("gridmap", 404);
       return reply_error(res, 404,
@@ -352,7 +354,9 @@ void Server::Impl::register_tile_routes() {
       return metrics.tile_served("gridmap", 204);
     }
     std::string etag = "\"" + it->second.etag;
-    if (source != *key) etag += "-" + std::to_string(key->z) + "-" + std::to_string(key->x) + "-" + std::to_string(key->y);
+    if (source != *key)
+      etag += "-" + std::to_string(key->z) + "-" + std::to_string(key->x) + "-" +
+              std::to_string(key->y);
     etag += "\"";
     const std::string inm = req.get_header_value("If-None-Match");
     if (!inm.empty() && http::if_none_match_matches(inm, etag)) {

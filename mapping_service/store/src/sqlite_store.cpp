@@ -40,7 +40,8 @@ std::vector<GeoBox> split_box(const GeoBox& b) {
 
 bool box_contains(const GeoBox& b, double lat, double lon) {
   for (const GeoBox& p : split_box(b)) {
-    if (lat >= p.min_lat_deg && lat <= p.max_lat_deg && lon >= p.min_lon_deg && lon <= p.max_lon_deg) {
+    if (lat >= p.min_lat_deg && lat <= p.max_lat_deg && lon >= p.min_lon_deg &&
+        lon <= p.max_lon_deg) {
       return true;
     }
   }
@@ -107,14 +108,16 @@ MapVersionStatus parse_status(const std::string& s) {
   return MapVersionStatus::Building;
 }
 
-
 }  // namespace sqlite_store_detail
 
 std::string_view to_string(MapVersionStatus s) {
   switch (s) {
-    case MapVersionStatus::Published: return "published";
-    case MapVersionStatus::Failed: return "failed";
-    default: return "building";
+    case MapVersionStatus::Published:
+      return "published";
+    case MapVersionStatus::Failed:
+      return "failed";
+    default:
+      return "building";
   }
 }
 
@@ -129,7 +132,8 @@ std::vector<StoreMigration> parse_store_migrations(std::string_view sql) {
     while (!s.empty() && util::is_ascii_space(s.back())) s.remove_suffix(1);
     while (!s.empty() && util::is_ascii_space(s.front())) s.remove_prefix(1);
     if (s.empty()) {
-      throw FormatError("schema/store.sql: section '" + std::string(out.back().name) + "' is empty");
+      throw FormatError("schema/store.sql: section '" + std::string(out.back().name) +
+                        "' is empty");
     }
     out.back().sql = s;
   };
@@ -148,15 +152,18 @@ std::vector<StoreMigration> parse_store_migrations(std::string_view sql) {
         int v = 0;
         const auto [p, ec] = std::from_chars(rest.data(), rest.data() + rest.size(), v);
         if (ec != std::errc{} || colon == std::string_view::npos || p != rest.data() + colon) {
-          throw FormatError("schema/store.sql: malformed section header '" + std::string(line) + "'");
+          throw FormatError("schema/store.sql: malformed section header '" + std::string(line) +
+                            "'");
         }
         m.version = v;
         m.name = util::trim(rest.substr(colon + 1));
       }
       const int expected = out.empty() ? 0 : out.back().version + 1;
       if (m.version != expected || (out.empty() != bootstrap)) {
-        throw FormatError("schema/store.sql: sections must be the bootstrap, then migrations 1, 2, ... in "
-                          "order; found '" + std::string(line) + "'");
+        throw FormatError(
+            "schema/store.sql: sections must be the bootstrap, then migrations 1, 2, ... in "
+            "order; found '" +
+            std::string(line) + "'");
       }
       out.push_back(m);
       body = eol;
@@ -218,7 +225,8 @@ void SqliteMapStore::Impl::sweep_orphans() {
     std::snprintf(grace_modifier, sizeof grace_modifier, "-%lld seconds",
                   static_cast<long long>(std::ceil(opt.orphan_grace_s)));
     c.stmt(
-         "UPDATE map_versions SET status = 'failed', error = 'interrupted (found building on open)' "
+         "UPDATE map_versions SET status = 'failed', error = 'interrupted (found building on "
+         "open)' "
          "WHERE status = 'building' AND created_at <= strftime('%Y-%m-%dT%H:%M:%SZ', 'now', ?1)")
         .bind(1, grace_modifier)
         .run();
@@ -235,7 +243,8 @@ SqliteMapStore::SqliteMapStore(const fs::path& db_path, SqliteStoreOptions optio
   std::error_code ec;
   if (db_path.has_parent_path()) fs::create_directories(db_path.parent_path(), ec);
   fs::create_directories(impl_->drives_dir, ec);
-  if (ec) throw IoError("cannot create drive store " + impl_->drives_dir.string() + ": " + ec.message());
+  if (ec)
+    throw IoError("cannot create drive store " + impl_->drives_dir.string() + ": " + ec.message());
   impl_->migrate();
   impl_->sweep_orphans();
 }

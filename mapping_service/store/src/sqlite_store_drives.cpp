@@ -52,7 +52,8 @@ PutDriveResult SqliteMapStore::put_drive(const DrivePackage& package,
                           "'");
   }
   const DriveManifest& m = package.manifest;
-  if (m.drive_id.empty()) throw ValidationError("put_drive: manifest.json: field 'drive_id' is empty");
+  if (m.drive_id.empty())
+    throw ValidationError("put_drive: manifest.json: field 'drive_id' is empty");
   if (auto existing = find_drive_by_hash(content_hash)) {
     return {PutDriveResult::Status::AlreadyPresent, *existing};
   }
@@ -88,8 +89,8 @@ PutDriveResult SqliteMapStore::put_drive(const DrivePackage& package,
     grow(line_geo.back().second.lat_deg, line_geo.back().second.lon_deg);
   }
   for (const auto& t : package.trajectory) grow(t.lat_deg, t.lon_deg);
-  if (bbox.min_lat_deg > bbox.max_lat_deg) bbox = {m.origin.lat_deg, m.origin.lon_deg,
-                                                   m.origin.lat_deg, m.origin.lon_deg};
+  if (bbox.min_lat_deg > bbox.max_lat_deg)
+    bbox = {m.origin.lat_deg, m.origin.lon_deg, m.origin.lat_deg, m.origin.lon_deg};
 
   // 1. Files into a temp dir of the drive store (same file system: rename is atomic).
   // Both guards remove their directory unless released: the staging directory always,
@@ -229,7 +230,8 @@ std::vector<DriveRecord> SqliteMapStore::list_drives() const {
 }
 
 std::optional<DriveRecord> SqliteMapStore::get_drive(std::string_view drive_id) const {
-  return impl_->read([&](Connection& c) { return impl_->drive_where(c, "drive_id = ?1", drive_id); });
+  return impl_->read(
+      [&](Connection& c) { return impl_->drive_where(c, "drive_id = ?1", drive_id); });
 }
 
 std::optional<DriveRecord> SqliteMapStore::find_drive_by_hash(std::string_view content_hash) const {
@@ -269,9 +271,8 @@ std::vector<DriveRecord> SqliteMapStore::drives_in(const GeoBox& box) const {
       s.bind(1, b.min_lat_deg).bind(2, b.max_lat_deg).bind(3, b.min_lon_deg).bind(4, b.max_lon_deg);
       while (s.step()) {
         DriveRecord d = impl_->drive_from_row(s);
-        if (seen.insert(d.row).second &&
-            box_intersects(box, d.bbox.min_lat_deg, d.bbox.min_lon_deg, d.bbox.max_lat_deg,
-                           d.bbox.max_lon_deg)) {
+        if (seen.insert(d.row).second && box_intersects(box, d.bbox.min_lat_deg, d.bbox.min_lon_deg,
+                                                        d.bbox.max_lat_deg, d.bbox.max_lon_deg)) {
           out.push_back(std::move(d));
         }
       }
@@ -351,7 +352,10 @@ CandidateSet SqliteMapStore::candidates_in(const std::optional<GeoBox>& region,
         auto s = c.stmt(cols +
                         " JOIN candidates_rtree r ON r.id = c.id WHERE r.max_lat >= ?1 AND "
                         "r.min_lat <= ?2 AND r.max_lon >= ?3 AND r.min_lon <= ?4 ORDER BY c.id");
-        s.bind(1, b.min_lat_deg).bind(2, b.max_lat_deg).bind(3, b.min_lon_deg).bind(4, b.max_lon_deg);
+        s.bind(1, b.min_lat_deg)
+            .bind(2, b.max_lat_deg)
+            .bind(3, b.min_lon_deg)
+            .bind(4, b.max_lon_deg);
         while (s.step()) take(s);
       }
       if (region->crosses_antimeridian()) {

@@ -187,9 +187,9 @@ struct SqliteMapStore::Impl {
   static void require_published(Connection& c, std::int64_t v) {
     const auto st = version_status(c, v);
     if (!st || *st != MapVersionStatus::Published) {
-      throw NotFoundError("map version " + std::to_string(v) +
-                          (st ? " is not published (" + std::string(to_string(*st)) + ")"
-                              : " does not exist"));
+      throw NotFoundError(
+          "map version " + std::to_string(v) +
+          (st ? " is not published (" + std::string(to_string(*st)) + ")" : " does not exist"));
     }
   }
 

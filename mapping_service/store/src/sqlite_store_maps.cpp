@@ -19,7 +19,8 @@ namespace fs = std::filesystem;
 std::int64_t SqliteMapStore::begin_map_version(const nlohmann::json& parameters) {
   return impl_->write([&](Connection& c) {
     c.stmt(
-         "INSERT INTO map_versions(status, created_at, parameters_json) VALUES ('building', ?1, ?2)")
+         "INSERT INTO map_versions(status, created_at, parameters_json) VALUES ('building', ?1, "
+         "?2)")
         .bind(1, now_iso())
         .bind(2, parameters.dump())
         .run();
@@ -27,7 +28,8 @@ std::int64_t SqliteMapStore::begin_map_version(const nlohmann::json& parameters)
   });
 }
 
-void SqliteMapStore::put_landmarks(std::int64_t version, std::span<const StoredPointLandmark> points,
+void SqliteMapStore::put_landmarks(std::int64_t version,
+                                   std::span<const StoredPointLandmark> points,
                                    std::span<const StoredLineLandmark> lines) {
   impl_->write([&](Connection& c) {
     Impl::require_building(c, version);
@@ -264,7 +266,8 @@ LandmarkSet SqliteMapStore::landmarks_in(std::int64_t version, const std::option
       if (!seen.insert(id).second) return;
       std::vector<std::int64_t> support;
       if (with_support) {
-        auto q = c.stmt("SELECT candidate FROM landmark_support WHERE landmark = ?1 ORDER BY candidate");
+        auto q =
+            c.stmt("SELECT candidate FROM landmark_support WHERE landmark = ?1 ORDER BY candidate");
         q.bind(1, id);
         while (q.step()) support.push_back(q.i64(0));
       }
@@ -398,7 +401,8 @@ StoreStats SqliteMapStore::stats() const {
     }
     st.tile_blobs = one("SELECT COUNT(*) FROM tile_blobs");
     st.tile_blob_bytes = one("SELECT COALESCE(SUM(byte_size), 0) FROM tile_blobs");
-    st.database_bytes = one("SELECT page_count * page_size FROM pragma_page_count, pragma_page_size");
+    st.database_bytes =
+        one("SELECT page_count * page_size FROM pragma_page_count, pragma_page_size");
     st.drive_store_bytes = one("SELECT COALESCE(SUM(package_bytes), 0) FROM drives");
     return st;
   });

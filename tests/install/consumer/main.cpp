@@ -77,8 +77,8 @@ int main() try {
   check(!fetcher.tile(tile.key).has_value(), "offline fetcher: miss");
   check(fetcher.stats().memory_misses == 1, "offline fetcher: one memory miss");
 
-  std::printf("%s\n", failures == 0 ? "polmap consumer: all checks passed"
-                                    : "polmap consumer: FAILED");
+  std::printf("%s\n",
+              failures == 0 ? "polmap consumer: all checks passed" : "polmap consumer: FAILED");
   return failures == 0 ? 0 : 1;
 } catch (const std::exception& e) {
   std::printf("polmap consumer: exception: %s\n", e.what());

@@ -2,7 +2,6 @@
 // cache hit, 304 revalidation, 204/404, retries after 5xx, offline operation from
 // the disk cache when the server stops, pickup of a new map version, and tile()
 // never blocking while the server is slow.
-#include "test_dir.hpp"
 #include "polmap/localization_client/tile_fetcher.hpp"
 
 #include <gtest/gtest.h>
@@ -15,6 +14,8 @@
 #include <random>
 #include <set>
 #include <thread>
+
+#include "test_dir.hpp"
 // After Eigen: <resolv.h> (pulled in by httplib) defines a macro _res that
 // collides with Eigen's parameter names.
 #include <httplib.h>
@@ -137,9 +138,7 @@ class FakeTileServer {
 
 class TileFetcherTest : public ::testing::Test {
  protected:
-  void SetUp() override {
-    dir_ = polmap::test::unique_test_dir("tile-fetcher");
-  }
+  void SetUp() override { dir_ = polmap::test::unique_test_dir("tile-fetcher"); }
   void TearDown() override { std::filesystem::remove_all(dir_); }
 
   TileFetcherConfig config(const std::string& url) const {

@@ -1,7 +1,6 @@
 // MapBuilder against a real SqliteMapStore: consensus over synthetic drives,
 // landmarks and localization tiles, incremental tile reuse, leave-one-out,
 // region builds, cancellation; fleet gridmap accumulation and PNG tiles.
-#include "test_dir.hpp"
 #include "polmap/mapping_service/map_builder.hpp"
 
 #include <gtest/gtest.h>
@@ -13,6 +12,7 @@
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/mapping_service/sqlite_store.hpp"
 #include "polmap/tiles/local_frame.hpp"
+#include "test_dir.hpp"
 
 namespace polmap::mapping {
 namespace {
@@ -20,9 +20,7 @@ namespace fs = std::filesystem;
 
 class TempDir {
  public:
-  TempDir() {
-    path_ = polmap::test::unique_test_dir("builder");
-  }
+  TempDir() { path_ = polmap::test::unique_test_dir("builder"); }
   ~TempDir() {
     std::error_code ec;
     fs::remove_all(path_, ec);
@@ -113,7 +111,8 @@ TEST(MapBuilder, BuildsLandmarksAndTilesFromAllDrives) {
   SqliteMapStore store(tmp.path() / "map.db");
   const World w = make_world(1, 400, kExtent);
   const Eigen::Vector2d lo(-kExtent, -kExtent), hi(kExtent, kExtent);
-  for (int d = 0; d < 3; ++d) put(store, tmp.path(), observe(w, "d" + std::to_string(d), 10 + d, lo, hi));
+  for (int d = 0; d < 3; ++d)
+    put(store, tmp.path(), observe(w, "d" + std::to_string(d), 10 + d, lo, hi));
 
   std::vector<std::string> stages;
   BuildControl ctl;
@@ -179,7 +178,8 @@ TEST(MapBuilder, ANewDriveRewritesOnlyTheTilesItTouches) {
   SqliteMapStore store(tmp.path() / "map.db");
   const World w = make_world(2, 600, kExtent);
   const Eigen::Vector2d lo(-kExtent, -kExtent), hi(kExtent, kExtent);
-  for (int d = 0; d < 2; ++d) put(store, tmp.path(), observe(w, "d" + std::to_string(d), 20 + d, lo, hi, 0));
+  for (int d = 0; d < 2; ++d)
+    put(store, tmp.path(), observe(w, "d" + std::to_string(d), 20 + d, lo, hi, 0));
   const MapBuilder builder;
   const auto v1 = builder.build(store, no_gridmap());
   ASSERT_EQ(v1.status, MapBuildResult::Status::Published) << v1.error;
@@ -225,7 +225,8 @@ TEST(MapBuilder, LeaveOneOutRegionAndCancellation) {
   SqliteMapStore store(tmp.path() / "map.db");
   const World w = make_world(3, 300, 300.0);
   const Eigen::Vector2d lo(-200, -200), hi(200, 200);
-  for (int d = 0; d < 3; ++d) put(store, tmp.path(), observe(w, "d" + std::to_string(d), 30 + d, lo, hi));
+  for (int d = 0; d < 3; ++d)
+    put(store, tmp.path(), observe(w, "d" + std::to_string(d), 30 + d, lo, hi));
   const MapBuilder builder;
   const auto full = builder.build(store, no_gridmap());
   ASSERT_EQ(full.status, MapBuildResult::Status::Published);
@@ -255,17 +256,20 @@ TEST(MapBuilder, LeaveOneOutRegionAndCancellation) {
 
   // Region: only landmarks inside it.
   const tiles::LocalFrame world(kWorldOrigin);
-  const GeoPoint a = world.to_geo(Eigen::Vector2d(-50, -50)), b = world.to_geo(Eigen::Vector2d(50, 50));
+  const GeoPoint a = world.to_geo(Eigen::Vector2d(-50, -50)),
+                 b = world.to_geo(Eigen::Vector2d(50, 50));
   MapBuildRequest region = no_gridmap();
   region.region = tiles::GeoBox{a.lat_deg, a.lon_deg, b.lat_deg, b.lon_deg};
   region.make_current = false;
   const auto rr = builder.build(store, region);
   ASSERT_EQ(rr.status, MapBuildResult::Status::Published) << rr.error;
   std::size_t expect = 0;
-  for (const auto& o : w.objects) expect += (std::abs(o.x()) < 49.9 && std::abs(o.y()) < 49.9) ? 1 : 0;
+  for (const auto& o : w.objects)
+    expect += (std::abs(o.x()) < 49.9 && std::abs(o.y()) < 49.9) ? 1 : 0;
   const auto rl = store.landmarks_in(rr.version, std::nullopt);
   EXPECT_NEAR(static_cast<double>(rl.points.size()), static_cast<double>(expect), 2.0);
-  for (const auto& p : rl.points) EXPECT_TRUE(region.region->contains(p.position.lat_deg, p.position.lon_deg));
+  for (const auto& p : rl.points)
+    EXPECT_TRUE(region.region->contains(p.position.lat_deg, p.position.lon_deg));
 
   // Cancellation: the version fails, current is untouched.
   std::atomic<bool> cancel{true};
@@ -314,7 +318,8 @@ TEST(MapBuilder, RealPackagesBuildTheFleetGridmap) {
   const World w = make_world(4, 50, 50.0);
   for (int d = 0; d < 2; ++d) {
     // Seeds 45 and 51: drive frames at (0, 0) and (37, 0) m from the world origin.
-    DrivePackage pkg = observe(w, "real" + std::to_string(d), d == 0 ? 45 : 51, {-25, -25}, {25, 25}, 0);
+    DrivePackage pkg =
+        observe(w, "real" + std::to_string(d), d == 0 ? 45 : 51, {-25, -25}, {25, 25}, 0);
     pkg.manifest.start_time_s = 0.0;
     pkg.manifest.end_time_s = 1.0;
     pkg.manifest.pol_level = PolLevel::SingleLR;

@@ -64,8 +64,9 @@ TEST(ConsensusLines, TwoNoisyObservationsOfAWallMergeToTheSpanningSegment) {
 
 TEST(ConsensusLines, SingleDriveAndDistantCollinearSegmentsDoNotMerge) {
   // Same drive twice: never a landmark.
-  EXPECT_TRUE(consensus_lines(std::vector{seg(1, 1, {0, 0}, {10, 0}), seg(2, 1, {0, 0.01}, {10, 0.01})})
-                  .landmarks.empty());
+  EXPECT_TRUE(
+      consensus_lines(std::vector{seg(1, 1, {0, 0}, {10, 0}), seg(2, 1, {0, 0.01}, {10, 0.01})})
+          .landmarks.empty());
   // Collinear with a 1.4 m gap merges, with 1.6 m it does not.
   EXPECT_EQ(consensus_lines(std::vector{seg(1, 1, {0, 0}, {10, 0}), seg(2, 2, {11.4, 0}, {20, 0})})
                 .landmarks.size(),
@@ -77,7 +78,7 @@ TEST(ConsensusLines, SingleDriveAndDistantCollinearSegmentsDoNotMerge) {
 
 TEST(ConsensusLines, ParallelLinesHalfAMetreApartStaySeparate) {
   const std::vector<TaggedLineCandidate> in{
-      seg(1, 1, {0, 0.00}, {30, 0.01}), seg(2, 2, {1, -0.01}, {29, 0.00}),   // curb
+      seg(1, 1, {0, 0.00}, {30, 0.01}), seg(2, 2, {1, -0.01}, {29, 0.00}),  // curb
       seg(3, 1, {0, 0.50}, {30, 0.51}), seg(4, 2, {2, 0.49}, {31, 0.50})};  // wall behind it
   const auto r = consensus_lines(in);
   ASSERT_EQ(r.landmarks.size(), 2U);
@@ -91,7 +92,9 @@ TEST(ConsensusLines, CurveBecomesAPolylineWithinTheErrorBound) {
   // chords of drive 2 shifted by half a chord and 1 cm noise.
   const double R = 15.0;
   const Eigen::Vector2d c(100.0, 200.0);
-  auto arc = [&](double t) { return Eigen::Vector2d(c + R * Eigen::Vector2d(std::cos(t), std::sin(t))); };
+  auto arc = [&](double t) {
+    return Eigen::Vector2d(c + R * Eigen::Vector2d(std::cos(t), std::sin(t)));
+  };
   const double dt = 1.5 / R;
   std::mt19937 rng(3);
   std::normal_distribution<double> n(0.0, 0.01);
@@ -122,8 +125,9 @@ TEST(ConsensusLines, CurveBecomesAPolylineWithinTheErrorBound) {
 TEST(ConsensusLines, NearlyCrossingEndsSnapToTheIntersection) {
   // An L-shaped building corner at (10, 0): wall A stops 0.4 m short of the
   // corner, wall B starts 0.4 m above it. Each seen by two drives.
-  std::vector<TaggedLineCandidate> in{seg(1, 1, {0, 0}, {9.6, 0}), seg(2, 2, {0.2, 0.01}, {9.6, 0.01}),
-                                      seg(3, 1, {10, 0.4}, {10, 10}), seg(4, 2, {10.01, 0.4}, {10.01, 9})};
+  std::vector<TaggedLineCandidate> in{
+      seg(1, 1, {0, 0}, {9.6, 0}), seg(2, 2, {0.2, 0.01}, {9.6, 0.01}),
+      seg(3, 1, {10, 0.4}, {10, 10}), seg(4, 2, {10.01, 0.4}, {10.01, 9})};
   auto r = consensus_lines(in);
   ASSERT_EQ(r.landmarks.size(), 2U);
   EXPECT_EQ(r.stats.snapped_ends, 2U);
@@ -156,7 +160,8 @@ TEST(ConsensusLines, ManyWallsScaleAndStayDeterministic) {
   for (int i = 0; i < 2000; ++i) {
     const Eigen::Vector2d a(20.0 * (i % 50), 20.0 * (i / 50));
     for (int d = 0; d < 3; ++d) {
-      in.push_back(seg(id++, d, a + Eigen::Vector2d(n(rng), n(rng)), a + Eigen::Vector2d(8 + n(rng), n(rng))));
+      in.push_back(seg(id++, d, a + Eigen::Vector2d(n(rng), n(rng)),
+                       a + Eigen::Vector2d(8 + n(rng), n(rng))));
     }
   }
   std::shuffle(in.begin(), in.end(), rng);

@@ -46,8 +46,8 @@ TEST(ConsensusPoints, ReobservedPointMergesToTheMean) {
 }
 
 TEST(ConsensusPoints, RespectsTheDistanceThreshold) {
-  for (const auto& [d, merged] : {std::pair{0.29, true}, std::pair{0.31, false},
-                                  std::pair{0.2999999, true}}) {
+  for (const auto& [d, merged] :
+       {std::pair{0.29, true}, std::pair{0.31, false}, std::pair{0.2999999, true}}) {
     const std::vector<TaggedPointCandidate> in{cand(1, 1, 100.0, -50.0),
                                                cand(2, 2, 100.0 + d * 0.6, -50.0 + d * 0.8)};
     EXPECT_EQ(consensus_points(in).landmarks.size(), merged ? 1U : 0U) << d;
@@ -55,9 +55,9 @@ TEST(ConsensusPoints, RespectsTheDistanceThreshold) {
   }
   PointConsensusConfig wide;
   wide.max_pair_distance_m = 0.5;
-  EXPECT_EQ(consensus_points(std::vector{cand(1, 1, 0, 0), cand(2, 2, 0.45, 0)}, wide)
-                .landmarks.size(),
-            1U);
+  EXPECT_EQ(
+      consensus_points(std::vector{cand(1, 1, 0, 0), cand(2, 2, 0.45, 0)}, wide).landmarks.size(),
+      1U);
 }
 
 TEST(ConsensusPoints, PairsOnlyAcrossDrives) {
@@ -101,7 +101,8 @@ TEST(ConsensusPoints, KdTreeEqualsBruteForceOnRandomSets) {
     for (int o = 0; o < 300; ++o) {
       const double x = u(rng), y = u(rng);
       const int seen = std::uniform_int_distribution<int>(1, 5)(rng);
-      for (int k = 0; k < seen; ++k) in.push_back(cand(id++, drive(rng), x + noise(rng), y + noise(rng)));
+      for (int k = 0; k < seen; ++k)
+        in.push_back(cand(id++, drive(rng), x + noise(rng), y + noise(rng)));
     }
     for (int k = 0; k < 500; ++k) in.push_back(cand(id++, drive(rng), u(rng), u(rng)));
     std::shuffle(in.begin(), in.end(), rng);

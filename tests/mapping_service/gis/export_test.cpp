@@ -1,5 +1,4 @@
 // GIS export: files open with GDAL/OGR with the right layers, counts, attributes and CRS.
-#include "test_dir.hpp"
 #include "polmap/mapping_service/export.hpp"
 
 #include <gdal_priv.h>
@@ -17,6 +16,7 @@
 #include "polmap/mapping_service/fleet_gridmap.hpp"
 #include "polmap/mapping_service/sqlite_store.hpp"
 #include "polmap/tiles/local_frame.hpp"
+#include "test_dir.hpp"
 
 namespace polmap::mapping {
 namespace {

@@ -1,6 +1,5 @@
 // HD-map comparison on real Lanelet2 maps with synthetic radar landmarks placed at the
 // HD-map features (known offsets, gaps and outliers), checked against brute force.
-#include "test_dir.hpp"
 #include "polmap/mapping_service/hdmap_compare.hpp"
 
 #include <gtest/gtest.h>
@@ -12,6 +11,7 @@
 #include <random>
 
 #include "polmap/tiles/local_frame.hpp"
+#include "test_dir.hpp"
 
 namespace polmap::mapping {
 namespace {

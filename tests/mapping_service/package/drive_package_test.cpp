@@ -7,11 +7,11 @@
 #include <filesystem>
 #include <fstream>
 
-#include "test_dir.hpp"
 #include "mapping_service/package_fixture.hpp"
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/mapping_service/ustar.hpp"
 #include "polmap/tiles/local_frame.hpp"
+#include "test_dir.hpp"
 
 namespace polmap::mapping {
 namespace {

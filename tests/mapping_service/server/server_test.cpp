@@ -10,11 +10,11 @@
 #include <nlohmann/json.hpp>
 #include <set>
 
-#include "test_dir.hpp"
+#include "mapping_service/server_fixture.hpp"
 #include "polmap/mapping_service/ustar.hpp"
 #include "polmap/tiles/localization_tile.hpp"
 #include "polmap/tiles/tile_key.hpp"
-#include "mapping_service/server_fixture.hpp"
+#include "test_dir.hpp"
 
 namespace polmap::mapping::testing {
 namespace {
@@ -106,7 +106,9 @@ class ServerTest : public ServerFixture {
     }
     return keys;
   }
-  static std::string tile_path(const tiles::TileKey& k) { return "/v1/tiles/" + tiles::to_string(k); }
+  static std::string tile_path(const tiles::TileKey& k) {
+    return "/v1/tiles/" + tiles::to_string(k);
+  }
 };
 
 TEST_F(ServerTest, HealthMetricsCorsAndUnknownRoutes) {
@@ -130,11 +132,13 @@ TEST_F(ServerTest, HealthMetricsCorsAndUnknownRoutes) {
 
   r = c.Get("/metrics");
   EXPECT_EQ(r->status, 200);
-  EXPECT_NE(r->body.find("polmap_http_requests_total{route=\"health\",method=\"GET\",status=\"200\"} 1"),
-            std::string::npos)
+  EXPECT_NE(
+      r->body.find("polmap_http_requests_total{route=\"health\",method=\"GET\",status=\"200\"} 1"),
+      std::string::npos)
       << r->body;
-  EXPECT_NE(r->body.find("polmap_http_request_duration_seconds_bucket{route=\"health\",le=\"+Inf\"} 1"),
-            std::string::npos);
+  EXPECT_NE(
+      r->body.find("polmap_http_request_duration_seconds_bucket{route=\"health\",le=\"+Inf\"} 1"),
+      std::string::npos);
   EXPECT_NE(r->body.find("polmap_drives 0"), std::string::npos);
   EXPECT_NE(r->body.find("polmap_current_map_version 0"), std::string::npos);
   // One log line per request with method, path, status, bytes, ms.
@@ -174,8 +178,9 @@ TEST_F(ServerTest, WritesNeedAValidKey) {
   // A refused small upload does not break the keep-alive connection it came on.
   auto keep = client();
   keep.set_keep_alive(true);
-  EXPECT_EQ(keep.Post("/v1/drives", auth("nope"), std::string(1000, 'x'), "application/x-tar")->status,
-            401);
+  EXPECT_EQ(
+      keep.Post("/v1/drives", auth("nope"), std::string(1000, 'x'), "application/x-tar")->status,
+      401);
   EXPECT_EQ(keep.Get("/health")->status, 200);
   EXPECT_EQ(keep.Get("/health")->status, 200);
   // The second key and the case-insensitive scheme work.
@@ -238,8 +243,9 @@ TEST_F(ServerTest, UploadIsIdempotentAndConflictsAreRejected) {
 TEST_F(ServerTest, BadUploadsLeaveNoTrace) {
   auto c = client();
   // Seed one good drive so "unchanged" is not trivially "empty".
-  ASSERT_EQ(c.Post("/v1/drives", auth(), scene_tar("scene_drive_0", 11), "application/x-tar")->status,
-            201);
+  ASSERT_EQ(
+      c.Post("/v1/drives", auth(), scene_tar("scene_drive_0", 11), "application/x-tar")->status,
+      201);
   const std::size_t entries = drive_store_entries();
   auto unchanged = [&] {
     EXPECT_EQ(store_->list_drives().size(), 1u);
@@ -328,7 +334,8 @@ TEST_F(ServerTest, OversizedAndInterruptedUploads) {
   }
   EXPECT_TRUE(eventually([&] {
     for (const auto& l : log_lines()) {
-      if (l.find("POST /v1/drives 413") != std::string::npos && l.find("600000000") == std::string::npos) {
+      if (l.find("POST /v1/drives 413") != std::string::npos &&
+          l.find("600000000") == std::string::npos) {
         return true;
       }
     }
@@ -412,9 +419,10 @@ TEST_F(ServerTest, UploadBuildTileDecodeGivesBackTheLandmarks) {
   const tiles::TileKey far = tiles::tile_at(48.0, 11.0, 16);
   r = c.Get(tile_path(far));
   EXPECT_EQ(r->status, 404);
-  EXPECT_NE(body_json(r)["error"].get<std::string>().find("outside the coverage"), std::string::npos);
-  for (const char* bad : {"/v1/tiles/16/abc/1", "/v1/tiles/16/70000/1", "/v1/tiles/-1/0/0",
-                          "/v1/tiles/16/1/1x"}) {
+  EXPECT_NE(body_json(r)["error"].get<std::string>().find("outside the coverage"),
+            std::string::npos);
+  for (const char* bad :
+       {"/v1/tiles/16/abc/1", "/v1/tiles/16/70000/1", "/v1/tiles/-1/0/0", "/v1/tiles/16/1/1x"}) {
     EXPECT_EQ(c.Get(bad)->status, 400) << bad;
   }
   EXPECT_EQ(c.Get("/v1/tiles/15/0/0")->status, 404);
@@ -427,7 +435,8 @@ TEST_F(ServerTest, UploadBuildTileDecodeGivesBackTheLandmarks) {
     for (int dx = -1; dx <= 1 && !empty_neighbour; ++dx) {
       const auto n = tiles::neighbour(k, dx, dy);
       if (n && !scene_tiles().count(*n)) {
-        if (auto t = store_->get_tile(version, TileLayer::Localization, *n); !t) empty_neighbour = n;
+        if (auto t = store_->get_tile(version, TileLayer::Localization, *n); !t)
+          empty_neighbour = n;
       }
     }
   }
@@ -442,7 +451,8 @@ TEST_F(ServerTest, UploadBuildTileDecodeGivesBackTheLandmarks) {
   EXPECT_EQ(c.Get("/v1/maps/current")->status, 200);
   EXPECT_EQ(c.Get("/v1/maps/77")->status, 404);
   r = c.Get("/metrics");
-  EXPECT_NE(r->body.find("polmap_current_map_version " + std::to_string(version)), std::string::npos);
+  EXPECT_NE(r->body.find("polmap_current_map_version " + std::to_string(version)),
+            std::string::npos);
   EXPECT_NE(r->body.find("polmap_tiles_served_total{kind=\"localization\",status=\"304\"} 2"),
             std::string::npos)
       << r->body;
@@ -504,8 +514,8 @@ TEST_F(ServerTest, VectorTilesTileJsonAndGridmap) {
   std::ofstream(tile_file, std::ios::binary) << mvt;
   GDALAllRegister();
   const char* drivers[] = {"MVT", nullptr};
-  GDALDatasetUniquePtr ds(GDALDataset::Open(tile_file.c_str(), GDAL_OF_VECTOR, drivers, nullptr,
-                                            nullptr));
+  GDALDatasetUniquePtr ds(
+      GDALDataset::Open(tile_file.c_str(), GDAL_OF_VECTOR, drivers, nullptr, nullptr));
   ASSERT_TRUE(ds) << tile_file;
   std::set<std::string> names;
   for (int i = 0; i < ds->GetLayerCount(); ++i) names.insert(ds->GetLayer(i)->GetName());
@@ -568,7 +578,8 @@ TEST_F(ServerTest, ExportStreamsGisFiles) {
   const auto gpkg = dir_ / "export.gpkg";
   std::ofstream(gpkg, std::ios::binary) << r->body;
   GDALAllRegister();
-  GDALDatasetUniquePtr ds(GDALDataset::Open(gpkg.c_str(), GDAL_OF_VECTOR, nullptr, nullptr, nullptr));
+  GDALDatasetUniquePtr ds(
+      GDALDataset::Open(gpkg.c_str(), GDAL_OF_VECTOR, nullptr, nullptr, nullptr));
   ASSERT_TRUE(ds);
   EXPECT_EQ(ds->GetLayerByName("points")->GetFeatureCount(),
             static_cast<GIntBig>(true_points().size()));

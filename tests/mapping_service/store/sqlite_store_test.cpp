@@ -1,7 +1,6 @@
 // SqliteMapStore against a real SQLite file in a temp dir: schema/migrations,
 // WAL + foreign keys, drive ingest (idempotent, all-or-nothing), deletes,
 // R*Tree region queries vs brute force, map version atomicity, tile blobs.
-#include "test_dir.hpp"
 #include "polmap/mapping_service/sqlite_store.hpp"
 
 #include <gtest/gtest.h>
@@ -14,6 +13,7 @@
 #include <thread>
 
 #include "polmap/tiles/local_frame.hpp"
+#include "test_dir.hpp"
 
 namespace polmap::mapping {
 namespace {
@@ -21,9 +21,7 @@ namespace fs = std::filesystem;
 
 class TempDir {
  public:
-  TempDir() {
-    path_ = polmap::test::unique_test_dir("store");
-  }
+  TempDir() { path_ = polmap::test::unique_test_dir("store"); }
   ~TempDir() {
     std::error_code ec;
     fs::remove_all(path_, ec);
@@ -38,9 +36,8 @@ const GeoPoint kOrigin{48.7758, 9.1829, 250.0};  // Stuttgart
 
 /// A synthetic validated package: n points and m lines scattered in a
 /// `extent_m` square around the drive origin, plus a short trajectory.
-DrivePackage make_package(const std::string& drive_id, int n_points, int n_lines,
-                          unsigned seed, double extent_m = 200.0,
-                          GeoPoint origin = kOrigin) {
+DrivePackage make_package(const std::string& drive_id, int n_points, int n_lines, unsigned seed,
+                          double extent_m = 200.0, GeoPoint origin = kOrigin) {
   DrivePackage p;
   p.manifest.drive_id = drive_id;
   p.manifest.vehicle_id = "veh-1";
@@ -100,7 +97,8 @@ std::int64_t count_rows(const fs::path& db, const std::string& sql) {
 }
 
 std::size_t entries(const fs::path& dir) {
-  return static_cast<std::size_t>(std::distance(fs::directory_iterator(dir), fs::directory_iterator{}));
+  return static_cast<std::size_t>(
+      std::distance(fs::directory_iterator(dir), fs::directory_iterator{}));
 }
 
 TEST(SqliteStore, OpensWithWalForeignKeysAndMigrationsOnce) {
@@ -118,7 +116,8 @@ TEST(SqliteStore, OpensWithWalForeignKeysAndMigrationsOnce) {
   }
   EXPECT_EQ(count_rows(db, "SELECT COUNT(*) FROM schema_migrations"),
             static_cast<std::int64_t>(sqlite_store_migrations().size() - 1));
-  EXPECT_EQ(count_rows(db, "SELECT COUNT(*) FROM sqlite_master WHERE name = 'candidates_rtree'"), 1);
+  EXPECT_EQ(count_rows(db, "SELECT COUNT(*) FROM sqlite_master WHERE name = 'candidates_rtree'"),
+            1);
 }
 
 void exec_sql(const fs::path& db, const std::string& sql) {
@@ -143,7 +142,7 @@ TEST(SqliteStore, UpgradesAnOlderDatabaseByApplyingOnlyMissingMigrations) {
   exec_sql(db, "DROP TABLE drive_trajectories; DELETE FROM schema_migrations WHERE version = 2;");
   SqliteMapStore store(db);
   EXPECT_EQ(store.schema_version(), 2);
-  EXPECT_EQ(store.get_drive("a")->num_points, 3);  // data kept
+  EXPECT_EQ(store.get_drive("a")->num_points, 3);    // data kept
   EXPECT_TRUE(store.drive_trajectory("a").empty());  // ingested before migration 2
   const auto [tar2, hash2] = write_archive(tmp.path(), "b", "B");
   (void)store.put_drive(make_package("b", 3, 1, 2), tar2, hash2);
@@ -172,18 +171,21 @@ TEST(SqliteStore, MigrationsAreTheSectionsOfStoreSql) {
 }
 
 TEST(SqliteStore, StoreSqlParserRejectsMalformedSections) {
-  const auto ok = parse_store_migrations("-- bootstrap\nSELECT 1;\n-- migration 1: one\nSELECT 2;\n");
+  const auto ok =
+      parse_store_migrations("-- bootstrap\nSELECT 1;\n-- migration 1: one\nSELECT 2;\n");
   ASSERT_EQ(ok.size(), 2U);
   EXPECT_EQ(ok[1].name, "one");
   EXPECT_EQ(ok[1].sql, "SELECT 2;");
   EXPECT_THROW((void)parse_store_migrations("SELECT 1;"), FormatError);
   EXPECT_THROW((void)parse_store_migrations("-- migration 1: a\nSELECT 1;"), FormatError);
-  EXPECT_THROW((void)parse_store_migrations("-- bootstrap\nSELECT 1;\n-- migration 2: skip\nSELECT 2;"),
-               FormatError);
+  EXPECT_THROW(
+      (void)parse_store_migrations("-- bootstrap\nSELECT 1;\n-- migration 2: skip\nSELECT 2;"),
+      FormatError);
   EXPECT_THROW((void)parse_store_migrations("-- bootstrap\nSELECT 1;\n-- migration 1: empty\n  \n"),
                FormatError);
-  EXPECT_THROW((void)parse_store_migrations("-- bootstrap\nSELECT 1;\n-- migration x: bad\nSELECT 2;"),
-               FormatError);
+  EXPECT_THROW(
+      (void)parse_store_migrations("-- bootstrap\nSELECT 1;\n-- migration x: bad\nSELECT 2;"),
+      FormatError);
 }
 
 TEST(SqliteStore, PutDriveRoundTripsRowsCandidatesAndFiles) {
@@ -282,8 +284,8 @@ TEST(SqliteStore, DeleteDriveRemovesRowsIndexEntriesAndFiles) {
   EXPECT_EQ(c.lines.size(), 4U);
   EXPECT_EQ(count_rows(db, "SELECT COUNT(*) FROM candidates_rtree"), 24);
   EXPECT_EQ(count_rows(db, "SELECT COUNT(*) FROM drives_rtree"), 1);
-  EXPECT_EQ(count_rows(db, "SELECT COUNT(*) FROM candidates WHERE drive = " +
-                               std::to_string(a.drive.row)),
+  EXPECT_EQ(count_rows(
+                db, "SELECT COUNT(*) FROM candidates WHERE drive = " + std::to_string(a.drive.row)),
             0);
 }
 
@@ -335,8 +337,10 @@ TEST(SqliteStore, RegionQueryMatchesBruteForce) {
   TempDir tmp;
   SqliteMapStore store(tmp.path() / "map.db");
   for (int d = 0; d < 4; ++d) {
-    const auto [tar, hash] = write_archive(tmp.path(), "d" + std::to_string(d), "D" + std::to_string(d));
-    (void)store.put_drive(make_package("d" + std::to_string(d), 400, 100, 10 + d, 1500.0), tar, hash);
+    const auto [tar, hash] =
+        write_archive(tmp.path(), "d" + std::to_string(d), "D" + std::to_string(d));
+    (void)store.put_drive(make_package("d" + std::to_string(d), 400, 100, 10 + d, 1500.0), tar,
+                          hash);
   }
   const auto all = store.candidates_in(std::nullopt);
   ASSERT_EQ(all.points.size(), 1600U);
@@ -374,14 +378,16 @@ TEST(SqliteStore, RegionQueryMatchesBruteForce) {
   EXPECT_THROW((void)store.candidates_in(std::nullopt, std::vector<std::string>{"nope"}),
                NotFoundError);
   // Drives by box.
-  EXPECT_EQ(store.drives_in({kOrigin.lat_deg - 0.001, kOrigin.lon_deg - 0.001,
-                             kOrigin.lat_deg + 0.001, kOrigin.lon_deg + 0.001})
+  EXPECT_EQ(store
+                .drives_in({kOrigin.lat_deg - 0.001, kOrigin.lon_deg - 0.001,
+                            kOrigin.lat_deg + 0.001, kOrigin.lon_deg + 0.001})
                 .size(),
             4U);
   EXPECT_TRUE(store.drives_in({0.0, 0.0, 1.0, 1.0}).empty());
 }
 
-StoredPointLandmark point_lm(double dlat, std::int64_t key, std::vector<std::int64_t> support = {}) {
+StoredPointLandmark point_lm(double dlat, std::int64_t key,
+                             std::vector<std::int64_t> support = {}) {
   StoredPointLandmark p;
   p.key = key;
   p.position = {kOrigin.lat_deg + dlat, kOrigin.lon_deg, 0.0};
@@ -398,7 +404,8 @@ TEST(SqliteStore, MapVersionsPublishAtomicallyAndReadersSeeOnlyPublishedMaps) {
   const auto [tar, hash] = write_archive(tmp.path(), "a", "A");
   (void)store.put_drive(make_package("a", 5, 0, 1), tar, hash);
   const auto cands = store.candidates_in(std::nullopt);
-  const tiles::TileKey key = tiles::tile_at(kOrigin.lat_deg, kOrigin.lon_deg, tiles::kLocalizationZoom);
+  const tiles::TileKey key =
+      tiles::tile_at(kOrigin.lat_deg, kOrigin.lon_deg, tiles::kLocalizationZoom);
 
   EXPECT_FALSE(store.current_map_version().has_value());
   const auto v1 = store.begin_map_version({{"notes", "v1"}});
@@ -406,10 +413,12 @@ TEST(SqliteStore, MapVersionsPublishAtomicallyAndReadersSeeOnlyPublishedMaps) {
                                         point_lm(0.0001, 2)};
   StoredLineLandmark line;
   line.key = 3;
-  line.polyline = {{kOrigin.lat_deg, kOrigin.lon_deg, 0}, {kOrigin.lat_deg + 0.0002, kOrigin.lon_deg + 0.0002, 0}};
+  line.polyline = {{kOrigin.lat_deg, kOrigin.lon_deg, 0},
+                   {kOrigin.lat_deg + 0.0002, kOrigin.lon_deg + 0.0002, 0}};
   line.support_drives = 3;
   store.put_landmarks(v1, pts1, std::vector<StoredLineLandmark>{line});
-  store.put_tiles(v1, TileLayer::Localization, std::vector<TileWrite>{{key, "", "tile v1", false, 2, 1}});
+  store.put_tiles(v1, TileLayer::Localization,
+                  std::vector<TileWrite>{{key, "", "tile v1", false, 2, 1}});
   EXPECT_THROW((void)store.landmarks_in(v1, std::nullopt), NotFoundError);  // still building
   EXPECT_THROW((void)store.get_tile(v1, TileLayer::Localization, key), NotFoundError);
   EXPECT_THROW(store.set_current_map_version(v1), NotFoundError);
@@ -418,7 +427,8 @@ TEST(SqliteStore, MapVersionsPublishAtomicallyAndReadersSeeOnlyPublishedMaps) {
   const auto l1 = store.landmarks_in(v1, std::nullopt);
   ASSERT_EQ(l1.points.size(), 2U);
   ASSERT_EQ(l1.lines.size(), 1U);
-  EXPECT_EQ(l1.points[0].support, (std::vector<std::int64_t>{cands.points[0].id, cands.points[1].id}));
+  EXPECT_EQ(l1.points[0].support,
+            (std::vector<std::int64_t>{cands.points[0].id, cands.points[1].id}));
   EXPECT_EQ(l1.lines[0].polyline.size(), 2U);
   EXPECT_DOUBLE_EQ(l1.lines[0].polyline[1].lat_deg, kOrigin.lat_deg + 0.0002);
   EXPECT_EQ(l1.points[0].scattering, ScatteringClass::Even);
@@ -445,7 +455,8 @@ TEST(SqliteStore, MapVersionsPublishAtomicallyAndReadersSeeOnlyPublishedMaps) {
   const auto v2 = store.begin_map_version({{"notes", "v2"}});
   for (int batch = 0; batch < 4; ++batch) {
     std::vector<StoredPointLandmark> pts;
-    for (int i = 0; i < 100; ++i) pts.push_back(point_lm(1e-6 * (batch * 100 + i), 100 + batch * 100 + i));
+    for (int i = 0; i < 100; ++i)
+      pts.push_back(point_lm(1e-6 * (batch * 100 + i), 100 + batch * 100 + i));
     store.put_landmarks(v2, pts, {});
     EXPECT_EQ(store.current_map_version(), v1);
   }

@@ -14,7 +14,7 @@ WorldTruth toy_truth() {
   WorldTruth w;
   w.objects.push_back({1, "lamp_pole", "odd", true, {}, {{10.0, 5.0}}});
   w.objects.push_back({2, "guardrail_post", "even", true, {}, {{20.0, 5.0}}});
-  w.objects.push_back({3, "lamp_pole", "odd", true, {}, {{200.0, 5.0}}});  // far from the path
+  w.objects.push_back({3, "lamp_pole", "odd", true, {}, {{200.0, 5.0}}});       // far from the path
   w.objects.push_back({4, "parked_car", "mixed", false, {1}, {{30.0, -3.0}}});  // drive 1 only
   w.objects.push_back({5, "curbstone", "even", true, {}, {{0.0, 4.0}, {40.0, 4.0}}});
   return w;

@@ -27,7 +27,8 @@ TEST(DetectPipeline, SimulatedUrbanDriveYieldsTheTrueLandmarks) {
   EXPECT_GT(res.stats.frames_mapped, 300U);
   EXPECT_EQ(res.stats.frames_without_pose, 0U);
 
-  const WorldTruth truth = parse_world_truth(sim::world_truth_json(*world, 1, spec.seed), res.frame);
+  const WorldTruth truth =
+      parse_world_truth(sim::world_truth_json(*world, 1, spec.seed), res.frame);
   std::vector<Eigen::Vector2d> traj;
   for (const auto& s : res.trajectory) traj.push_back(res.frame.to_local(s.lat_deg, s.lon_deg));
   const DetectEval ev = evaluate_detections(res.points, res.lines, truth, 0, traj);
@@ -37,7 +38,8 @@ TEST(DetectPipeline, SimulatedUrbanDriveYieldsTheTrueLandmarks) {
   for (const auto& [c, v] : ev.points.recall_by_class) {
     by_class += " " + c + " " + std::to_string(v.second) + "/" + std::to_string(v.first);
   }
-  EXPECT_GE(ev.points.recall, 0.65) << by_class;  // occluded and rarely seen truth counts as observable
+  EXPECT_GE(ev.points.recall, 0.65)
+      << by_class;  // occluded and rarely seen truth counts as observable
   EXPECT_GE(ev.points.structure_precision, 0.8);
   EXPECT_GE(ev.points.class_accuracy, 0.9);
   EXPECT_LE(ev.points.rms_error_m, 0.15);

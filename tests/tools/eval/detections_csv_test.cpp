@@ -1,5 +1,4 @@
 // Detections CSV and sensor mounts JSON: round trips and error messages.
-#include "test_dir.hpp"
 #include "polmap/eval/detections_csv.hpp"
 
 #include <gtest/gtest.h>
@@ -9,6 +8,7 @@
 #include <random>
 
 #include "polmap/schema/errors.hpp"
+#include "test_dir.hpp"
 
 namespace polmap::eval {
 namespace {
@@ -24,8 +24,8 @@ std::vector<SensorFrame> sample_frames() {
       f.time_s = 100.0 + 0.1 * cycle + 0.033 * s;
       f.cycle_index = static_cast<std::uint32_t>(cycle);
       for (int k = 0; k < 5 + s; ++k) {
-        f.detections.push_back({40.0F + 30.0F * u(rng), 1.0F * u(rng), 5.0F * u(rng),
-                                20.0F + 10.0F * u(rng)});
+        f.detections.push_back(
+            {40.0F + 30.0F * u(rng), 1.0F * u(rng), 5.0F * u(rng), 20.0F + 10.0F * u(rng)});
       }
       frames.push_back(f);
     }

@@ -1,6 +1,5 @@
 // Ego-motion evaluation: truth handling and the error / drift metrics on
 // records with known errors.
-#include "test_dir.hpp"
 #include "polmap/eval/egomotion_eval.hpp"
 
 #include <gtest/gtest.h>
@@ -11,6 +10,7 @@
 #include <numbers>
 
 #include "polmap/schema/errors.hpp"
+#include "test_dir.hpp"
 
 namespace polmap::eval {
 namespace {
@@ -73,8 +73,8 @@ TEST(EgoMotionEval, PerfectEstimatesGiveZeroErrors) {
 
 TEST(EgoMotionEval, KnownErrorsGiveKnownMetrics) {
   // 1 % speed scale error on a straight drive: 1 % drift on every sub-path.
-  const auto scale = evaluate_egomotion(records(10.0, 0.0, 1.01, 0.0, 0.0, 40.0),
-                                        constant_truth(10.0, 0.0, 40.0));
+  const auto scale =
+      evaluate_egomotion(records(10.0, 0.0, 1.01, 0.0, 0.0, 40.0), constant_truth(10.0, 0.0, 40.0));
   EXPECT_NEAR(scale.v_rmse_mps, 0.1, 1e-9);
   EXPECT_NEAR(scale.v_median_err_mps, 0.1, 1e-9);
   EXPECT_NEAR(scale.v_bias_mps, 0.1, 1e-9);
@@ -85,8 +85,8 @@ TEST(EgoMotionEval, KnownErrorsGiveKnownMetrics) {
   // Yaw-rate bias b: over a 100 m sub-path at 10 m/s (10 s) the lateral error
   // is v·b·T²/2 = 10·b·50 -> drift ≈ 5·b·100 %.
   const double b = 0.2 / kRadToDeg;  // 0.2 °/s
-  const auto yaw = evaluate_egomotion(records(10.0, 0.0, 1.0, 0.0, b, 40.0),
-                                      constant_truth(10.0, 0.0, 40.0));
+  const auto yaw =
+      evaluate_egomotion(records(10.0, 0.0, 1.0, 0.0, b, 40.0), constant_truth(10.0, 0.0, 40.0));
   EXPECT_NEAR(yaw.yaw_rate_rmse_dps, 0.2, 1e-9);
   EXPECT_NEAR(yaw.yaw_rate_bias_dps, 0.2, 1e-9);
   ASSERT_TRUE(yaw.drift_segment_pct.has_value());

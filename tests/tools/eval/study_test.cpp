@@ -1,14 +1,13 @@
 // Study building blocks that run fast: StoreTileSource against a real SQLite
 // store, pooled error summaries against a brute-force computation, tables,
 // JSON and CCDF figures of a synthetic result, config validation.
-#include "test_dir.hpp"
 #include "polmap/eval/study.hpp"
 
 #include <gtest/gtest.h>
 #include <unistd.h>
 
-#include <cmath>
 #include <algorithm>
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <random>
@@ -18,6 +17,7 @@
 #include "polmap/mapping_service/sqlite_store.hpp"
 #include "polmap/schema/errors.hpp"
 #include "polmap/tiles/localization_tile.hpp"
+#include "test_dir.hpp"
 
 namespace polmap::eval {
 namespace {

@@ -1,6 +1,5 @@
 // SVG plot writer: tick math, axis mapping, CCDF series against a brute-force
 // definition, rendered document structure, escaping.
-#include "test_dir.hpp"
 #include "polmap/eval/svg_plot.hpp"
 
 #include <gtest/gtest.h>
@@ -12,6 +11,8 @@
 #include <random>
 #include <regex>
 #include <sstream>
+
+#include "test_dir.hpp"
 
 namespace polmap::eval {
 namespace {

@@ -41,12 +41,14 @@ TEST(Cube, StaticReductionOfCubeMatchesDirectSpectrum) {
                            st.yaw_rate_rps * m.T_vehicle_sensor.x_m);
   const double v_ua = 5.0;
   double peak = 0;
-  for (const auto& c : f.spectrum.cells) peak = std::max(peak, static_cast<double>(std::abs(c.s[0]) + std::abs(c.s[1])));
+  for (const auto& c : f.spectrum.cells)
+    peak = std::max(peak, static_cast<double>(std::abs(c.s[0]) + std::abs(c.s[1])));
   ASSERT_GT(peak, 100.0);
   int compared = 0;
   for (const auto& cell : f.spectrum.cells) {
     if (cell.range_bin >= nr) continue;
-    const double strength = std::max({std::abs(cell.s[0]), std::abs(cell.s[1]), std::abs(cell.s[3])});
+    const double strength =
+        std::max({std::abs(cell.s[0]), std::abs(cell.s[1]), std::abs(cell.s[3])});
     if (strength < 0.2 * peak) continue;
     const double phi = (-60.0 + 1.5 * cell.azimuth_bin) * kDeg;
     const double v_static = -(vs.x() * std::cos(phi) + vs.y() * std::sin(phi));
@@ -60,7 +62,8 @@ TEST(Cube, StaticReductionOfCubeMatchesDirectSpectrum) {
           const double wc = std::pow(std::sin(M_PI * (c + 0.5) / nc), 2);
           const double ph = -2 * M_PI * 0.5 * (v - 0.5 * (nv - 1)) * std::sin(phi) +
                             M_PI * v_static * (c - 0.5 * (nc - 1)) / v_ua;
-          const std::complex<double> d(cube.data[((static_cast<std::size_t>(p) * nv + v) * nc + c) * nr + cell.range_bin]);
+          const std::complex<double> d(
+              cube.data[((static_cast<std::size_t>(p) * nv + v) * nc + c) * nr + cell.range_bin]);
           acc += wv * wc * std::polar(1.0, ph) * d;
           sw += wv * wc;
         }
@@ -94,13 +97,16 @@ TEST(Cube, RadarStaticReductionReproducesDirectSpectrum) {
   rc.floor_sigmas = 0.0;
   const PolSpectrum red = radar::static_reduce(*f.cube, m, st.v_mps, st.yaw_rate_rps, rc);
   double peak = 0;
-  for (const auto& c : f.spectrum.cells) peak = std::max(peak, static_cast<double>(std::abs(c.s[0]) + std::abs(c.s[1])));
+  for (const auto& c : f.spectrum.cells)
+    peak = std::max(peak, static_cast<double>(std::abs(c.s[0]) + std::abs(c.s[1])));
   ASSERT_GT(peak, 100.0);
   int compared = 0;
   for (const auto& cell : f.spectrum.cells) {
     if (cell.range_bin >= red.num_range_bins) continue;
-    if (std::max({std::abs(cell.s[0]), std::abs(cell.s[1]), std::abs(cell.s[3])}) < 0.2 * peak) continue;
-    const SpectrumCell& r = red.cells[static_cast<std::size_t>(cell.azimuth_bin) * red.num_range_bins + cell.range_bin];
+    if (std::max({std::abs(cell.s[0]), std::abs(cell.s[1]), std::abs(cell.s[3])}) < 0.2 * peak)
+      continue;
+    const SpectrumCell& r =
+        red.cells[static_cast<std::size_t>(cell.azimuth_bin) * red.num_range_bins + cell.range_bin];
     ASSERT_EQ(r.range_bin, cell.range_bin);
     ASSERT_EQ(r.azimuth_bin, cell.azimuth_bin);
     for (int p = 0; p < 4; ++p) EXPECT_LT(std::abs(r.s[p] - cell.s[p]), 0.01 * peak);
@@ -115,7 +121,8 @@ TEST(Cube, NoiseIsScaledToTheSpectrumNoiseAfterProcessing) {
   SimConfig cfg = test::quiet_config();
   cfg.radar.cube_max_range_m = 3.0;
   FrameRenderer rend(w, cfg);
-  const SensorFrame f = rend.render(cfg.sensors[0], test::state_at(0, 0, 0, 0.0), nullptr, 0, true, 9);
+  const SensorFrame f =
+      rend.render(cfg.sensors[0], test::state_at(0, 0, 0, 0.0), nullptr, 0, true, 9);
   const DataCube& cube = *f.cube;
   const int nr = cube.num_range_bins, nv = cube.num_virtual_channels, nc = cube.num_chirps;
   // Beamform + Doppler at 0 m/s over many range bins / pols: processed variance ~ sigma^2 = 1.
@@ -130,7 +137,9 @@ TEST(Cube, NoiseIsScaledToTheSpectrumNoiseAfterProcessing) {
         const double wv = 0.7 + 0.3 * std::cos(M_PI * x) * std::cos(M_PI * x);
         for (int c = 0; c < nc; ++c) {
           const double wc = std::pow(std::sin(M_PI * (c + 0.5) / nc), 2);
-          acc += wv * wc * std::complex<double>(cube.data[((static_cast<std::size_t>(p) * nv + v) * nc + c) * nr + r]);
+          acc += wv * wc *
+                 std::complex<double>(
+                     cube.data[((static_cast<std::size_t>(p) * nv + v) * nc + c) * nr + r]);
           sw += wv * wc;
         }
       }

@@ -6,10 +6,10 @@
 #include <fstream>
 #include <sstream>
 
-#include "test_dir.hpp"
 #include "polmap/schema/recording_io.hpp"
 #include "polmap/sim/drive_simulator.hpp"
 #include "polmap/sim/truth.hpp"
+#include "test_dir.hpp"
 
 namespace polmap::sim {
 namespace {
@@ -32,8 +32,10 @@ struct Hasher {
     } else {
       const auto& f = std::get<SensorFrame>(r);
       pod(f.time_s), pod(f.sensor_id), pod(f.cycle_index);
-      for (const auto& d : f.detections) pod(d.range_m), pod(d.azimuth_rad), pod(d.radial_velocity_mps), pod(d.snr_db);
-      for (const auto& c : f.spectrum.cells) pod(c.range_bin), pod(c.azimuth_bin), bytes(c.s.data(), sizeof c.s);
+      for (const auto& d : f.detections)
+        pod(d.range_m), pod(d.azimuth_rad), pod(d.radial_velocity_mps), pod(d.snr_db);
+      for (const auto& c : f.spectrum.cells)
+        pod(c.range_bin), pod(c.azimuth_bin), bytes(c.s.data(), sizeof c.s);
       if (f.cube) bytes(f.cube->data.data(), f.cube->data.size() * sizeof(cfloat));
     }
   }

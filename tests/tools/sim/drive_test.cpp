@@ -41,9 +41,10 @@ TEST(Drive, UrbanStreamIsTimeOrderedAndPlausible) {
   }
   const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   const double dur = sim.duration_s();
-  std::printf("urban 300 m: %.1f s simulated in %.2f s wall (%.1fx), %d frames, %.0f cells/frame, "
-              "%.0f detections/frame\n",
-              dur, wall, dur / wall, frames, double(cells) / frames, double(dets) / frames);
+  std::printf(
+      "urban 300 m: %.1f s simulated in %.2f s wall (%.1fx), %d frames, %.0f cells/frame, "
+      "%.0f detections/frame\n",
+      dur, wall, dur / wall, frames, double(cells) / frames, double(dets) / frames);
   EXPECT_GT(dur, 20.0);
   EXPECT_NEAR(traj, dur * cfg.gnss.rate_hz, 2.0);
   EXPECT_NEAR(frames, dur * 30.0, 4.0);
@@ -60,7 +61,8 @@ double distance_to_objects(const World& w, const Eigen::Vector2d& p) {
     }
     for (std::size_t i = 1; i < g.size(); ++i) {
       const Eigen::Vector2d e = g[i] - g[i - 1];
-      const double t = std::clamp((p - g[i - 1]).dot(e) / std::max(e.squaredNorm(), 1e-12), 0.0, 1.0);
+      const double t =
+          std::clamp((p - g[i - 1]).dot(e) / std::max(e.squaredNorm(), 1e-12), 0.0, 1.0);
       best = std::min(best, (g[i - 1] + t * e - p).norm());
     }
   }

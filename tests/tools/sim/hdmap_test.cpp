@@ -8,10 +8,10 @@
 #include <regex>
 #include <sstream>
 
-#include "test_dir.hpp"
 #include "polmap/schema/errors.hpp"
 #include "polmap/sim/drive_simulator.hpp"
 #include "polmap/sim/world.hpp"
+#include "test_dir.hpp"
 
 namespace polmap::sim {
 namespace {
@@ -168,7 +168,9 @@ TEST(HdMap, OpenDriveStraightRoadWithPolesAndSigns) {
   // Pole id 8 at s = 80, t = -3.57.
   bool found = false;
   for (const auto& o : w->objects) {
-    if (o.cls == ObjectClass::Pole && (o.geometry_m[0] - Eigen::Vector2d(80.0, -3.57)).norm() < 1e-6) found = true;
+    if (o.cls == ObjectClass::Pole &&
+        (o.geometry_m[0] - Eigen::Vector2d(80.0, -3.57)).norm() < 1e-6)
+      found = true;
   }
   EXPECT_TRUE(found);
 }

@@ -30,7 +30,8 @@ TEST(Psf, RangeResponseIsHannWith1_5BinWidth) {
   EXPECT_DOUBLE_EQ(SpectrumSynthesizer::range_response(0.0), 1.0);
   EXPECT_NEAR(SpectrumSynthesizer::range_response(1.0), 0.5, 1e-9);
   EXPECT_NEAR(SpectrumSynthesizer::range_response(2.0), 0.0, 1e-9);
-  const double w = minus3db_width([](double x) { return SpectrumSynthesizer::range_response(x); }, 1.0);
+  const double w =
+      minus3db_width([](double x) { return SpectrumSynthesizer::range_response(x); }, 1.0);
   // Hann: 1.44 bins = 10.8 cm at 7.5 cm bins (tools/sim/README.md: ~1.5 dr).
   EXPECT_NEAR(w, 1.44, 0.02);
   // Brute force: the DTFT of a Hann-windowed tone over N = 256 samples agrees.
@@ -87,12 +88,14 @@ TEST(Psf, RenderedPointTargetFollowsRadarEquationAndPsf) {
   SimConfig cfg = test::quiet_config();
   cfg.radar.thermal_noise = false;
   FrameRenderer rend(w, cfg);
-  const SensorFrame f = rend.render(cfg.sensors[0], test::state_at(0, 0, 0, 0.0), nullptr, 0, false, 1);
+  const SensorFrame f =
+      rend.render(cfg.sensors[0], test::state_at(0, 0, 0, 0.0), nullptr, 0, false, 1);
   const int rb = static_cast<int>(std::lround(r / 0.075));
   const int b0 = 40;  // boresight beam
   auto lr_power = [&](int rbin, int beam) {
     for (const auto& c : f.spectrum.cells) {
-      if (c.range_bin == rbin && c.azimuth_bin == beam) return static_cast<double>(std::norm(c.s[1]));
+      if (c.range_bin == rbin && c.azimuth_bin == beam)
+        return static_cast<double>(std::norm(c.s[1]));
     }
     return 0.0;
   };

@@ -61,7 +61,8 @@ TEST(World, RuralGuidePostsEvery50mAndGuardrailPostsEvery2To4m) {
   double beam_len = 0;
   for (const auto& o : w->objects) {
     if (o.cls != ObjectClass::GuardrailBeam) continue;
-    for (std::size_t i = 1; i < o.geometry_m.size(); ++i) beam_len += (o.geometry_m[i] - o.geometry_m[i - 1]).norm();
+    for (std::size_t i = 1; i < o.geometry_m.size(); ++i)
+      beam_len += (o.geometry_m[i] - o.geometry_m[i - 1]).norm();
   }
   const double spacing = beam_len / c[ObjectClass::GuardrailPost];
   EXPECT_GE(spacing, 1.9);
@@ -69,7 +70,8 @@ TEST(World, RuralGuidePostsEvery50mAndGuardrailPostsEvery2To4m) {
   // Low vegetation in front of guide posts differs between drives.
   int differing = 0;
   for (const auto& o : w->objects) {
-    if (o.cls == ObjectClass::Vegetation && !o.permanent) differing += w->present(o.id, 0, 3) != w->present(o.id, 1, 3);
+    if (o.cls == ObjectClass::Vegetation && !o.permanent)
+      differing += w->present(o.id, 0, 3) != w->present(o.id, 1, 3);
   }
   EXPECT_GT(differing, 5);
 }
@@ -77,7 +79,8 @@ TEST(World, RuralGuidePostsEvery50mAndGuardrailPostsEvery2To4m) {
 TEST(World, TenKilometreRouteIsCompactAndQueriesAreLocal) {
   const auto t0 = std::chrono::steady_clock::now();
   auto w = load_world("urban", 10000.0, 9);
-  const double build_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  const double build_s =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   EXPECT_LT(build_s, 10.0);
   EXPECT_NEAR(w->route.length_m(), 10000.0, 1.0);
   std::vector<std::uint32_t> p, l, o;
@@ -87,7 +90,8 @@ TEST(World, TenKilometreRouteIsCompactAndQueriesAreLocal) {
   EXPECT_GT(p.size(), 10U);
   // Every point within 80 m is returned (brute-force reference).
   std::size_t within = 0;
-  for (const auto& s : w->points) within += (s.pos_m - Eigen::Vector2d(mid.x_m, mid.y_m)).norm() <= 80.0;
+  for (const auto& s : w->points)
+    within += (s.pos_m - Eigen::Vector2d(mid.x_m, mid.y_m)).norm() <= 80.0;
   std::size_t found = 0;
   for (auto i : p) found += (w->points[i].pos_m - Eigen::Vector2d(mid.x_m, mid.y_m)).norm() <= 80.0;
   EXPECT_EQ(found, within);
@@ -111,7 +115,8 @@ TEST(World, WallOccludesPoleBehindIt) {
   w->build_index();
   SimConfig cfg = test::quiet_config();
   FrameRenderer rend(w, cfg);
-  const SensorFrame f = rend.render(cfg.sensors[0], test::state_at(0, 0, 0, 0.0), nullptr, 0, false, 1);
+  const SensorFrame f =
+      rend.render(cfg.sensors[0], test::state_at(0, 0, 0, 0.0), nullptr, 0, false, 1);
   for (const auto& c : f.spectrum.cells) {
     EXPECT_FALSE(std::abs(c.range_bin * 0.075 - 30.0) < 0.3 && std::norm(c.s[1]) > 100.0);
   }
@@ -120,7 +125,8 @@ TEST(World, WallOccludesPoleBehindIt) {
   test::add_point(*w2, {3.7 + 30.0, 0.0}, odd_bounce(), 10.0);
   w2->build_index();
   FrameRenderer rend2(w2, cfg);
-  const SensorFrame f2 = rend2.render(cfg.sensors[0], test::state_at(0, 0, 0, 0.0), nullptr, 0, false, 1);
+  const SensorFrame f2 =
+      rend2.render(cfg.sensors[0], test::state_at(0, 0, 0, 0.0), nullptr, 0, false, 1);
   const SpectrumCell* pk = test::peak_cell(f2.spectrum);
   ASSERT_NE(pk, nullptr);
   EXPECT_NEAR(pk->range_bin * 0.075, 30.0, 0.1);
@@ -151,7 +157,8 @@ TEST(World, SignPlateIsSpecular) {
     SimConfig cfg = test::quiet_config();
     cfg.radar.thermal_noise = false;
     FrameRenderer rend(w, cfg);
-    const SensorFrame f = rend.render(cfg.sensors[0], test::state_at(0, 0, 0, 0.0), nullptr, 0, false, 1);
+    const SensorFrame f =
+        rend.render(cfg.sensors[0], test::state_at(0, 0, 0, 0.0), nullptr, 0, false, 1);
     p[k] = std::norm(test::peak_cell(f.spectrum)->s[1]);
   }
   EXPECT_NEAR(10 * std::log10(p[0] / p[1]), 20.0, 0.5);
@@ -180,7 +187,8 @@ TEST(World, VegetationAttenuatesWhatIsBehindIt) {
     SimConfig cfg = test::quiet_config();
     cfg.radar.thermal_noise = false;
     FrameRenderer rend(w, cfg);
-    const SensorFrame f = rend.render(cfg.sensors[0], test::state_at(0, 0, 0, 0.0), nullptr, 0, false, 1);
+    const SensorFrame f =
+        rend.render(cfg.sensors[0], test::state_at(0, 0, 0, 0.0), nullptr, 0, false, 1);
     peak[k] = std::norm(test::peak_cell(f.spectrum)->s[1]);
   }
   EXPECT_NEAR(10 * std::log10(peak[0] / peak[1]), 15.0, 0.1);
@@ -208,8 +216,8 @@ TEST(World, ExtendedObjectsShowRayleighSpeckle) {
   double m2 = 0, m4 = 0;
   int n = 0;
   for (int k = 0; k < 600; ++k) {
-    const SensorFrame f =
-        rend.render(cfg.sensors[0], test::state_at(0.002 * k, 0, 0, 0.0), nullptr, k, false, 5000 + k);
+    const SensorFrame f = rend.render(cfg.sensors[0], test::state_at(0.002 * k, 0, 0, 0.0), nullptr,
+                                      k, false, 5000 + k);
     for (const auto& c : f.spectrum.cells) {
       if (c.range_bin == rb && c.azimuth_bin == 65) {
         const double p = std::norm(c.s[1]);
@@ -227,8 +235,10 @@ TEST(World, ExtendedObjectsShowRayleighSpeckle) {
   double diff = 0, pow = 0;
   int same = 0;
   for (int k = 0; k < 50; ++k) {
-    const SensorFrame a = rend.render(cfg.sensors[0], test::state_at(0, 0, 0, 0.0), nullptr, 0, false, 1);
-    const SensorFrame b = rend.render(cfg.sensors[0], test::state_at(0, 0, 0, 0.0), nullptr, 1, false, 2 + k);
+    const SensorFrame a =
+        rend.render(cfg.sensors[0], test::state_at(0, 0, 0, 0.0), nullptr, 0, false, 1);
+    const SensorFrame b =
+        rend.render(cfg.sensors[0], test::state_at(0, 0, 0, 0.0), nullptr, 1, false, 2 + k);
     for (const auto& ca : a.spectrum.cells) {
       if (ca.range_bin != rb || ca.azimuth_bin != 65) continue;
       for (const auto& cb : b.spectrum.cells) {

@@ -1,22 +1,23 @@
-#include "polmap/util/text.hpp"
 #include "polmap/eval/detections_csv.hpp"
-
-#include <nlohmann/json.hpp>
 
 #include <array>
 #include <charconv>
 #include <cmath>
 #include <map>
+#include <nlohmann/json.hpp>
 #include <numbers>
 #include <sstream>
 
 #include "polmap/schema/errors.hpp"
+#include "polmap/util/text.hpp"
 
 namespace polmap::eval {
 
 namespace {
 
-std::vector<std::string_view> split_commas(std::string_view line) { return util::split_trimmed(line, ','); }
+std::vector<std::string_view> split_commas(std::string_view line) {
+  return util::split_trimmed(line, ',');
+}
 
 bool blank_or_comment(std::string_view line) {
   const std::string_view t = util::trim(line);
@@ -226,7 +227,8 @@ std::string format_detections_csv(const std::vector<SensorFrame>& frames) {
   return out;
 }
 
-void write_detections_csv(const std::filesystem::path& path, const std::vector<SensorFrame>& frames) {
+void write_detections_csv(const std::filesystem::path& path,
+                          const std::vector<SensorFrame>& frames) {
   std::ofstream f(path, std::ios::binary);
   if (!f) throw IoError("cannot write " + path.string());
   f << format_detections_csv(frames);
@@ -251,7 +253,8 @@ double json_number(const json& o, const std::string& key, const std::string& sou
     if (fallback) return *fallback;
     json_fail(source, path + "." + key, "missing required number");
   }
-  if (!it->is_number()) json_fail(source, path + "." + key, "expected a number, got " + std::string(it->type_name()));
+  if (!it->is_number())
+    json_fail(source, path + "." + key, "expected a number, got " + std::string(it->type_name()));
   return it->get<double>();
 }
 
@@ -278,10 +281,18 @@ std::vector<SensorMount> parse_sensor_mounts_json(std::string_view text,
                       std::to_string(column) + ": JSON syntax error: " + e.what());
   }
   if (!doc.is_array()) json_fail(source_name, "(top level)", "expected an array of sensor mounts");
-  static const std::vector<std::string> known = {
-      "sensor_id",    "name",        "x_m",           "y_m",
-      "yaw_rad",      "v_unambiguous_mps", "trigger_offset_s", "fov_half_rad",
-      "max_range_m",  "frame_rate_hz", "azimuth_resolution_rad", "velocity_resolution_mps"};
+  static const std::vector<std::string> known = {"sensor_id",
+                                                 "name",
+                                                 "x_m",
+                                                 "y_m",
+                                                 "yaw_rad",
+                                                 "v_unambiguous_mps",
+                                                 "trigger_offset_s",
+                                                 "fov_half_rad",
+                                                 "max_range_m",
+                                                 "frame_rate_hz",
+                                                 "azimuth_resolution_rad",
+                                                 "velocity_resolution_mps"};
   std::vector<SensorMount> mounts;
   for (std::size_t i = 0; i < doc.size(); ++i) {
     const json& o = doc[i];
@@ -329,8 +340,8 @@ std::vector<SensorMount> parse_sensor_mounts_json(std::string_view text,
     m.spec.fov_half_rad = json_number(o, "fov_half_rad", source_name, path, m.spec.fov_half_rad);
     m.spec.max_range_m = json_number(o, "max_range_m", source_name, path, m.spec.max_range_m);
     m.spec.frame_rate_hz = json_number(o, "frame_rate_hz", source_name, path, m.spec.frame_rate_hz);
-    m.spec.azimuth_resolution_rad = json_number(o, "azimuth_resolution_rad", source_name, path,
-                                                m.spec.azimuth_resolution_rad);
+    m.spec.azimuth_resolution_rad =
+        json_number(o, "azimuth_resolution_rad", source_name, path, m.spec.azimuth_resolution_rad);
     m.spec.velocity_resolution_mps = json_number(o, "velocity_resolution_mps", source_name, path,
                                                  m.spec.velocity_resolution_mps);
     mounts.push_back(std::move(m));

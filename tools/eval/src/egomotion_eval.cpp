@@ -1,15 +1,15 @@
-#include "polmap/util/text.hpp"
 #include "polmap/eval/egomotion_eval.hpp"
 
 #include <algorithm>
 #include <charconv>
-#include <ctime>
 #include <cmath>
+#include <ctime>
 #include <fstream>
 #include <map>
 #include <numbers>
 
 #include "polmap/schema/errors.hpp"
+#include "polmap/util/text.hpp"
 
 namespace polmap::eval {
 
@@ -17,7 +17,9 @@ namespace {
 
 constexpr double kRadToDeg = 180.0 / std::numbers::pi;
 
-std::vector<std::string_view> split_commas(std::string_view line) { return util::split_trimmed(line, ','); }
+std::vector<std::string_view> split_commas(std::string_view line) {
+  return util::split_trimmed(line, ',');
+}
 
 double percentile(std::vector<double> v, double q) {
   if (v.empty()) return 0.0;
@@ -44,7 +46,8 @@ MotionTruth::MotionTruth(std::vector<MotionTruthSample> samples, bool have_poses
       const double dt = samples_[i].time_s - a.time_s;
       samples_[i].T_frame_vehicle =
           a.T_frame_vehicle * integrate_motion(0.5 * (a.v_mps + samples_[i].v_mps),
-                                               0.5 * (a.yaw_rate_rps + samples_[i].yaw_rate_rps), dt);
+                                               0.5 * (a.yaw_rate_rps + samples_[i].yaw_rate_rps),
+                                               dt);
     }
   }
 }
@@ -63,11 +66,13 @@ std::optional<MotionTruthSample> MotionTruth::at(double time_s) const {
   s.time_s = time_s;
   s.v_mps = a.v_mps + f * (b.v_mps - a.v_mps);
   s.yaw_rate_rps = a.yaw_rate_rps + f * (b.yaw_rate_rps - a.yaw_rate_rps);
-  s.T_frame_vehicle.x_m = a.T_frame_vehicle.x_m + f * (b.T_frame_vehicle.x_m - a.T_frame_vehicle.x_m);
-  s.T_frame_vehicle.y_m = a.T_frame_vehicle.y_m + f * (b.T_frame_vehicle.y_m - a.T_frame_vehicle.y_m);
-  s.T_frame_vehicle.yaw_rad = wrap_angle_rad(
-      a.T_frame_vehicle.yaw_rad +
-      f * wrap_angle_rad(b.T_frame_vehicle.yaw_rad - a.T_frame_vehicle.yaw_rad));
+  s.T_frame_vehicle.x_m =
+      a.T_frame_vehicle.x_m + f * (b.T_frame_vehicle.x_m - a.T_frame_vehicle.x_m);
+  s.T_frame_vehicle.y_m =
+      a.T_frame_vehicle.y_m + f * (b.T_frame_vehicle.y_m - a.T_frame_vehicle.y_m);
+  s.T_frame_vehicle.yaw_rad =
+      wrap_angle_rad(a.T_frame_vehicle.yaw_rad +
+                     f * wrap_angle_rad(b.T_frame_vehicle.yaw_rad - a.T_frame_vehicle.yaw_rad));
   return s;
 }
 
@@ -160,8 +165,8 @@ MotionTruth read_truth_csv(const std::filesystem::path& path, std::optional<GeoP
     const tiles::LocalFrame frame(origin ? *origin : GeoPoint{raw.front().lat, raw.front().lon, 0});
     for (const Raw& r : raw) {
       const Eigen::Vector2d xy = frame.to_local(r.lat, r.lon);
-      samples.push_back(
-          {r.t, r.v, r.w, Pose2{xy.x(), xy.y(), wrap_angle_rad(r.yaw + frame.convergence_rad(xy))}});
+      samples.push_back({r.t, r.v, r.w,
+                         Pose2{xy.x(), xy.y(), wrap_angle_rad(r.yaw + frame.convergence_rad(xy))}});
     }
   } else {
     for (const Raw& r : raw) samples.push_back({r.t, r.v, r.w, Pose2{}});
@@ -208,9 +213,15 @@ EgoMotionMetrics evaluate_egomotion(const std::vector<EgoMotionRecord>& records,
   for (const EgoMotionRecord& r : records) {
     compute.push_back(r.compute_s * 1e3);
     switch (r.estimate.status) {
-      case Status::Ok: ++m.estimates_ok; break;
-      case Status::Rejected: ++m.estimates_rejected; continue;
-      case Status::TooFewDetections: ++m.estimates_too_few; continue;
+      case Status::Ok:
+        ++m.estimates_ok;
+        break;
+      case Status::Rejected:
+        ++m.estimates_rejected;
+        continue;
+      case Status::TooFewDetections:
+        ++m.estimates_too_few;
+        continue;
     }
     const auto t = truth.at(r.estimate.time_s);
     if (!t) continue;
@@ -292,7 +303,9 @@ EgoMotionMetrics evaluate_egomotion(const std::vector<EgoMotionRecord>& records,
 }
 
 nlohmann::json to_json(const EgoMotionMetrics& m) {
-  auto opt = [](const std::optional<double>& v) { return v ? nlohmann::json(*v) : nlohmann::json(); };
+  auto opt = [](const std::optional<double>& v) {
+    return v ? nlohmann::json(*v) : nlohmann::json();
+  };
   return nlohmann::json{
       {"frames", m.frames},
       {"estimates_ok", m.estimates_ok},

@@ -104,9 +104,13 @@ DrivePlan::DrivePlan(const World& world, const SimConfig& cfg, int drive_index)
     m.width_m = rng.uniform(1.7, 1.9);
     const double total = rng.uniform(10.0, 20.0);
     const double hl = 0.5 * m.length_m, hw = 0.5 * m.width_m;
-    const std::vector<Eigen::Vector2d> local = {{hl, hw},         {hl, -hw},         {-hl, hw},
-                                                {-hl, -hw},       {0.3 * m.length_m, hw},
-                                                {0.3 * m.length_m, -hw}, {-0.3 * m.length_m, hw},
+    const std::vector<Eigen::Vector2d> local = {{hl, hw},
+                                                {hl, -hw},
+                                                {-hl, hw},
+                                                {-hl, -hw},
+                                                {0.3 * m.length_m, hw},
+                                                {0.3 * m.length_m, -hw},
+                                                {-0.3 * m.length_m, hw},
                                                 {-0.3 * m.length_m, -hw}};
     for (const auto& l : local) {
       PointScatterer c;

@@ -1,8 +1,8 @@
 #include "polmap/sim/drive_simulator.hpp"
 
 #include <algorithm>
-#include <cstring>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <numbers>
 #include <numeric>
@@ -407,8 +407,8 @@ std::optional<RecordingRecord> DriveSimulator::next() {
   }
   last_time_ = t_frame;
   const bool cube = cfg_.cube && t_frame < cfg_.cube_seconds;
-  const std::uint64_t seed =
-      seed_of(cfg_.seed, 0x6672616d65ULL, static_cast<std::uint64_t>(drive_), cycle, mount.sensor_id);
+  const std::uint64_t seed = seed_of(cfg_.seed, 0x6672616d65ULL, static_cast<std::uint64_t>(drive_),
+                                     cycle, mount.sensor_id);
   return RecordingRecord{renderer_.render(mount, plan_.state(t_frame), &plan_, cycle, cube, seed)};
 }
 

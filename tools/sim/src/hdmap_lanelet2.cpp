@@ -85,8 +85,9 @@ std::shared_ptr<World> load_lanelet2_world(const std::filesystem::path& path, co
   for (const auto& ow : osm.ways) {
     for (const std::int64_t ref : ow.node_refs) {
       if (!xy.count(ref)) {
-        throw FormatError(name, 0, "way " + std::to_string(ow.id) + " references missing node " +
-                                       std::to_string(ref));
+        throw FormatError(
+            name, 0,
+            "way " + std::to_string(ow.id) + " references missing node " + std::to_string(ref));
       }
     }
     ways[ow.id] = OsmWay{ow.node_refs, ow.type, ow.subtype};
@@ -118,7 +119,8 @@ std::shared_ptr<World> load_lanelet2_world(const std::filesystem::path& path, co
         (l.front() - rt.back()).norm() + (l.back() - rt.front()).norm()) {
       std::reverse(rt.begin(), rt.end());
     }
-    const int n = std::max(2, static_cast<int>(std::ceil(std::max(poly_length(l), poly_length(rt)))) + 1);
+    const int n =
+        std::max(2, static_cast<int>(std::ceil(std::max(poly_length(l), poly_length(rt)))) + 1);
     const auto lr = resample(l, n), rr = resample(rt, n);
     Lanelet ll;
     ll.id = r.id;

@@ -1,11 +1,10 @@
 // OpenDRIVE worlds: the longest road's reference line (planView: line, arc,
 // spiral, poly3, paramPoly3), the route on its first right driving lane, point
 // objects and signals at (s, t), implied road borders and lamps.
-#include <pugixml.hpp>
-
 #include <algorithm>
 #include <cmath>
 #include <numbers>
+#include <pugixml.hpp>
 #include <regex>
 
 #include "polmap/schema/errors.hpp"
@@ -22,7 +21,7 @@ struct Geometry {
   double s = 0, x = 0, y = 0, hdg = 0, length = 0;
   enum Kind { Line, Arc, Spiral, Poly3, ParamPoly3 } kind = Line;
   double curvature = 0, curv_start = 0, curv_end = 0;
-  double a = 0, b = 0, c = 0, d = 0;                       // poly3
+  double a = 0, b = 0, c = 0, d = 0;                                      // poly3
   double au = 0, bu = 0, cu = 0, du = 0, av = 0, bv = 0, cv = 0, dv = 0;  // paramPoly3
   bool normalized = true;
 };
@@ -38,7 +37,8 @@ RefPose eval_geometry(const Geometry& g, double ds) {
     return RefPose{g.x + ch * u - sh * v, g.y + sh * u + ch * v, g.hdg + h};
   };
   switch (g.kind) {
-    case Geometry::Line: return local_to_world(ds, 0, 0);
+    case Geometry::Line:
+      return local_to_world(ds, 0, 0);
     case Geometry::Arc: {
       const double k = g.curvature;
       if (std::abs(k) < 1e-12) return local_to_world(ds, 0, 0);
@@ -168,14 +168,16 @@ std::shared_ptr<World> load_opendrive_world(const std::filesystem::path& path, c
         g.bv = pp.attribute("bV").as_double();
         g.cv = pp.attribute("cV").as_double();
         g.dv = pp.attribute("dV").as_double();
-        g.normalized = std::string_view(pp.attribute("pRange").as_string("normalized")) != "arcLength";
+        g.normalized =
+            std::string_view(pp.attribute("pRange").as_string("normalized")) != "arcLength";
       } else if (!gn.child("line")) {
         throw FormatError(name, 0, "road " + r.id + ": unsupported planView geometry");
       }
       r.geoms.push_back(g);
     }
     if (r.geoms.empty() || r.length <= 0) continue;
-    std::sort(r.geoms.begin(), r.geoms.end(), [](const Geometry& a, const Geometry& b) { return a.s < b.s; });
+    std::sort(r.geoms.begin(), r.geoms.end(),
+              [](const Geometry& a, const Geometry& b) { return a.s < b.s; });
     roads.push_back(std::move(r));
   }
   if (roads.empty()) throw FormatError(name, 0, "no road with a planView");
@@ -183,8 +185,8 @@ std::shared_ptr<World> load_opendrive_world(const std::filesystem::path& path, c
   auto world = std::make_shared<World>(path.filename().string(), origin);
   World& w = *world;
   // Route: the longest road, first right driving lane centre, in +s direction.
-  const Road& main = *std::max_element(roads.begin(), roads.end(),
-                                       [](const Road& a, const Road& b) { return a.length < b.length; });
+  const Road& main = *std::max_element(
+      roads.begin(), roads.end(), [](const Road& a, const Road& b) { return a.length < b.length; });
   const pugi::xml_node section = main.node.child("lanes").child("laneSection");
   double lane_w = 3.5;
   double right_edge = -3.5, left_edge = 3.5;

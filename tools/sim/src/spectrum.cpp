@@ -55,7 +55,8 @@ SpectrumSynthesizer::SpectrumSynthesizer(const RadarSimConfig& cfg, const RadarS
     const double du = k * af_step_;
     double s = 0;
     for (int i = 0; i < n; ++i) {
-      s += taper_[i] * std::cos(2.0 * kPi * cfg.element_spacing_wavelengths * (i - 0.5 * (n - 1)) * du);
+      s += taper_[i] *
+           std::cos(2.0 * kPi * cfg.element_spacing_wavelengths * (i - 0.5 * (n - 1)) * du);
     }
     af_table_[k + na] = s / sw;
   }
@@ -139,7 +140,8 @@ SpectrumSynthesizer::SpectrumSynthesizer(const RadarSimConfig& cfg, const RadarS
 }
 
 int SpectrumSynthesizer::nearest_beam(double az) const {
-  const int b = static_cast<int>(std::lround((az / kDeg + cfg_.fov_half_deg) / cfg_.beam_spacing_deg));
+  const int b =
+      static_cast<int>(std::lround((az / kDeg + cfg_.fov_half_deg) / cfg_.beam_spacing_deg));
   return std::clamp(b, 0, num_beams_ - 1);
 }
 
@@ -214,7 +216,8 @@ void SpectrumSynthesizer::add_psf(const ScatteringVector& a, double x, double si
   const int rlo = std::max(0, i0 - rh), rhi = std::min(num_range_ - 1, i0 + rh);
   for (int i = rlo; i <= rhi; ++i) wr[i - rlo] = range_response(i - x);
   for (int b = std::max(0, b0 - bh); b <= std::min(num_beams_ - 1, b0 + bh); ++b) {
-    const double gb = beam_response(beam_sin_[b] - sin_phi) * doppler_response(v_r - static_vr_beam_[b]);
+    const double gb =
+        beam_response(beam_sin_[b] - sin_phi) * doppler_response(v_r - static_vr_beam_[b]);
     if (std::abs(gb) * amax < skip) continue;
     for (int i = rlo; i <= rhi; ++i) {
       const double g = gb * wr[i - rlo];
@@ -232,13 +235,14 @@ void SpectrumSynthesizer::add_echo(const Echo& e) {
   if (e.range_m < cfg_.min_range_m || e.range_m > cfg_.max_range_m + 3 * dr_) return;
   const double x = e.range_m / dr_;
   const int ri = std::clamp(static_cast<int>(std::lround(x)), 0, num_range_ - 1);
-  cands_.push_back({e.range_m, e.azimuth_rad, e.radial_velocity_mps,
-                    half_span(e.amplitude) / ref_[ri], false});
+  cands_.push_back(
+      {e.range_m, e.azimuth_rad, e.radial_velocity_mps, half_span(e.amplitude) / ref_[ri], false});
   const double sp = std::sin(e.azimuth_rad);
   add_psf(e.amplitude, x, sp, e.radial_velocity_mps, cfg_.point_psf_range_half_taps,
           cfg_.point_psf_beam_half_taps);
   if (with_cube_) {
-    cube_echoes_.push_back({e.amplitude, x, sp, e.radial_velocity_mps, cfg_.point_psf_range_half_taps});
+    cube_echoes_.push_back(
+        {e.amplitude, x, sp, e.radial_velocity_mps, cfg_.point_psf_range_half_taps});
   }
 }
 
@@ -393,7 +397,8 @@ void SpectrumSynthesizer::make_detections(Rng& rng, SensorFrame& out) {
   const std::size_t num_echo_cands = cands_.size();
   for (std::size_t k = 0; k < num_echo_cands; ++k) {
     // Measured power: the echo plus the cell's noise and ground clutter (Rician near threshold).
-    const int ri = std::clamp(static_cast<int>(std::lround(cands_[k].range_m / dr_)), 0, num_range_ - 1);
+    const int ri =
+        std::clamp(static_cast<int>(std::lround(cands_[k].range_m / dr_)), 0, num_range_ - 1);
     const auto z = std::sqrt(cands_[k].snr) + rng.cnormal((s2 + clutter_[ri]) / ref_[ri]);
     const double snr = std::norm(z);
     if (snr >= thr) picks.push_back({snr, k});
@@ -410,13 +415,15 @@ void SpectrumSynthesizer::make_detections(Rng& rng, SensorFrame& out) {
       ng = std::max(0, static_cast<int>(std::lround(ground_det_total_ +
                                                     std::sqrt(ground_det_total_) * grng.normal())));
     } else {
-      for (double p = grng.uniform(), l = std::exp(-ground_det_total_); p > l; p *= grng.uniform()) ++ng;
+      for (double p = grng.uniform(), l = std::exp(-ground_det_total_); p > l; p *= grng.uniform())
+        ++ng;
     }
     for (int n = 0; n < ng; ++n) {
       const double u = grng.uniform() * ground_det_total_;
-      const int i = std::min(num_range_ - 1, static_cast<int>(std::lower_bound(ground_det_cdf_.begin(),
-                                                                    ground_det_cdf_.end(), u) -
-                                                   ground_det_cdf_.begin()));
+      const int i = std::min(
+          num_range_ - 1,
+          static_cast<int>(std::lower_bound(ground_det_cdf_.begin(), ground_det_cdf_.end(), u) -
+                           ground_det_cdf_.begin()));
       const int b = std::min(num_beams_ - 1, static_cast<int>(grng.uniform() * num_beams_));
       const double mu = (s2 + clutter_[i]) / ref_[i];
       const double snr = thr_ground_ - mu * std::log1p(-grng.uniform());
@@ -488,7 +495,8 @@ void SpectrumSynthesizer::make_detections(Rng& rng, SensorFrame& out) {
 }
 
 void SpectrumSynthesizer::make_cube(Rng& rng, SensorFrame& out) {
-  const int nr = std::min(num_range_, static_cast<int>(std::lround(cfg_.cube_max_range_m / dr_)) + 1);
+  const int nr =
+      std::min(num_range_, static_cast<int>(std::lround(cfg_.cube_max_range_m / dr_)) + 1);
   const int nv = cfg_.array_elements, nc = cfg_.num_chirps;
   const std::size_t block = static_cast<std::size_t>(4) * nv * nc;  // per range bin
   // Accumulate as [r][pol][v][c] (contiguous per range bin), transpose at the end.
@@ -511,7 +519,8 @@ void SpectrumSynthesizer::make_cube(Rng& rng, SensorFrame& out) {
       const double w = range_response(i - e.x_bins);
       float* base = acc.data() + 2 * block * i;
       for (int p = 0; p < 4; ++p) {
-        const auto ar = static_cast<float>(e.a[p].real() * w), ai = static_cast<float>(e.a[p].imag() * w);
+        const auto ar = static_cast<float>(e.a[p].real() * w),
+                   ai = static_cast<float>(e.a[p].imag() * w);
         float* dst = base + 2 * static_cast<std::size_t>(p) * nv * nc;
         for (int k = 0; k < nv * nc; ++k) {
           dst[2 * k] += ar * ph_re[k] - ai * ph_im[k];
@@ -540,8 +549,8 @@ void SpectrumSynthesizer::make_cube(Rng& rng, SensorFrame& out) {
         for (int i = 0; i < nr; ++i) {
           const std::size_t src = 2 * (block * i + (static_cast<std::size_t>(p) * nv + v) * nc + c);
           const auto n = cfg_.thermal_noise ? rng.cnormal(var) : cdouble{};
-          cube.data[((static_cast<std::size_t>(p) * nv + v) * nc + c) * nr + i] =
-              cfloat(acc[src] + static_cast<float>(n.real()), acc[src + 1] + static_cast<float>(n.imag()));
+          cube.data[((static_cast<std::size_t>(p) * nv + v) * nc + c) * nr + i] = cfloat(
+              acc[src] + static_cast<float>(n.real()), acc[src + 1] + static_cast<float>(n.imag()));
         }
       }
     }

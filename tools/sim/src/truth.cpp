@@ -20,7 +20,8 @@ std::string world_truth_json(const World& w, int num_drives, std::uint64_t seed)
   j["format"] = "polmap-sim-world-truth";
   j["version"] = 1;
   j["world"] = w.name;
-  j["origin"] = {{"lat_deg", w.origin().lat_deg}, {"lon_deg", w.origin().lon_deg},
+  j["origin"] = {{"lat_deg", w.origin().lat_deg},
+                 {"lon_deg", w.origin().lon_deg},
                  {"alt_m", w.origin().alt_m}};
   j["frame"] = "transverse Mercator at origin (x east, y north, metres), as tiles::LocalFrame";
   j["seed"] = seed;

@@ -12,37 +12,62 @@ namespace polmap::sim {
 
 std::string_view to_string(ObjectClass c) {
   switch (c) {
-    case ObjectClass::LampPole: return "lamp_pole";
-    case ObjectClass::SignPole: return "sign_pole";
-    case ObjectClass::SignPlate: return "sign_plate";
-    case ObjectClass::TrafficLight: return "traffic_light";
-    case ObjectClass::Pole: return "pole";
-    case ObjectClass::GuardrailPost: return "guardrail_post";
-    case ObjectClass::GuidePost: return "guide_post";
-    case ObjectClass::TreeTrunk: return "tree_trunk";
-    case ObjectClass::GuardrailBeam: return "guardrail_beam";
-    case ObjectClass::Curbstone: return "curbstone";
-    case ObjectClass::RoadBorder: return "road_border";
-    case ObjectClass::Wall: return "wall";
-    case ObjectClass::Facade: return "facade";
-    case ObjectClass::FacadeRecess: return "facade_recess";
-    case ObjectClass::FacadeCorner: return "facade_corner";
-    case ObjectClass::FenceMesh: return "fence_mesh";
-    case ObjectClass::FencePost: return "fence_post";
-    case ObjectClass::Vegetation: return "vegetation";
-    case ObjectClass::ParkedCar: return "parked_car";
-    case ObjectClass::Bin: return "bin";
+    case ObjectClass::LampPole:
+      return "lamp_pole";
+    case ObjectClass::SignPole:
+      return "sign_pole";
+    case ObjectClass::SignPlate:
+      return "sign_plate";
+    case ObjectClass::TrafficLight:
+      return "traffic_light";
+    case ObjectClass::Pole:
+      return "pole";
+    case ObjectClass::GuardrailPost:
+      return "guardrail_post";
+    case ObjectClass::GuidePost:
+      return "guide_post";
+    case ObjectClass::TreeTrunk:
+      return "tree_trunk";
+    case ObjectClass::GuardrailBeam:
+      return "guardrail_beam";
+    case ObjectClass::Curbstone:
+      return "curbstone";
+    case ObjectClass::RoadBorder:
+      return "road_border";
+    case ObjectClass::Wall:
+      return "wall";
+    case ObjectClass::Facade:
+      return "facade";
+    case ObjectClass::FacadeRecess:
+      return "facade_recess";
+    case ObjectClass::FacadeCorner:
+      return "facade_corner";
+    case ObjectClass::FenceMesh:
+      return "fence_mesh";
+    case ObjectClass::FencePost:
+      return "fence_post";
+    case ObjectClass::Vegetation:
+      return "vegetation";
+    case ObjectClass::ParkedCar:
+      return "parked_car";
+    case ObjectClass::Bin:
+      return "bin";
   }
   return "unknown";
 }
 
 std::string_view to_string(Mechanism m) {
   switch (m) {
-    case Mechanism::Odd: return "odd";
-    case Mechanism::Even: return "even";
-    case Mechanism::Mixed: return "mixed";
-    case Mechanism::Diffuse: return "diffuse";
-    case Mechanism::Volume: return "volume";
+    case Mechanism::Odd:
+      return "odd";
+    case Mechanism::Even:
+      return "even";
+    case Mechanism::Mixed:
+      return "mixed";
+    case Mechanism::Diffuse:
+      return "diffuse";
+    case Mechanism::Volume:
+      return "volume";
   }
   return "unknown";
 }
@@ -208,7 +233,8 @@ GridRoute make_grid_route(Rng& rng, double length, double straight_min, double s
 }
 
 void finish_route(World& w, const KappaProfile& kappa, double length, double step) {
-  w.route = Path::from_curvature({0.0, 0.0}, 0.0, length, [&](double s) { return kappa(s); }, step);
+  w.route = Path::from_curvature(
+      {0.0, 0.0}, 0.0, length, [&](double s) { return kappa(s); }, step);
 }
 
 void build_urban(World& w, WorldBuilder& b, Rng& rng, double length, const SimConfig& cfg) {
@@ -248,8 +274,10 @@ void build_urban(World& w, WorldBuilder& b, Rng& rng, double length, const SimCo
       }
     }
     // Lamps staggered both sides.
-    for (double s = a + rng.uniform(3, 15); s < e; s += 30.0) b.pole(ObjectClass::LampPole, s, curb_r - 0.5);
-    for (double s = a + rng.uniform(15, 30); s < e; s += 30.0) b.pole(ObjectClass::LampPole, s, curb_l + 0.5);
+    for (double s = a + rng.uniform(3, 15); s < e; s += 30.0)
+      b.pole(ObjectClass::LampPole, s, curb_r - 0.5);
+    for (double s = a + rng.uniform(15, 30); s < e; s += 30.0)
+      b.pole(ObjectClass::LampPole, s, curb_l + 0.5);
     // Signs.
     for (double s = a + rng.uniform(10, 40); s < e; s += rng.uniform(30, 70)) {
       if (rng.bernoulli(0.7)) {
@@ -335,7 +363,9 @@ void build_rural(World& w, WorldBuilder& b, Rng& rng, double length, const SimCo
     const double radius = rng.uniform(180.0, 700.0);
     const double arc = std::min(rng.uniform(60.0, 250.0), 0.6 * radius - 20.0);
     // Curve towards the mean direction so the road never loops back.
-    const double sign = heading > 0.3 ? -1.0 : heading < -0.3 ? 1.0 : (rng.bernoulli(0.5) ? 1.0 : -1.0);
+    const double sign = heading > 0.3    ? -1.0
+                        : heading < -0.3 ? 1.0
+                                         : (rng.bernoulli(0.5) ? 1.0 : -1.0);
     const double ramp = 20.0;
     kappa.add(s + ramp, sign / radius);
     kappa.add(s + ramp + arc, sign / radius);
@@ -433,7 +463,8 @@ std::shared_ptr<World> make_world(const WorldSpec& spec, const SimConfig& cfg) {
 std::shared_ptr<World> load_world(const std::string& world, double length_m, std::uint64_t seed,
                                   const SimConfig& cfg) {
   auto ends_with = [&](std::string_view suf) {
-    return world.size() >= suf.size() && world.compare(world.size() - suf.size(), suf.size(), suf) == 0;
+    return world.size() >= suf.size() &&
+           world.compare(world.size() - suf.size(), suf.size(), suf) == 0;
   };
   if (ends_with(".osm")) return load_lanelet2_world(world, cfg, seed, length_m);
   if (ends_with(".xodr")) return load_opendrive_world(world, cfg, seed, length_m);

@@ -49,7 +49,9 @@ ScatteringVector WorldBuilder::mixed_omega() {
 
 // --- route-relative --------------------------------------------------------
 
-void WorldBuilder::pole(ObjectClass cls, double s, double d) { pole_at(cls, at(s, d), "procedural"); }
+void WorldBuilder::pole(ObjectClass cls, double s, double d) {
+  pole_at(cls, at(s, d), "procedural");
+}
 
 std::uint32_t WorldBuilder::pole_at(ObjectClass cls, const Eigen::Vector2d& xy,
                                     const std::string& source) {
@@ -72,11 +74,14 @@ void WorldBuilder::sign(double s, double d, int facing) {
   sign_at(at(s, d), normal, "procedural");
 }
 
-void WorldBuilder::sign_at(const Eigen::Vector2d& xy, double normal_rad, const std::string& source) {
+void WorldBuilder::sign_at(const Eigen::Vector2d& xy, double normal_rad,
+                           const std::string& source) {
   pole_at(ObjectClass::SignPole, xy, source);
   const double rcs = rng_.uniform(10.0, 20.0);
-  const Eigen::Vector2d pp = xy + 0.04 * Eigen::Vector2d(std::cos(normal_rad), std::sin(normal_rad));
-  const std::uint32_t id = object(ObjectClass::SignPlate, Mechanism::Odd, {pp}, rcs, true, 1.0, source);
+  const Eigen::Vector2d pp =
+      xy + 0.04 * Eigen::Vector2d(std::cos(normal_rad), std::sin(normal_rad));
+  const std::uint32_t id =
+      object(ObjectClass::SignPlate, Mechanism::Odd, {pp}, rcs, true, 1.0, source);
   PointScatterer p;
   p.pos_m = pp;
   p.omega = odd_bounce();
@@ -160,7 +165,8 @@ void WorldBuilder::wall(double s0, double s1, double d, int /*side*/) {
 std::uint32_t WorldBuilder::wall_line(const std::vector<Eigen::Vector2d>& poly,
                                       const std::string& source) {
   const double rcs = -10.0 + 10.0 * std::log10(3.0);
-  const std::uint32_t id = object(ObjectClass::Wall, Mechanism::Diffuse, poly, rcs, true, 1.0, source);
+  const std::uint32_t id =
+      object(ObjectClass::Wall, Mechanism::Diffuse, poly, rcs, true, 1.0, source);
   LineScatterer l;
   l.model = ExtendedModel::Surface;
   l.rcs_per_m_dbsm = static_cast<float>(rcs);
@@ -217,7 +223,8 @@ void WorldBuilder::posts_along(const std::vector<Eigen::Vector2d>& poly, double 
     while (next <= acc + len + 1e-9) {
       const Eigen::Vector2d p = a + (b - a) * ((next - acc) / std::max(len, 1e-9));
       const double to_road = toward_route(p);
-      const Eigen::Vector2d xy = p - behind_m * Eigen::Vector2d(std::cos(to_road), std::sin(to_road));
+      const Eigen::Vector2d xy =
+          p - behind_m * Eigen::Vector2d(std::cos(to_road), std::sin(to_road));
       PointScatterer s;
       s.pos_m = xy;
       s.phase_rad = static_cast<float>(rng_.uniform(0, 2 * kPi));
@@ -318,16 +325,18 @@ void WorldBuilder::tree(double s, double d) {
   p.phase_rad = static_cast<float>(rng_.uniform(0, 2 * kPi));
   point(p);
   const double rad = 0.5 * rng_.uniform(0.25, 0.5);
-  w_.occluders.push_back({xy - Eigen::Vector2d(rad, 0), xy + Eigen::Vector2d(rad, 0), false, p.object});
-  w_.occluders.push_back({xy - Eigen::Vector2d(0, rad), xy + Eigen::Vector2d(0, rad), false, p.object});
+  w_.occluders.push_back(
+      {xy - Eigen::Vector2d(rad, 0), xy + Eigen::Vector2d(rad, 0), false, p.object});
+  w_.occluders.push_back(
+      {xy - Eigen::Vector2d(0, rad), xy + Eigen::Vector2d(0, rad), false, p.object});
 }
 
 void WorldBuilder::vegetation(double s0, double s1, double d, bool permanent, double presence) {
   const auto poly = w_.route.offset_polyline(std::max(0.0, s0), s1, d, 2.0);
   if (poly.size() < 2) return;
   const double rcs = -15.0;  // -15 dBsm/m^2 over ~1 m depth
-  const std::uint32_t id = object(ObjectClass::Vegetation, Mechanism::Volume, poly, rcs, permanent,
-                                  presence);
+  const std::uint32_t id =
+      object(ObjectClass::Vegetation, Mechanism::Volume, poly, rcs, permanent, presence);
   LineScatterer l;
   l.model = ExtendedModel::Volume;
   l.rcs_per_m_dbsm = static_cast<float>(rcs);
@@ -337,9 +346,9 @@ void WorldBuilder::vegetation(double s0, double s1, double d, bool permanent, do
   w_.add_line_pieces(poly, l);
 }
 
-void WorldBuilder::car_like(ObjectClass cls, const Eigen::Vector2d& c, double yaw_rad, double length,
-                            double width, double rcs_min, double rcs_max, int centres,
-                            double presence) {
+void WorldBuilder::car_like(ObjectClass cls, const Eigen::Vector2d& c, double yaw_rad,
+                            double length, double width, double rcs_min, double rcs_max,
+                            int centres, double presence) {
   const double total = rng_.uniform(rcs_min, rcs_max);
   const std::uint32_t id = object(cls, Mechanism::Mixed, {c}, total, false, presence);
   const Eigen::Vector2d ex(std::cos(yaw_rad), std::sin(yaw_rad)), ey(-ex.y(), ex.x());

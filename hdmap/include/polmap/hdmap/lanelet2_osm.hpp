@@ -15,7 +15,7 @@ namespace polmap::hdmap {
 
 struct OsmNode {
   std::int64_t id = 0;
-  GeoPoint position;  ///< lat/lon from the attributes (local_x/local_y ignored); alt_m = 0
+  GeoPoint position;   ///< lat/lon from the attributes (local_x/local_y ignored); alt_m = 0
   double ele_m = 0.0;  ///< the `ele` tag, 0 when absent
   std::string type;    ///< `type` tag ("" when absent)
   std::string subtype;

@@ -42,8 +42,8 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
-#include <optional>
 #include <opencv2/core.hpp>
+#include <optional>
 #include <span>
 #include <vector>
 

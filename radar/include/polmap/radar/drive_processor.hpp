@@ -63,13 +63,13 @@ struct DriveProcessingStats {
   std::size_t frames_unknown_sensor = 0;
   std::size_t frames_without_spectrum = 0;  ///< fewer than 2 beams and no usable cube
   std::size_t frames_standstill = 0;        ///< skipped: slower than min_speed_mps
-  double start_time_s = 0.0;            ///< first trajectory sample
-  double end_time_s = 0.0;              ///< last trajectory sample
-  double distance_m = 0.0;              ///< path length of the trajectory (drive frame)
-  double gridmap_seconds = 0.0;         ///< wall time spent in gridmap updates
-  double points_seconds = 0.0;          ///< wall time of point extraction
-  double lines_seconds = 0.0;           ///< wall time of line extraction
-  double total_seconds = 0.0;           ///< wall time of process_drive
+  double start_time_s = 0.0;                ///< first trajectory sample
+  double end_time_s = 0.0;                  ///< last trajectory sample
+  double distance_m = 0.0;                  ///< path length of the trajectory (drive frame)
+  double gridmap_seconds = 0.0;             ///< wall time spent in gridmap updates
+  double points_seconds = 0.0;              ///< wall time of point extraction
+  double lines_seconds = 0.0;               ///< wall time of line extraction
+  double total_seconds = 0.0;               ///< wall time of process_drive
 };
 
 struct DriveProcessingResult {

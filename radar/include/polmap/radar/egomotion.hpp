@@ -152,10 +152,10 @@ struct EgoMotionConfig {
   double yaw_accel_uncertainty_rps2 = 0.1;
 
   // --- physical plausibility vs. the previous estimate ---
-  double max_accel_mps2 = 6.0;       ///< |dv/dt| limit
-  double max_yaw_accel_rps2 = 1.0;   ///< |dω/dt| limit
-  double accel_slack_mps = 0.3;      ///< added to a_max·Δt (estimate noise)
-  double yaw_accel_slack_rps = 0.05; ///< added to α_max·Δt
+  double max_accel_mps2 = 6.0;        ///< |dv/dt| limit
+  double max_yaw_accel_rps2 = 1.0;    ///< |dω/dt| limit
+  double accel_slack_mps = 0.3;       ///< added to a_max·Δt (estimate noise)
+  double yaw_accel_slack_rps = 0.05;  ///< added to α_max·Δt
   /// A prior older than this is dropped (no limit check).
   double max_prior_age_s = 1.0;
 
@@ -242,7 +242,7 @@ class EgoMotionEstimator {
   std::vector<SensorMount> mounts_;
   EgoMotionConfig cfg_;
   std::deque<StoredFrame> history_;  // frames within combine_window_s, oldest first
-  std::deque<Accepted> accepted_;                    // recent Ok estimates
+  std::deque<Accepted> accepted_;    // recent Ok estimates
   std::vector<bool> static_mask_;
   std::uint64_t calls_ = 0;
   double last_time_s_ = -1e300;

@@ -59,10 +59,10 @@ class ContractViolation : public Error {
 }  // namespace polmap
 
 /// Contract check for the core: throws ContractViolation with the condition text.
-#define POLMAP_EXPECT(cond)                                                          \
-  do {                                                                               \
-    if (!(cond)) {                                                                   \
-      throw ::polmap::ContractViolation(std::string(__FILE__) + ":" +                \
-                                        std::to_string(__LINE__) + ": expected " #cond); \
-    }                                                                                \
+#define POLMAP_EXPECT(cond)                                                                      \
+  do {                                                                                           \
+    if (!(cond)) {                                                                               \
+      throw ::polmap::ContractViolation(std::string(__FILE__) + ":" + std::to_string(__LINE__) + \
+                                        ": expected " #cond);                                    \
+    }                                                                                            \
   } while (false)

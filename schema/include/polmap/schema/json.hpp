@@ -11,9 +11,9 @@
 /// spellings: a present key of the wrong type throws JsonFieldError naming the
 /// full field path, e.g. `sensors[1].spec.bandwidth_hz`.
 #include <nlohmann/json.hpp>
-#include <utility>
 #include <string>
 #include <string_view>
+#include <utility>
 
 #include "polmap/schema/errors.hpp"
 #include "polmap/schema/geo.hpp"

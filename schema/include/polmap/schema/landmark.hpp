@@ -16,10 +16,14 @@ enum class ScatteringClass : std::uint8_t { Unknown = 0, Odd = 1, Even = 2, Mixe
 
 inline std::string_view to_string(ScatteringClass c) {
   switch (c) {
-    case ScatteringClass::Odd: return "odd";
-    case ScatteringClass::Even: return "even";
-    case ScatteringClass::Mixed: return "mixed";
-    default: return "unknown";
+    case ScatteringClass::Odd:
+      return "odd";
+    case ScatteringClass::Even:
+      return "even";
+    case ScatteringClass::Mixed:
+      return "mixed";
+    default:
+      return "unknown";
   }
 }
 

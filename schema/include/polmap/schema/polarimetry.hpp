@@ -34,21 +34,30 @@ enum class PolLevel : std::uint8_t {
 /// Number of components q of the level's scattering vector.
 inline int pol_dimension(PolLevel level) {
   switch (level) {
-    case PolLevel::Full: return 3;
+    case PolLevel::Full:
+      return 3;
     case PolLevel::DualLLLR:
-    case PolLevel::DualHHVV: return 2;
-    default: return 1;
+    case PolLevel::DualHHVV:
+      return 2;
+    default:
+      return 1;
   }
 }
 
 inline std::string_view to_string(PolLevel level) {
   switch (level) {
-    case PolLevel::Full: return "full";
-    case PolLevel::DualLLLR: return "ll-lr";
-    case PolLevel::DualHHVV: return "hh-vv";
-    case PolLevel::SingleLR: return "lr";
-    case PolLevel::SingleRR: return "rr";
-    case PolLevel::SingleHH: return "hh";
+    case PolLevel::Full:
+      return "full";
+    case PolLevel::DualLLLR:
+      return "ll-lr";
+    case PolLevel::DualHHVV:
+      return "hh-vv";
+    case PolLevel::SingleLR:
+      return "lr";
+    case PolLevel::SingleRR:
+      return "rr";
+    case PolLevel::SingleHH:
+      return "hh";
   }
   return "full";
 }

@@ -16,7 +16,7 @@ struct RadarSpec {
   double bandwidth_hz = 2e9;
   double range_resolution_m = 0.075;
   double max_range_m = 80.0;
-  double fov_half_rad = 60.0 * std::numbers::pi / 180.0;      ///< ±60° azimuth
+  double fov_half_rad = 60.0 * std::numbers::pi / 180.0;  ///< ±60° azimuth
   double azimuth_resolution_rad = 3.0 * std::numbers::pi / 180.0;
   int virtual_elements = 31;
   double frame_rate_hz = 10.0;

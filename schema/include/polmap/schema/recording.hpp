@@ -59,11 +59,11 @@ struct SpectrumCell {
 /// image per polarization channel). Sparse: cells below the recorder's
 /// noise-relative floor are omitted and read as zero.
 struct PolSpectrum {
-  double range_bin_m = 0.075;       ///< range of bin i is i * range_bin_m
+  double range_bin_m = 0.075;  ///< range of bin i is i * range_bin_m
   std::uint16_t num_range_bins = 0;
   std::vector<float> azimuth_bins_rad;  ///< beam centres, ascending
-  float noise_sigma = 1.0F;          ///< complex noise std per cell and channel
-  std::vector<SpectrumCell> cells;   ///< sorted by (azimuth_bin, range_bin)
+  float noise_sigma = 1.0F;             ///< complex noise std per cell and channel
+  std::vector<SpectrumCell> cells;      ///< sorted by (azimuth_bin, range_bin)
 };
 
 /// Optional full data cube of one sensor frame (short sequences only):
@@ -84,7 +84,7 @@ struct DataCube {
 struct SensorFrame {
   std::uint32_t cycle_index = 0;  ///< 10 Hz cycle counter
   std::uint8_t sensor_id = 0;
-  double time_s = 0.0;            ///< trigger time
+  double time_s = 0.0;  ///< trigger time
   std::vector<Detection> detections;
   PolSpectrum spectrum;
   std::optional<DataCube> cube;
@@ -95,12 +95,12 @@ struct RecordingHeader {
   std::uint32_t format_version = kRecordingFormatVersion;
   std::string drive_id;
   std::string vehicle_id;
-  std::string world;      ///< scenario / map name the drive was recorded in
-  GeoPoint origin;        ///< geodetic origin of the drive's local frames
+  std::string world;  ///< scenario / map name the drive was recorded in
+  GeoPoint origin;    ///< geodetic origin of the drive's local frames
   std::vector<SensorMount> sensors;
   double start_time_s = 0.0;
   bool has_cube = false;
-  std::string producer;   ///< e.g. "polmap simulate 0.1.0 seed=1"
+  std::string producer;  ///< e.g. "polmap simulate 0.1.0 seed=1"
 };
 
 /// A record of the stream after the header.

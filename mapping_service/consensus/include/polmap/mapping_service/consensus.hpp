@@ -76,14 +76,14 @@ struct LineConsensusConfig {
 
 /// Point consensus outcome. landmarks[i] is supported by candidates support[i].
 struct PointConsensusResult {
-  std::vector<PointLandmark> landmarks;        ///< id = index in this vector
+  std::vector<PointLandmark> landmarks;            ///< id = index in this vector
   std::vector<std::vector<std::int64_t>> support;  ///< candidate ids, ascending
   struct Stats {
     std::size_t candidates = 0;
-    std::size_t pairs = 0;               ///< cross-drive edges
-    std::size_t groups = 0;              ///< connected components (incl. singletons)
-    std::size_t rejected_groups = 0;     ///< groups with < min_drives drives
-    std::size_t largest_group = 0;       ///< members of the largest accepted group
+    std::size_t pairs = 0;            ///< cross-drive edges
+    std::size_t groups = 0;           ///< connected components (incl. singletons)
+    std::size_t rejected_groups = 0;  ///< groups with < min_drives drives
+    std::size_t largest_group = 0;    ///< members of the largest accepted group
   } stats;
 };
 
@@ -96,8 +96,8 @@ struct LineConsensusResult {
     std::size_t pairs = 0;
     std::size_t groups = 0;
     std::size_t rejected_groups = 0;
-    std::size_t polylines = 0;      ///< landmarks with more than two vertices
-    std::size_t snapped_ends = 0;   ///< line ends moved to an intersection
+    std::size_t polylines = 0;     ///< landmarks with more than two vertices
+    std::size_t snapped_ends = 0;  ///< line ends moved to an intersection
   } stats;
 };
 

@@ -55,20 +55,20 @@ using GeoBox = tiles::GeoBox;
 
 /// One ingested drive.
 struct DriveRecord {
-  std::int64_t row = 0;          ///< store key (candidates.drive, consensus drive id)
-  std::string drive_id;          ///< manifest drive_id, unique per store
-  std::string content_hash;      ///< SHA-256 hex of the package bytes, unique
+  std::int64_t row = 0;      ///< store key (candidates.drive, consensus drive id)
+  std::string drive_id;      ///< manifest drive_id, unique per store
+  std::string content_hash;  ///< SHA-256 hex of the package bytes, unique
   std::string vehicle_id;
   double start_time_s = 0.0;
   double end_time_s = 0.0;
-  GeoBox bbox;                   ///< of trajectory and candidates
+  GeoBox bbox;  ///< of trajectory and candidates
   PolLevel pol_level = PolLevel::Full;
   double distance_m = 0.0;
-  std::int64_t num_points = 0;   ///< point candidates stored
-  std::int64_t num_lines = 0;    ///< line candidates stored
-  nlohmann::json manifest;       ///< manifest.json as ingested
+  std::int64_t num_points = 0;         ///< point candidates stored
+  std::int64_t num_lines = 0;          ///< line candidates stored
+  nlohmann::json manifest;             ///< manifest.json as ingested
   std::filesystem::path package_path;  ///< absolute path of the stored package copy
-  std::string ingested_at;       ///< ISO 8601 UTC, e.g. "2024-05-01T12:00:00Z"
+  std::string ingested_at;             ///< ISO 8601 UTC, e.g. "2024-05-01T12:00:00Z"
 };
 
 /// Outcome of put_drive. AlreadyPresent: same content hash stored before
@@ -81,9 +81,9 @@ struct PutDriveResult {
 
 /// A stored point candidate: geodetic position plus the drive-frame original.
 struct StoredPointCandidate {
-  std::int64_t id = 0;     ///< candidate id (unique over points and lines)
-  std::int64_t drive = 0;  ///< DriveRecord::row
-  GeoPoint position;       ///< WGS84 (alt_m 0)
+  std::int64_t id = 0;       ///< candidate id (unique over points and lines)
+  std::int64_t drive = 0;    ///< DriveRecord::row
+  GeoPoint position;         ///< WGS84 (alt_m 0)
   PointCandidate candidate;  ///< position_m in the drive's frame
 };
 
@@ -154,7 +154,7 @@ enum class TileLayer {
 /// etag (an unchanged tile of the previous version; payload may be empty).
 struct TileWrite {
   tiles::TileKey key;
-  std::string etag;     ///< lower-case SHA-256 hex of payload (content_etag())
+  std::string etag;  ///< lower-case SHA-256 hex of payload (content_etag())
   std::string payload;
   bool reuse_blob = false;
   std::int32_t num_points = 0;  ///< informative (listing, stats)
@@ -173,7 +173,7 @@ struct TileInfo {
 /// A stored tile.
 struct StoredTile {
   tiles::TileKey key;
-  std::string etag;     ///< strong ETag value (unquoted SHA-256 hex of payload)
+  std::string etag;  ///< strong ETag value (unquoted SHA-256 hex of payload)
   std::string payload;
 };
 
@@ -255,7 +255,8 @@ class MapStore {
   /// longer referenced are dropped). False if unknown.
   virtual bool delete_map_version(std::int64_t version) = 0;
   [[nodiscard]] virtual std::optional<std::int64_t> current_map_version() const = 0;
-  [[nodiscard]] virtual std::optional<MapVersionInfo> get_map_version(std::int64_t version) const = 0;
+  [[nodiscard]] virtual std::optional<MapVersionInfo> get_map_version(
+      std::int64_t version) const = 0;
   [[nodiscard]] virtual std::vector<MapVersionInfo> list_map_versions() const = 0;
 
   // ------------------------------------------------------------ published content

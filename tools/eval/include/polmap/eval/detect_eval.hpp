@@ -58,7 +58,8 @@ struct WorldTruth {
 
 /// Reads DIR/truth/world.json; positions are converted from lat/lon into `frame`
 /// (the drive frame of the recordings). Throws IoError / FormatError naming the file.
-WorldTruth read_world_truth(const std::filesystem::path& world_json, const tiles::LocalFrame& frame);
+WorldTruth read_world_truth(const std::filesystem::path& world_json,
+                            const tiles::LocalFrame& frame);
 /// Parses the JSON text (same conversion).
 WorldTruth parse_world_truth(const std::string& json_text, const tiles::LocalFrame& frame,
                              const std::string& source_name = "world.json");
@@ -73,10 +74,9 @@ struct DetectEvalConfig {
   /// this (the default front mounts at ±40° with ±60° FoV see ±100°).
   double max_bearing_deg = 100.0;
   /// Point landmark classes (truth objects with one position).
-  std::set<std::string> point_classes{"lamp_pole",     "sign_pole",  "sign_plate",
-                                      "traffic_light", "pole",       "guardrail_post",
-                                      "guide_post",    "tree_trunk", "facade_recess",
-                                      "facade_corner", "fence_post"};
+  std::set<std::string> point_classes{
+      "lamp_pole",  "sign_pole",  "sign_plate",    "traffic_light", "pole",      "guardrail_post",
+      "guide_post", "tree_trunk", "facade_recess", "facade_corner", "fence_post"};
   /// Objects the truth gives as one position but that extend around it (the
   /// simulator's parked cars are 4–4.9 m × 1.8 m with centres at the corners; bins
   /// 0.7 m): candidates within this radius (+ the match radius) count as structure.

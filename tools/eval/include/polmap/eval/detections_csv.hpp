@@ -61,7 +61,8 @@ std::vector<SensorFrame> read_detections_csv(const std::filesystem::path& path);
 /// cannot be represented and are skipped.
 std::string format_detections_csv(const std::vector<SensorFrame>& frames);
 /// Writes format_detections_csv(frames) to path (throws IoError).
-void write_detections_csv(const std::filesystem::path& path, const std::vector<SensorFrame>& frames);
+void write_detections_csv(const std::filesystem::path& path,
+                          const std::vector<SensorFrame>& frames);
 
 /// Parses the sensor mounts JSON (an array of flat objects, see
 /// schema/detections_csv.md).

@@ -19,11 +19,10 @@
 ///    sub-path, else drift_endpoint_pct.
 #include <Eigen/Core>
 #include <filesystem>
+#include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
 #include <vector>
-
-#include <nlohmann/json.hpp>
 
 #include "polmap/radar/egomotion.hpp"
 #include "polmap/radar/odometry.hpp"
@@ -116,12 +115,12 @@ struct EgoMotionMetrics {
   double v_rmse_mps = 0, v_max_err_mps = 0, v_median_err_mps = 0, v_bias_mps = 0;
   double yaw_rate_rmse_dps = 0, yaw_rate_max_err_dps = 0, yaw_rate_median_err_dps = 0,
          yaw_rate_bias_dps = 0;
-  double distance_m = 0;          ///< true path length between first and last Ok estimate
-  double odometry_distance_m = 0; ///< integrated by the odometry
+  double distance_m = 0;           ///< true path length between first and last Ok estimate
+  double odometry_distance_m = 0;  ///< integrated by the odometry
   int drift_segments = 0;
   std::optional<double> drift_segment_pct;
   std::optional<double> drift_endpoint_pct;
-  std::optional<double> drift_pct;  ///< segment figure if available, else endpoint
+  std::optional<double> drift_pct;                   ///< segment figure if available, else endpoint
   std::optional<double> heading_drift_deg_per_100m;  ///< mean over segments
   /// Per-frame compute time (thread CPU time) of EgoMotionEstimator::process.
   double compute_mean_ms = 0, compute_p95_ms = 0, compute_max_ms = 0;

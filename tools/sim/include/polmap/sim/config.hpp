@@ -134,8 +134,8 @@ struct GnssSimConfig {
   double no_fix_stretch_max_s = 30.0;
   double heading_sigma_deg = 0.05;
   double heading_tau_s = 30.0;
-  double speed_sigma_mps = 0.01;      ///< white
-  double yaw_rate_sigma_rps = 0.0005; ///< white
+  double speed_sigma_mps = 0.01;       ///< white
+  double yaw_rate_sigma_rps = 0.0005;  ///< white
 };
 
 /// Ego driving behaviour.
@@ -180,8 +180,8 @@ struct TrafficSimConfig {
 struct HdMapDensityConfig {
   double guardrail_post_spacing_m = 3.0;
   double fence_post_spacing_m = 2.5;
-  double lamp_spacing_m = 30.0;       ///< along road borders and curbstones
-  double lamp_offset_m = 0.6;         ///< outward from the border
+  double lamp_spacing_m = 30.0;  ///< along road borders and curbstones
+  double lamp_offset_m = 0.6;    ///< outward from the border
   /// Default origin of OpenDRIVE files without a geoReference (Ingolstadt).
   double xodr_default_lat_deg = 48.7665;
   double xodr_default_lon_deg = 11.4258;

@@ -63,7 +63,7 @@ class DrivePlan {
   Path path_;
   double cruise_ = 0.0;
   double ds_ = 0.5;
-  std::vector<double> v_;           ///< speed at grid stations i * ds
+  std::vector<double> v_;  ///< speed at grid stations i * ds
   std::vector<double> t_arrive_, t_depart_;
   double duration_ = 0.0;
   std::vector<std::pair<double, double>> stops_;

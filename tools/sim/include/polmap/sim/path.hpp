@@ -12,7 +12,7 @@ struct PathPoint {
   double s_m = 0.0;
   double x_m = 0.0;
   double y_m = 0.0;
-  double yaw_rad = 0.0;  ///< frame yaw of the tangent (x east, y north, CCW from x)
+  double yaw_rad = 0.0;    ///< frame yaw of the tangent (x east, y north, CCW from x)
   double kappa_1pm = 0.0;  ///< curvature, positive = left turn
 };
 

@@ -29,7 +29,9 @@ std::uint64_t seed_of(std::uint64_t base, T... parts) {
 }
 
 /// Uniform [0,1) from a hash (stateless draws, e.g. per-object presence in a drive).
-inline double hash_uniform(std::uint64_t h) { return static_cast<double>(mix64(h) >> 11) * 0x1.0p-53; }
+inline double hash_uniform(std::uint64_t h) {
+  return static_cast<double>(mix64(h) >> 11) * 0x1.0p-53;
+}
 
 /// Tables of the Marsaglia-Tsang ziggurat (built once).
 struct Ziggurat {
@@ -70,7 +72,8 @@ double ziggurat_normal(Gen& g) {
     const int iz = static_cast<int>(u & 127U);
     const auto hz = static_cast<std::int32_t>(static_cast<std::uint32_t>(u >> 32));
     const double x = hz * z.wn[iz];
-    if (static_cast<std::uint32_t>(hz < 0 ? -static_cast<std::int64_t>(hz) : hz) < z.kn[iz]) return x;
+    if (static_cast<std::uint32_t>(hz < 0 ? -static_cast<std::int64_t>(hz) : hz) < z.kn[iz])
+      return x;
     if (iz == 0) {  // tail beyond r
       double xt, yt;
       do {

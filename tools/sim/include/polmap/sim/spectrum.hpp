@@ -34,7 +34,7 @@ struct DetectionCandidate {
   double range_m = 0.0;
   double azimuth_rad = 0.0;
   double radial_velocity_mps = 0.0;
-  double snr = 0.0;  ///< linear, relative to the detection reference (noise by default)
+  double snr = 0.0;          ///< linear, relative to the detection reference (noise by default)
   bool distributed = false;  ///< aggregated cell sample (position known to a cell only)
 };
 
@@ -110,10 +110,10 @@ class SpectrumSynthesizer {
   std::vector<double> dop_table_;
   double dop_step_ = 1e-3, dop_max_ = 0.0;
   std::vector<double> taper_, doppler_window_;
-  std::vector<double> clutter_;        ///< per range bin, half-span power
+  std::vector<double> clutter_;           ///< per range bin, half-span power
   std::array<double, 4> clutter_frac_{};  ///< per channel share (sum 2)
-  std::vector<double> floor_;          ///< per range bin, threshold on |s_c|^2
-  std::vector<double> exceed_cdf_;     ///< per range bin cumulative exceedance rate
+  std::vector<double> floor_;             ///< per range bin, threshold on |s_c|^2
+  std::vector<double> exceed_cdf_;        ///< per range bin cumulative exceedance rate
   double exceed_total_ = 0.0;
   std::vector<double> ref_;             ///< per range bin, detection reference level
   std::vector<double> ground_det_cdf_;  ///< per range bin cumulative ground-peak rate

@@ -89,14 +89,14 @@ struct PointScatterer {
   ScatteringVector omega{};  ///< normalised, half_span = 1
   float rcs_dbsm = 0.0F;
   Aspect aspect = Aspect::Isotropic;
-  float normal_rad = 0.0F;   ///< world-frame direction the lobe points to
-  float lobe_rad = 0.0F;     ///< Specular: w; FrontLobe: half width
+  float normal_rad = 0.0F;  ///< world-frame direction the lobe points to
+  float lobe_rad = 0.0F;    ///< Specular: w; FrontLobe: half width
   float back_gain_db = -20.0F;
-  bool two_sided = false;    ///< Specular lobe on both sides (flat plates)
+  bool two_sided = false;  ///< Specular lobe on both sides (flat plates)
   /// Share of the power re-drawn per frame from a volume model (tree bark, clutter).
   float diffuse_fraction = 0.0F;
   std::uint32_t object = 0;
-  float phase_rad = 0.0F;    ///< fixed phase offset of this centre
+  float phase_rad = 0.0F;  ///< fixed phase offset of this centre
 };
 
 /// A straight piece (<= 8 m) of an extended object: a dense chain of sub-scatterers.
@@ -111,8 +111,8 @@ struct LineScatterer {
   /// Specular odd-bounce lobe near normal: gain (linear over diffuse), width.
   float specular_gain_db = -100.0F;
   float specular_width_rad = 0.03F;
-  bool opaque = false;     ///< hides what is behind it
-  bool vegetation = false; ///< attenuates what is behind it (vegetation_loss_db)
+  bool opaque = false;      ///< hides what is behind it
+  bool vegetation = false;  ///< attenuates what is behind it (vegetation_loss_db)
   std::uint32_t object = 0;
 };
 

@@ -27,4 +27,10 @@ inline std::filesystem::path unique_test_dir(const std::string& stem) {
   return util::make_unique_dir({}, name);
 }
 
+/// A unique test directory that is removed when the test (or fixture) ends.
+class TestDir : public util::ScopedTempDir {
+ public:
+  explicit TestDir(const std::string& stem = "test") : util::ScopedTempDir(unique_test_dir(stem)) {}
+};
+
 }  // namespace polmap::test

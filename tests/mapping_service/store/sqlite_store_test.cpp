@@ -19,17 +19,8 @@ namespace polmap::mapping {
 namespace {
 namespace fs = std::filesystem;
 
-class TempDir {
- public:
-  TempDir() { path_ = polmap::test::unique_test_dir("store"); }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
-  [[nodiscard]] const fs::path& path() const { return path_; }
-
- private:
-  fs::path path_;
+struct TempDir : polmap::test::TestDir {
+  TempDir() : TestDir("store") {}
 };
 
 const GeoPoint kOrigin{48.7758, 9.1829, 250.0};  // Stuttgart

@@ -115,6 +115,16 @@ struct Server::Impl {
   void register_drive_routes();
   void register_map_routes();
   void register_tile_routes();
+  // tile handlers (server_tiles.cpp)
+  void get_localization_tile(const httplib::Request& req, httplib::Response& res);
+  void get_mvt_tile(const httplib::Request& req, httplib::Response& res);
+  void get_tilejson(const httplib::Request& req, httplib::Response& res);
+  void get_gridmap_tile(const httplib::Request& req, httplib::Response& res);
+  /// Cache-Control of a tile: immutable for an explicit ?version=, revalidated otherwise.
+  [[nodiscard]] std::string tile_cache_control(bool is_explicit) const;
+  /// Answers 304 (with ETag and Cache-Control) when If-None-Match matches `etag`.
+  static bool reply_not_modified(const httplib::Request& req, httplib::Response& res,
+                                 const std::string& etag, const std::string& cache_control);
   void register_gis_routes();
 };
 

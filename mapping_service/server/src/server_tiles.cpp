@@ -102,287 +102,294 @@ std::shared_ptr<const std::vector<GeoPoint>> Server::Impl::drive_trajectory(
   return trajectories.try_emplace(drive.content_hash, std::move(out)).first->second;
 }
 
-void Server::Impl::register_tile_routes() {
-  // ---- localization tiles
-  http.Get(R"(/v1/tiles/([^/]+)/([^/]+)/([^/]+))", [this](const httplib::Request& req,
-                                                          httplib::Response& res) {
-    set_route("tiles");
-    const auto key = parse_key(req);
-    if (!key) {
-      metrics.tile_served("localization", 400);
-      return reply_error(res, 400,
-                         "malformed tile address '" + req.path.substr(10) +
-                             "': expected z/x/y with 0 <= x, y < 2^z, z <= 24",
-                         "z/x/y");
-    }
-    bool is_explicit = false;
-    const auto idx = resolve_version(req, res, is_explicit);
-    if (!idx) return metrics.tile_served("localization", res.status);
-    if (key->z != tiles::kLocalizationZoom) {
-      metrics.tile_served("localization", 404);
-      return reply_error(
-          res, 404,
-          "localization tiles exist at zoom " + std::to_string(tiles::kLocalizationZoom) + " only",
-          "z");
-    }
-    const std::string cache_control =
-        is_explicit
-            ? std::string(kImmutable)
-            : "public, max-age=" + std::to_string(cfg.current_tile_max_age_s) + ", must-revalidate";
-    const auto it = idx->localization.find(*key);
-    if (it == idx->localization.end()) {
-      if (idx->covered.count(*key) != 0) {
-        // Inside the map, no landmarks: a cacheable "empty" answer.
-        res.status = 204;
-        res.set_header("Cache-Control", cache_control);
-        return metrics.tile_served("localization", 204);
-      }
-      metrics.tile_served("localization", 404);
-      return reply_error(res, 404,
-                         "tile " + tiles::to_string(*key) +
-                             " is outside the coverage of map version " +
-                             std::to_string(idx->version));
-    }
-    // Conditional request: answered from the version index, no payload access.
-    const std::string etag = "\"" + it->second.etag + "\"";
-    const std::string inm = req.get_header_value("If-None-Match");
-    if (!inm.empty() && http::if_none_match_matches(inm, etag)) {
-      res.status = 304;
-      res.set_header("ETag", etag);
-      res.set_header("Cache-Control", cache_control);
-      return metrics.tile_served("localization", 304);
-    }
-    const std::string ck = "L/" + std::to_string(idx->version) + "/" + key_cache_id(*key);
-    auto blob = cache.get(ck);
-    if (!blob) {
-      const auto tile = store.get_tile(idx->version, TileLayer::Localization, *key);
-      if (!tile) {
-        metrics.tile_served("localization", 404);
-        return reply_error(res, 404, "tile " + tiles::to_string(*key) + " vanished from the store");
-      }
-      auto b = std::make_shared<http::CachedBlob>();
-      b->body = tile->payload;
-      b->etag = "\"" + tile->etag + "\"";
-      b->content_type = std::string(tiles::kLocalizationTileMediaType);
-      // The payload is already deflated: no gzip variant.
-      cache.put(ck, b);
-      blob = std::move(b);
-    }
-    metrics.tile_served("localization", reply_blob(req, res, *blob, cache_control));
-  });
+std::string Server::Impl::tile_cache_control(bool is_explicit) const {
+  return is_explicit ? std::string(kImmutable)
+                     : "public, max-age=" + std::to_string(cfg.current_tile_max_age_s) +
+                           ", must-revalidate";
+}
 
-  // ---- Mapbox Vector Tiles for GIS viewers
-  http.Get(R"(/v1/mvt/([^/]+)/([^/]+)/([^/.]+)\.mvt)", [this](const httplib::Request& req,
-                                                              httplib::Response& res) {
-    set_route("mvt");
-    const auto key = parse_key(req);
-    if (!key) {
-      metrics.tile_served("mvt", 400);
-      return reply_error(res, 400, "malformed tile address: expected z/x/y.mvt", "z/x/y");
-    }
-    if (key->z < cfg.mvt_min_zoom || key->z > cfg.mvt_max_zoom) {
-      metrics.tile_served("mvt", 404);
-      return reply_error(res, 404,
-                         "vector tiles are served for zoom " + std::to_string(cfg.mvt_min_zoom) +
-                             ".." + std::to_string(cfg.mvt_max_zoom),
-                         "z");
-    }
-    // Landmarks of a version (explicit, else current); trajectories of the stored drives
-    // are shown even before the first map exists.
-    std::shared_ptr<const VersionIndex> idx;
-    bool is_explicit = false;
-    if (req.has_param("version") || current_version()) {
-      idx = resolve_version(req, res, is_explicit);
-      if (!idx) return metrics.tile_served("mvt", res.status);
-    }
-    const std::int64_t version = idx ? idx->version : 0;
-    const std::string ck = "M/" + std::to_string(version) + "/" +
-                           std::to_string(drives_generation.load()) + "/" + key_cache_id(*key);
-    auto blob = cache.get(ck);
-    if (!blob) {
-      const tiles::MvtOptions opt;
-      const tiles::GeoBox box =
-          buffered_bounds(*key, static_cast<double>(opt.buffer) / opt.extent + 0.01);
-      tiles::MvtLayer points{"points", {}}, lines{"lines", {}}, trajectories{"trajectories", {}};
-      if (idx) {
-        const LandmarkSet lm = store.landmarks_in(version, box);
-        for (const StoredPointLandmark& p : lm.points) {
-          points.features.push_back({static_cast<std::uint64_t>(p.key),
-                                     tiles::MvtGeometryType::Point,
-                                     {{p.position}},
-                                     {{"id", std::int64_t{p.key}},
-                                      {"class", std::string(to_string(p.scattering))},
-                                      {"support_drives", std::uint64_t{p.support_drives}},
-                                      {"spread_m", p.spread_m},
-                                      {"map_version", version}}});
-        }
-        for (const StoredLineLandmark& l : lm.lines) {
-          lines.features.push_back({static_cast<std::uint64_t>(l.key),
-                                    tiles::MvtGeometryType::LineString,
-                                    {l.polyline},
-                                    {{"id", std::int64_t{l.key}},
-                                     {"support_drives", std::uint64_t{l.support_drives}},
-                                     {"spread_m", l.spread_m},
-                                     {"map_version", version}}});
-        }
-      }
-      std::uint64_t fid = 1;
-      for (const DriveRecord& d : store.drives_in(box)) {
-        const auto traj = drive_trajectory(d);
-        if (traj->size() < 2) continue;
-        trajectories.features.push_back({fid++,
-                                         tiles::MvtGeometryType::LineString,
-                                         {*traj},
-                                         {{"drive_id", d.drive_id}, {"vehicle_id", d.vehicle_id}}});
-      }
-      auto b = std::make_shared<http::CachedBlob>();
-      b->body = tiles::encode_mvt(*key, {points, lines, trajectories}, opt);
-      if (!b->body.empty()) {
-        b->gzip_body = http::gzip_compress(b->body);
-        b->etag = "\"" + content_etag(b->body).substr(0, 32) + "\"";
-      }
-      b->content_type = std::string(tiles::kMvtMediaType);
-      cache.put(ck, b);
-      blob = std::move(b);
-    }
-    const std::string cache_control = "public, max-age=60";
-    if (blob->body.empty()) {
-      res.status = 204;  // no features: viewers treat 204 as an empty tile
-      res.set_header("Cache-Control", cache_control);
-      return metrics.tile_served("mvt", 204);
-    }
-    metrics.tile_served("mvt", reply_blob(req, res, *blob, cache_control));
-  });
+bool Server::Impl::reply_not_modified(const httplib::Request& req, httplib::Response& res,
+                                      const std::string& etag, const std::string& cache_control) {
+  const std::string inm = req.get_header_value("If-None-Match");
+  if (inm.empty() || !http::if_none_match_matches(inm, etag)) return false;
+  res.status = 304;
+  res.set_header("ETag", etag);
+  res.set_header("Cache-Control", cache_control);
+  return true;
+}
 
-  // ---- TileJSON 3.0 describing the MVT layers
-  http.Get("/v1/tilejson.json", [this](const httplib::Request& req, httplib::Response& res) {
-    set_route("tilejson");
-    std::shared_ptr<const VersionIndex> idx;
-    bool is_explicit = false;
-    if (req.has_param("version") || current_version()) {
-      idx = resolve_version(req, res, is_explicit);
-      if (!idx) return;
+// ---- localization tiles
+void Server::Impl::get_localization_tile(const httplib::Request& req, httplib::Response& res) {
+  set_route("tiles");
+  const auto key = parse_key(req);
+  if (!key) {
+    metrics.tile_served("localization", 400);
+    return reply_error(res, 400,
+                       "malformed tile address '" + req.path.substr(10) +
+                           "': expected z/x/y with 0 <= x, y < 2^z, z <= 24",
+                       "z/x/y");
+  }
+  bool is_explicit = false;
+  const auto idx = resolve_version(req, res, is_explicit);
+  if (!idx) return metrics.tile_served("localization", res.status);
+  if (key->z != tiles::kLocalizationZoom) {
+    metrics.tile_served("localization", 404);
+    return reply_error(
+        res, 404,
+        "localization tiles exist at zoom " + std::to_string(tiles::kLocalizationZoom) + " only",
+        "z");
+  }
+  const std::string cache_control = tile_cache_control(is_explicit);
+  const auto it = idx->localization.find(*key);
+  if (it == idx->localization.end()) {
+    if (idx->covered.count(*key) != 0) {
+      // Inside the map, no landmarks: a cacheable "empty" answer.
+      res.status = 204;
+      res.set_header("Cache-Control", cache_control);
+      return metrics.tile_served("localization", 204);
     }
-    std::string base = cfg.public_url;
-    if (base.empty()) base = "http://" + req.get_header_value("Host");
-    while (!base.empty() && base.back() == '/') base.pop_back();
-    const std::string query = is_explicit ? "?version=" + std::to_string(idx->version) : "";
-    std::optional<tiles::GeoBox> bounds = idx ? idx->bounds : std::nullopt;
-    if (!bounds) {
-      for (const DriveRecord& d : store.list_drives()) {
-        if (!bounds) {
-          bounds = d.bbox;
-        } else {
-          bounds->min_lat_deg = std::min(bounds->min_lat_deg, d.bbox.min_lat_deg);
-          bounds->min_lon_deg = std::min(bounds->min_lon_deg, d.bbox.min_lon_deg);
-          bounds->max_lat_deg = std::max(bounds->max_lat_deg, d.bbox.max_lat_deg);
-          bounds->max_lon_deg = std::max(bounds->max_lon_deg, d.bbox.max_lon_deg);
-        }
-      }
+    metrics.tile_served("localization", 404);
+    return reply_error(res, 404,
+                       "tile " + tiles::to_string(*key) +
+                           " is outside the coverage of map version " +
+                           std::to_string(idx->version));
+  }
+  // Conditional request: answered from the version index, no payload access.
+  const std::string etag = "\"" + it->second.etag + "\"";
+  if (reply_not_modified(req, res, etag, cache_control)) {
+    return metrics.tile_served("localization", 304);
+  }
+  const std::string ck = "L/" + std::to_string(idx->version) + "/" + key_cache_id(*key);
+  auto blob = cache.get(ck);
+  if (!blob) {
+    const auto tile = store.get_tile(idx->version, TileLayer::Localization, *key);
+    if (!tile) {
+      metrics.tile_served("localization", 404);
+      return reply_error(res, 404, "tile " + tiles::to_string(*key) + " vanished from the store");
     }
-    const tiles::GeoBox b = bounds.value_or(tiles::GeoBox{-85.0511, -180, 85.0511, 180});
-    const int center_zoom = std::clamp(16, cfg.mvt_min_zoom, cfg.mvt_max_zoom);
-    nlohmann::json landmark_fields{{"id", "Number: stable landmark id"},
-                                   {"support_drives", "Number: distinct drives that saw it"},
-                                   {"spread_m", "Number: RMS distance of members to the mean, m"},
-                                   {"map_version", "Number: map version"}};
-    nlohmann::json point_fields = landmark_fields;
-    point_fields["class"] = "String: scattering class (odd, even, mixed, unknown)";
-    nlohmann::json j{
-        {"tilejson", "3.0.0"},
-        {"name", "polmap radar landmarks"},
-        {"description", "Consensus radar landmarks (points, lines) and drive trajectories"},
-        {"version", "1.0.0"},
-        {"attribution", "polmap"},
-        {"scheme", "xyz"},
-        {"tiles", {base + "/v1/mvt/{z}/{x}/{y}.mvt" + query}},
-        {"minzoom", cfg.mvt_min_zoom},
-        {"maxzoom", cfg.mvt_max_zoom},
-        {"bounds", {b.min_lon_deg, b.min_lat_deg, b.max_lon_deg, b.max_lat_deg}},
-        {"center",
-         {0.5 * (b.min_lon_deg + b.max_lon_deg), 0.5 * (b.min_lat_deg + b.max_lat_deg),
-          center_zoom}},
-        {"vector_layers",
-         {{{"id", "points"}, {"description", "point landmarks"}, {"fields", point_fields}},
-          {{"id", "lines"}, {"description", "line landmarks"}, {"fields", landmark_fields}},
-          {{"id", "trajectories"},
-           {"description", "trajectories of the stored drives (simplified to 0.25 m)"},
-           {"fields", {{"drive_id", "String"}, {"vehicle_id", "String"}}}}}},
-    };
+    auto b = std::make_shared<http::CachedBlob>();
+    b->body = tile->payload;
+    b->etag = "\"" + tile->etag + "\"";
+    b->content_type = std::string(tiles::kLocalizationTileMediaType);
+    // The payload is already deflated: no gzip variant.
+    cache.put(ck, b);
+    blob = std::move(b);
+  }
+  metrics.tile_served("localization", reply_blob(req, res, *blob, cache_control));
+}
+
+// ---- Mapbox Vector Tiles for GIS viewers
+void Server::Impl::get_mvt_tile(const httplib::Request& req, httplib::Response& res) {
+  set_route("mvt");
+  const auto key = parse_key(req);
+  if (!key) {
+    metrics.tile_served("mvt", 400);
+    return reply_error(res, 400, "malformed tile address: expected z/x/y.mvt", "z/x/y");
+  }
+  if (key->z < cfg.mvt_min_zoom || key->z > cfg.mvt_max_zoom) {
+    metrics.tile_served("mvt", 404);
+    return reply_error(res, 404,
+                       "vector tiles are served for zoom " + std::to_string(cfg.mvt_min_zoom) +
+                           ".." + std::to_string(cfg.mvt_max_zoom),
+                       "z");
+  }
+  // Landmarks of a version (explicit, else current); trajectories of the stored drives
+  // are shown even before the first map exists.
+  std::shared_ptr<const VersionIndex> idx;
+  bool is_explicit = false;
+  if (req.has_param("version") || current_version()) {
+    idx = resolve_version(req, res, is_explicit);
+    if (!idx) return metrics.tile_served("mvt", res.status);
+  }
+  const std::int64_t version = idx ? idx->version : 0;
+  const std::string ck = "M/" + std::to_string(version) + "/" +
+                         std::to_string(drives_generation.load()) + "/" + key_cache_id(*key);
+  auto blob = cache.get(ck);
+  if (!blob) {
+    const tiles::MvtOptions opt;
+    const tiles::GeoBox box =
+        buffered_bounds(*key, static_cast<double>(opt.buffer) / opt.extent + 0.01);
+    tiles::MvtLayer points{"points", {}}, lines{"lines", {}}, trajectories{"trajectories", {}};
     if (idx) {
-      j["polmap"] = {{"map_version", idx->version},
-                     {"localization_tiles", base + "/v1/tiles/{z}/{x}/{y}" + query},
-                     {"localization_zoom", tiles::kLocalizationZoom},
-                     {"gridmap_tiles", base + "/v1/gridmap/{z}/{x}/{y}.png" + query}};
-    }
-    res.status = 200;
-    res.set_content(j.dump(), kJson);
-    res.set_header("Cache-Control", is_explicit ? "public, max-age=3600" : "public, max-age=60");
-  });
-
-  // ---- fleet gridmap raster tiles
-  http.Get(R"(/v1/gridmap/([^/]+)/([^/]+)/([^/.]+)\.png)", [this](const httplib::Request& req,
-                                                                  httplib::Response& res) {
-    set_route("gridmap");
-    const auto key = parse_key(req);
-    if (!key) {
-      metrics.tile_served("gridmap", 400);
-      return reply_error(res, 400, "malformed tile address: expected z/x/y.png", "z/x/y");
-    }
-    bool is_explicit = false;
-    const auto idx = resolve_version(req, res, is_explicit);
-    if (!idx) return metrics.tile_served("gridmap", res.status);
-    const std::string cache_control =
-        is_explicit
-            ? std::string(kImmutable)
-            : "public, max-age=" + std::to_string(cfg.current_tile_max_age_s) + ", must-revalidate";
-    if (idx->gridmap.empty()) {
-      metrics.tile_served("gridmap", 404);
-      return reply_error(res, 404,
-                         "map version " + std::to_string(idx->version) + " has no fleet gridmap");
-    }
-    // The stored tile, or for zooms beyond the base zoom its base-zoom ancestor (over-zoom).
-    tiles::TileKey source = *key;
-    if (key->z > idx->gridmap_max_zoom && key->z <= idx->gridmap_max_zoom + 6) {
-      const int dz = key->z - idx->gridmap_max_zoom;
-      source = {idx->gridmap_max_zoom, key->x >> dz, key->y >> dz};
-    }
-    const auto it = idx->gridmap.find(source);
-    if (it == idx->gridmap.end()) {
-      res.status = 204;  // transparent: no drive observed this area
-      res.set_header("Cache-Control", cache_control);
-      return metrics.tile_served("gridmap", 204);
-    }
-    std::string etag = "\"" + it->second.etag;
-    if (source != *key)
-      etag += "-" + std::to_string(key->z) + "-" + std::to_string(key->x) + "-" +
-              std::to_string(key->y);
-    etag += "\"";
-    const std::string inm = req.get_header_value("If-None-Match");
-    if (!inm.empty() && http::if_none_match_matches(inm, etag)) {
-      res.status = 304;
-      res.set_header("ETag", etag);
-      res.set_header("Cache-Control", cache_control);
-      return metrics.tile_served("gridmap", 304);
-    }
-    const std::string ck = "G/" + std::to_string(idx->version) + "/" + key_cache_id(*key);
-    auto blob = cache.get(ck);
-    if (!blob) {
-      const auto tile = store.get_tile(idx->version, TileLayer::Gridmap, source);
-      if (!tile) {
-        metrics.tile_served("gridmap", 404);
-        return reply_error(res, 404, "gridmap tile vanished from the store");
+      const LandmarkSet lm = store.landmarks_in(version, box);
+      for (const StoredPointLandmark& p : lm.points) {
+        points.features.push_back({static_cast<std::uint64_t>(p.key),
+                                   tiles::MvtGeometryType::Point,
+                                   {{p.position}},
+                                   {{"id", std::int64_t{p.key}},
+                                    {"class", std::string(to_string(p.scattering))},
+                                    {"support_drives", std::uint64_t{p.support_drives}},
+                                    {"spread_m", p.spread_m},
+                                    {"map_version", version}}});
       }
-      auto b = std::make_shared<http::CachedBlob>();
-      b->body = source == *key ? gridmap_png(tile->payload)
-                               : gridmap_overzoom_png(tile->payload, source, *key);
-      b->etag = etag;
-      b->content_type = "image/png";
-      cache.put(ck, b);
-      blob = std::move(b);
+      for (const StoredLineLandmark& l : lm.lines) {
+        lines.features.push_back({static_cast<std::uint64_t>(l.key),
+                                  tiles::MvtGeometryType::LineString,
+                                  {l.polyline},
+                                  {{"id", std::int64_t{l.key}},
+                                   {"support_drives", std::uint64_t{l.support_drives}},
+                                   {"spread_m", l.spread_m},
+                                   {"map_version", version}}});
+      }
     }
-    metrics.tile_served("gridmap", reply_blob(req, res, *blob, cache_control));
-  });
+    std::uint64_t fid = 1;
+    for (const DriveRecord& d : store.drives_in(box)) {
+      const auto traj = drive_trajectory(d);
+      if (traj->size() < 2) continue;
+      trajectories.features.push_back({fid++,
+                                       tiles::MvtGeometryType::LineString,
+                                       {*traj},
+                                       {{"drive_id", d.drive_id}, {"vehicle_id", d.vehicle_id}}});
+    }
+    auto b = std::make_shared<http::CachedBlob>();
+    b->body = tiles::encode_mvt(*key, {points, lines, trajectories}, opt);
+    if (!b->body.empty()) {
+      b->gzip_body = http::gzip_compress(b->body);
+      b->etag = "\"" + content_etag(b->body).substr(0, 32) + "\"";
+    }
+    b->content_type = std::string(tiles::kMvtMediaType);
+    cache.put(ck, b);
+    blob = std::move(b);
+  }
+  const std::string cache_control = "public, max-age=60";
+  if (blob->body.empty()) {
+    res.status = 204;  // no features: viewers treat 204 as an empty tile
+    res.set_header("Cache-Control", cache_control);
+    return metrics.tile_served("mvt", 204);
+  }
+  metrics.tile_served("mvt", reply_blob(req, res, *blob, cache_control));
+}
+
+// ---- TileJSON 3.0 describing the MVT layers
+void Server::Impl::get_tilejson(const httplib::Request& req, httplib::Response& res) {
+  set_route("tilejson");
+  std::shared_ptr<const VersionIndex> idx;
+  bool is_explicit = false;
+  if (req.has_param("version") || current_version()) {
+    idx = resolve_version(req, res, is_explicit);
+    if (!idx) return;
+  }
+  std::string base = cfg.public_url;
+  if (base.empty()) base = "http://" + req.get_header_value("Host");
+  while (!base.empty() && base.back() == '/') base.pop_back();
+  const std::string query = is_explicit ? "?version=" + std::to_string(idx->version) : "";
+  std::optional<tiles::GeoBox> bounds = idx ? idx->bounds : std::nullopt;
+  if (!bounds) {
+    for (const DriveRecord& d : store.list_drives()) {
+      if (!bounds) {
+        bounds = d.bbox;
+      } else {
+        bounds->min_lat_deg = std::min(bounds->min_lat_deg, d.bbox.min_lat_deg);
+        bounds->min_lon_deg = std::min(bounds->min_lon_deg, d.bbox.min_lon_deg);
+        bounds->max_lat_deg = std::max(bounds->max_lat_deg, d.bbox.max_lat_deg);
+        bounds->max_lon_deg = std::max(bounds->max_lon_deg, d.bbox.max_lon_deg);
+      }
+    }
+  }
+  const tiles::GeoBox b = bounds.value_or(tiles::GeoBox{-85.0511, -180, 85.0511, 180});
+  const int center_zoom = std::clamp(16, cfg.mvt_min_zoom, cfg.mvt_max_zoom);
+  nlohmann::json landmark_fields{{"id", "Number: stable landmark id"},
+                                 {"support_drives", "Number: distinct drives that saw it"},
+                                 {"spread_m", "Number: RMS distance of members to the mean, m"},
+                                 {"map_version", "Number: map version"}};
+  nlohmann::json point_fields = landmark_fields;
+  point_fields["class"] = "String: scattering class (odd, even, mixed, unknown)";
+  nlohmann::json j{
+      {"tilejson", "3.0.0"},
+      {"name", "polmap radar landmarks"},
+      {"description", "Consensus radar landmarks (points, lines) and drive trajectories"},
+      {"version", "1.0.0"},
+      {"attribution", "polmap"},
+      {"scheme", "xyz"},
+      {"tiles", {base + "/v1/mvt/{z}/{x}/{y}.mvt" + query}},
+      {"minzoom", cfg.mvt_min_zoom},
+      {"maxzoom", cfg.mvt_max_zoom},
+      {"bounds", {b.min_lon_deg, b.min_lat_deg, b.max_lon_deg, b.max_lat_deg}},
+      {"center",
+       {0.5 * (b.min_lon_deg + b.max_lon_deg), 0.5 * (b.min_lat_deg + b.max_lat_deg), center_zoom}},
+      {"vector_layers",
+       {{{"id", "points"}, {"description", "point landmarks"}, {"fields", point_fields}},
+        {{"id", "lines"}, {"description", "line landmarks"}, {"fields", landmark_fields}},
+        {{"id", "trajectories"},
+         {"description", "trajectories of the stored drives (simplified to 0.25 m)"},
+         {"fields", {{"drive_id", "String"}, {"vehicle_id", "String"}}}}}},
+  };
+  if (idx) {
+    j["polmap"] = {{"map_version", idx->version},
+                   {"localization_tiles", base + "/v1/tiles/{z}/{x}/{y}" + query},
+                   {"localization_zoom", tiles::kLocalizationZoom},
+                   {"gridmap_tiles", base + "/v1/gridmap/{z}/{x}/{y}.png" + query}};
+  }
+  res.status = 200;
+  res.set_content(j.dump(), kJson);
+  res.set_header("Cache-Control", is_explicit ? "public, max-age=3600" : "public, max-age=60");
+}
+
+// ---- fleet gridmap raster tiles
+void Server::Impl::get_gridmap_tile(const httplib::Request& req, httplib::Response& res) {
+  set_route("gridmap");
+  const auto key = parse_key(req);
+  if (!key) {
+    metrics.tile_served("gridmap", 400);
+    return reply_error(res, 400, "malformed tile address: expected z/x/y.png", "z/x/y");
+  }
+  bool is_explicit = false;
+  const auto idx = resolve_version(req, res, is_explicit);
+  if (!idx) return metrics.tile_served("gridmap", res.status);
+  const std::string cache_control = tile_cache_control(is_explicit);
+  if (idx->gridmap.empty()) {
+    metrics.tile_served("gridmap", 404);
+    return reply_error(res, 404,
+                       "map version " + std::to_string(idx->version) + " has no fleet gridmap");
+  }
+  // The stored tile, or for zooms beyond the base zoom its base-zoom ancestor (over-zoom).
+  tiles::TileKey source = *key;
+  if (key->z > idx->gridmap_max_zoom && key->z <= idx->gridmap_max_zoom + 6) {
+    const int dz = key->z - idx->gridmap_max_zoom;
+    source = {idx->gridmap_max_zoom, key->x >> dz, key->y >> dz};
+  }
+  const auto it = idx->gridmap.find(source);
+  if (it == idx->gridmap.end()) {
+    res.status = 204;  // transparent: no drive observed this area
+    res.set_header("Cache-Control", cache_control);
+    return metrics.tile_served("gridmap", 204);
+  }
+  std::string etag = "\"" + it->second.etag;
+  if (source != *key)
+    etag +=
+        "-" + std::to_string(key->z) + "-" + std::to_string(key->x) + "-" + std::to_string(key->y);
+  etag += "\"";
+  if (reply_not_modified(req, res, etag, cache_control)) {
+    return metrics.tile_served("gridmap", 304);
+  }
+  const std::string ck = "G/" + std::to_string(idx->version) + "/" + key_cache_id(*key);
+  auto blob = cache.get(ck);
+  if (!blob) {
+    const auto tile = store.get_tile(idx->version, TileLayer::Gridmap, source);
+    if (!tile) {
+      metrics.tile_served("gridmap", 404);
+      return reply_error(res, 404, "gridmap tile vanished from the store");
+    }
+    auto b = std::make_shared<http::CachedBlob>();
+    b->body = source == *key ? gridmap_png(tile->payload)
+                             : gridmap_overzoom_png(tile->payload, source, *key);
+    b->etag = etag;
+    b->content_type = "image/png";
+    cache.put(ck, b);
+    blob = std::move(b);
+  }
+  metrics.tile_served("gridmap", reply_blob(req, res, *blob, cache_control));
+}
+
+void Server::Impl::register_tile_routes() {
+  using Handler = void (Server::Impl::*)(const httplib::Request&, httplib::Response&);
+  auto route = [this](Handler h) {
+    return [this, h](const httplib::Request& req, httplib::Response& res) { (this->*h)(req, res); };
+  };
+  http.Get(R"(/v1/tiles/([^/]+)/([^/]+)/([^/]+))", route(&Impl::get_localization_tile));
+  http.Get(R"(/v1/mvt/([^/]+)/([^/]+)/([^/.]+)\.mvt)", route(&Impl::get_mvt_tile));
+  http.Get("/v1/tilejson.json", route(&Impl::get_tilejson));
+  http.Get(R"(/v1/gridmap/([^/]+)/([^/]+)/([^/.]+)\.png)", route(&Impl::get_gridmap_tile));
 }
 
 }  // namespace polmap::mapping

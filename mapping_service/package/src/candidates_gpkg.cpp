@@ -5,6 +5,7 @@
 
 #include <cmath>
 
+#include "candidates_schema.hpp"
 #include "package_internal.hpp"
 #include "polmap/schema/json.hpp"
 
@@ -14,18 +15,16 @@ namespace polmap::mapping::detail {
 
 namespace {
 
-OGRLayer* create_layer(GDALDataset& ds, const char* name, OGRSpatialReference& srs,
-                       OGRwkbGeometryType type, const char* description,
-                       const std::vector<std::pair<const char*, OGRFieldType>>& fields,
+OGRLayer* create_layer(GDALDataset& ds, const GpkgLayerSchema& schema, OGRSpatialReference& srs,
                        const std::string& path) {
-  const std::string desc = std::string("DESCRIPTION=") + description;
+  const std::string desc = std::string("DESCRIPTION=") + schema.description;
   const char* opts[] = {desc.c_str(), nullptr};
-  OGRLayer* layer = ds.CreateLayer(name, &srs, type, const_cast<char**>(opts));
-  if (layer == nullptr) throw IoError(path + ": cannot create layer " + name);
-  for (const auto& [fname, ftype] : fields) {
-    OGRFieldDefn def(fname, ftype);
+  OGRLayer* layer = ds.CreateLayer(schema.name, &srs, schema.geometry, const_cast<char**>(opts));
+  if (layer == nullptr) throw IoError(path + ": cannot create layer " + schema.name);
+  for (const auto& f : schema.fields) {
+    OGRFieldDefn def(f.name, f.type);
     if (layer->CreateField(&def) != OGRERR_NONE) {
-      throw IoError(path + ": cannot create field " + name + "." + fname);
+      throw IoError(path + ": cannot create field " + schema.name + "." + f.name);
     }
   }
   return layer;
@@ -56,37 +55,9 @@ void write_candidates_gpkg(const std::string& path, const tiles::LocalFrame& fra
   wgs84.importFromEPSG(4326);
   wgs84.SetAxisMappingStrategy(OAMS_TRADITIONAL_GIS_ORDER);
 
-  OGRLayer* lp = create_layer(*ds, "points", wgs84, wkbPoint,
-                              "pCFAR point candidates; x_m/y_m in the drive frame",
-                              {{"strength", OFTReal},
-                               {"power_db", OFTReal},
-                               {"scattering", OFTString},
-                               {"num_cells", OFTInteger64},
-                               {"x_m", OFTReal},
-                               {"y_m", OFTReal}},
-                              path);
-  OGRLayer* ll = create_layer(*ds, "lines", wgs84, wkbLineString,
-                              "line candidates; x0_m..y1_m in the drive frame",
-                              {{"strength", OFTReal},
-                               {"x0_m", OFTReal},
-                               {"y0_m", OFTReal},
-                               {"x1_m", OFTReal},
-                               {"y1_m", OFTReal},
-                               {"length_m", OFTReal}},
-                              path);
-  OGRLayer* lt = create_layer(*ds, "trajectory", wgs84, wkbPoint,
-                              "GNSS/IMU trajectory samples; x_m/y_m in the drive frame",
-                              {{"time_s", OFTReal},
-                               {"yaw_enu_rad", OFTReal},
-                               {"speed_mps", OFTReal},
-                               {"yaw_rate_rps", OFTReal},
-                               {"std_east_m", OFTReal},
-                               {"std_north_m", OFTReal},
-                               {"std_yaw_rad", OFTReal},
-                               {"solution", OFTString},
-                               {"x_m", OFTReal},
-                               {"y_m", OFTReal}},
-                              path);
+  OGRLayer* lp = create_layer(*ds, kPointsLayer, wgs84, path);
+  OGRLayer* ll = create_layer(*ds, kLinesLayer, wgs84, path);
+  OGRLayer* lt = create_layer(*ds, kTrajectoryLayer, wgs84, path);
 
   if (ds->StartTransaction() != OGRERR_NONE) throw IoError(path + ": cannot start transaction");
   {

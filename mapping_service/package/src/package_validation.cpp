@@ -11,6 +11,7 @@
 #include <map>
 #include <optional>
 
+#include "candidates_schema.hpp"
 #include "package_internal.hpp"
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/mapping_service/ustar.hpp"
@@ -331,13 +332,9 @@ GridmapScan validate_gridmap(const std::string& path, const DriveManifest& m,
 
 // ------------------------------------------------------------------------ GeoPackage
 
-struct FieldSpec {
-  const char* name;
-  OGRFieldType type;
-};
-
-OGRLayer* require_layer(GDALDataset& ds, const char* name, OGRwkbGeometryType geom,
-                        const std::vector<FieldSpec>& fields) {
+OGRLayer* require_layer(GDALDataset& ds, const detail::GpkgLayerSchema& schema) {
+  const char* name = schema.name;
+  const OGRwkbGeometryType geom = schema.geometry;
   OGRLayer* layer = ds.GetLayerByName(name);
   if (layer == nullptr) invalid(kGpkg, name, "layer missing");
   if (wkbFlatten(layer->GetGeomType()) != geom) {
@@ -353,7 +350,7 @@ OGRLayer* require_layer(GDALDataset& ds, const char* name, OGRwkbGeometryType ge
     invalid(kGpkg, name, "SRS is not WGS84 (EPSG:4326)");
   }
   OGRFeatureDefn* defn = layer->GetLayerDefn();
-  for (const auto& f : fields) {
+  for (const auto& f : schema.fields) {
     const int idx = defn->GetFieldIndex(f.name);
     if (idx < 0) invalid(kGpkg, std::string(name) + "." + f.name, "field missing");
     const OGRFieldType t = defn->GetFieldDefn(idx)->GetType();
@@ -476,30 +473,9 @@ void read_candidates(const std::string& path, const DriveManifest& m,
            p.y() >= g.origin_y_m - g.height * m.cell_size_m - margin;
   };
 
-  OGRLayer* lp = require_layer(*ds, "points", wkbPoint,
-                               {{"strength", OFTReal},
-                                {"power_db", OFTReal},
-                                {"scattering", OFTString},
-                                {"num_cells", OFTInteger64},
-                                {"x_m", OFTReal},
-                                {"y_m", OFTReal}});
-  OGRLayer* ll = require_layer(*ds, "lines", wkbLineString,
-                               {{"strength", OFTReal},
-                                {"x0_m", OFTReal},
-                                {"y0_m", OFTReal},
-                                {"x1_m", OFTReal},
-                                {"y1_m", OFTReal}});
-  OGRLayer* lt = require_layer(*ds, "trajectory", wkbPoint,
-                               {{"time_s", OFTReal},
-                                {"yaw_enu_rad", OFTReal},
-                                {"speed_mps", OFTReal},
-                                {"yaw_rate_rps", OFTReal},
-                                {"std_east_m", OFTReal},
-                                {"std_north_m", OFTReal},
-                                {"std_yaw_rad", OFTReal},
-                                {"solution", OFTString},
-                                {"x_m", OFTReal},
-                                {"y_m", OFTReal}});
+  OGRLayer* lp = require_layer(*ds, detail::kPointsLayer);
+  OGRLayer* ll = require_layer(*ds, detail::kLinesLayer);
+  OGRLayer* lt = require_layer(*ds, detail::kTrajectoryLayer);
   std::uint64_t max_points = cfg.max_points;
   if (cfg.check_gridmap_values) max_points = std::min(max_points, scan.observed_cells);
   check_count("points", lp, m.counts.points, max_points);

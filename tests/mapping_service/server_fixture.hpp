@@ -85,7 +85,7 @@ class ServerFixture : public ::testing::Test {
   void start(ServerConfig cfg) {
     dir_ = polmap::test::unique_test_dir("server");
     std::filesystem::create_directories(dir_ / "uploads");
-    SqliteStoreOptions so;
+    SqliteStoreOptions so = store_options_;
     so.orphan_grace_s = 0;
     store_ = std::make_unique<SqliteMapStore>(dir_ / "map.db", so);
     cfg.api_keys = {kKey, kOtherKey};
@@ -173,6 +173,8 @@ class ServerFixture : public ::testing::Test {
   int port_ = 0;
   std::mutex log_mutex_;
   std::vector<std::string> log_;
+  /// Options of the store the next start() opens (tests set fault hooks here).
+  SqliteStoreOptions store_options_;
 
  private:
   static std::atomic<int>& counter() {

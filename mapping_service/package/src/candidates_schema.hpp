@@ -19,16 +19,16 @@ struct GpkgLayerSchema {
   std::span<const GpkgField> fields;
 };
 
-inline constexpr GpkgField kPointFields[] = {{"strength", OFTReal},    {"power_db", OFTReal},
+inline constexpr GpkgField kPointFields[] = {{"strength", OFTReal},     {"power_db", OFTReal},
                                              {"scattering", OFTString}, {"num_cells", OFTInteger64},
                                              {"x_m", OFTReal},          {"y_m", OFTReal}};
 inline constexpr GpkgField kLineFields[] = {{"strength", OFTReal}, {"x0_m", OFTReal},
                                             {"y0_m", OFTReal},     {"x1_m", OFTReal},
                                             {"y1_m", OFTReal},     {"length_m", OFTReal}};
 inline constexpr GpkgField kTrajectoryFields[] = {
-    {"time_s", OFTReal},     {"yaw_enu_rad", OFTReal}, {"speed_mps", OFTReal},
-    {"yaw_rate_rps", OFTReal}, {"std_east_m", OFTReal}, {"std_north_m", OFTReal},
-    {"std_yaw_rad", OFTReal}, {"solution", OFTString}, {"x_m", OFTReal},
+    {"time_s", OFTReal},       {"yaw_enu_rad", OFTReal}, {"speed_mps", OFTReal},
+    {"yaw_rate_rps", OFTReal}, {"std_east_m", OFTReal},  {"std_north_m", OFTReal},
+    {"std_yaw_rad", OFTReal},  {"solution", OFTString},  {"x_m", OFTReal},
     {"y_m", OFTReal}};
 
 inline constexpr GpkgLayerSchema kPointsLayer{

@@ -39,6 +39,14 @@ std::string iso8601_now();
 
 using util::secrets_equal;  // constant-time comparison of keys
 
+/// `s` made safe for a one-line log: printable ASCII kept, backslash and every other byte
+/// (control characters, CR/LF, non-ASCII) as \xHH; cut at max_bytes with "...".
+std::string escape_for_log(std::string_view s, std::size_t max_bytes = 4096);
+
+/// The method as a metrics label: a standard HTTP method, or "other" (a client must not
+/// be able to create label values, each of which is kept forever).
+std::string_view metric_method(std::string_view method);
+
 /// Parses "minlon,minlat,maxlon,maxlat" (degrees); nullopt if malformed or out of range.
 std::optional<tiles::GeoBox> parse_bbox(std::string_view s);
 

@@ -116,7 +116,7 @@ void Server::Impl::log(std::string_view level, std::string_view message) const {
   line += ' ';
   line += level;
   line += ' ';
-  line += message;
+  line += http::escape_for_log(message);  // request paths, drive ids: never raw
   cfg.log_sink(line);
 }
 
@@ -286,7 +286,7 @@ void Server::Impl::register_routes() {
     if (bytes == 0 && res.has_header("Content-Length")) {
       bytes = std::strtoull(res.get_header_value("Content-Length").c_str(), nullptr, 10);
     }
-    metrics.observe_request(route, req.method, res.status, seconds, bytes);
+    metrics.observe_request(route, http::metric_method(req.method), res.status, seconds, bytes);
     if (cfg.log_requests) {
       char buf[96];
       std::snprintf(buf, sizeof buf, " %d %llu B %.2f ms", res.status,
@@ -297,7 +297,9 @@ void Server::Impl::register_routes() {
   http.set_error_handler([](const httplib::Request& req, httplib::Response& res) {
     if (!res.body.empty()) return;
     if (res.status == 404) {
-      reply_error(res, 404, "no such endpoint: " + req.method + " " + req.path);
+      reply_error(res, 404,
+                  "no such endpoint: " + http::escape_for_log(req.method, 16) + " " +
+                      http::escape_for_log(req.path, 256));
     } else if (res.status == 413) {
       reply_error(res, 413, "request body too large");
     } else if (res.status >= 400) {
@@ -317,11 +319,16 @@ void Server::Impl::register_routes() {
         } catch (const FormatError& e) {
           reply_error(res, 400, e.what());
         } catch (const std::exception& e) {
-          log("error", req.method + " " + req.path + ": " + e.what());
-          reply_error(res, 500, std::string("internal error: ") + e.what());
+          // The detail goes to the log only: a client learns that it failed, not why.
+          const std::uint64_t id = ++internal_errors;
+          log("error", "internal error #" + std::to_string(id) + " in " + req.method + " " +
+                           req.path + ": " + e.what());
+          reply_error(res, 500, "internal error (logged as #" + std::to_string(id) + ")");
         } catch (...) {
-          log("error", req.method + " " + req.path + ": unknown exception");
-          reply_error(res, 500, "internal error");
+          const std::uint64_t id = ++internal_errors;
+          log("error", "internal error #" + std::to_string(id) + " in " + req.method + " " +
+                           req.path + ": unknown exception");
+          reply_error(res, 500, "internal error (logged as #" + std::to_string(id) + ")");
         }
       });
 

@@ -8,6 +8,7 @@
 
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/schema/errors.hpp"
+#include "polmap/util/file.hpp"
 #include "polmap/util/sha256.hpp"
 #include "server_impl.hpp"
 
@@ -168,7 +169,10 @@ void Server::Impl::register_drive_routes() {
       res.set_header("Location", "/v1/drives/" + existing->drive_id);
       return reply_json(res, 200, j);
     }
-    auto pkg = try_read_and_validate_package(upload.path());
+    // One parser, one canonical copy: the bytes validated here are unpacked by the same ustar
+    // reader into member files, and only those are stored; GDAL never sees the archive.
+    const std::string bytes = util::read_file_bytes(upload.path());
+    auto pkg = try_validate_package_bytes(bytes);
     if (!pkg) {
       const PackageError& e = pkg.error();
       metrics.upload(e.http_status == 422 ? "invalid" : "bad_request", received);
@@ -178,7 +182,9 @@ void Server::Impl::register_drive_routes() {
     }
     PutDriveResult put;
     try {
-      put = store.put_drive(*pkg, upload.path(), hash);
+      const util::ScopedTempDir members = util::ScopedTempDir::create(dir, "polmap-upload-members");
+      unpack_drive_package(bytes, members.path());
+      put = store.put_drive(*pkg, members.path(), hash);
     } catch (const ConflictError& e) {
       metrics.upload("conflict", received);
       return reply_error(res, 409, e.what(), "drive_id");

@@ -59,7 +59,10 @@ struct Server::Impl {
   bool listening = false;
 
   // ---- logging
+  /// One line to the log sink; the message is escaped (escape_for_log).
   void log(std::string_view level, std::string_view message) const;
+  /// Internal errors so far: their number is the reference a 500 reply gives.
+  std::atomic<std::uint64_t> internal_errors{0};
 
   // ---- helpers for handlers
   /// True if the request carries a valid bearer key; otherwise fills a 401 reply.

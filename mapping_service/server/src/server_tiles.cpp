@@ -1,6 +1,4 @@
 // Tile endpoints: localization tiles, MVT, TileJSON, fleet gridmap PNG tiles.
-#include <gdal.h>
-#include <ogrsf_frmts.h>
 
 #include <cmath>
 
@@ -9,6 +7,7 @@
 #include "polmap/tiles/local_frame.hpp"
 #include "polmap/tiles/localization_tile.hpp"
 #include "polmap/tiles/mvt.hpp"
+#include "polmap/tiles/polyline_simplify.hpp"
 #include "server_impl.hpp"
 
 namespace polmap::mapping {
@@ -23,29 +22,6 @@ std::optional<tiles::TileKey> parse_key(const httplib::Request& req) {
 }
 
 std::string key_cache_id(const tiles::TileKey& k) { return tiles::to_string(k); }
-
-// Douglas–Peucker on metric coordinates: keeps the trajectory's shape within tol_m.
-void simplify(const std::vector<Eigen::Vector2d>& p, std::size_t a, std::size_t b, double tol_m,
-              std::vector<bool>& keep) {
-  if (b <= a + 1) return;
-  const Eigen::Vector2d d = p[b] - p[a];
-  const double len = d.norm();
-  double worst = -1.0;
-  std::size_t at = a;
-  for (std::size_t i = a + 1; i < b; ++i) {
-    const Eigen::Vector2d v = p[i] - p[a];
-    const double dist = len > 1e-9 ? std::abs(d.x() * v.y() - d.y() * v.x()) / len : v.norm();
-    if (dist > worst) {
-      worst = dist;
-      at = i;
-    }
-  }
-  if (worst > tol_m) {
-    keep[at] = true;
-    simplify(p, a, at, tol_m, keep);
-    simplify(p, at, b, tol_m, keep);
-  }
-}
 
 tiles::GeoBox buffered_bounds(const tiles::TileKey& key, double fraction) {
   tiles::GeoBox b = tiles::tile_bounds(key);
@@ -68,36 +44,16 @@ std::shared_ptr<const std::vector<GeoPoint>> Server::Impl::drive_trajectory(
     if (auto it = trajectories.find(drive.content_hash); it != trajectories.end())
       return it->second;
   }
-  auto out = std::make_shared<std::vector<GeoPoint>>();
-  const std::string path = package_member_gdal_path(drive.package_path, kCandidatesFileName);
-  GDALDatasetUniquePtr ds(GDALDataset::Open(path.c_str(), GDAL_OF_VECTOR | GDAL_OF_READONLY,
-                                            nullptr, nullptr, nullptr));
-  OGRLayer* layer = ds ? ds->GetLayerByName("trajectory") : nullptr;
-  if (layer == nullptr) {
-    log("warn", "drive " + drive.drive_id + ": no trajectory layer in " + path);
-  } else {
-    std::vector<GeoPoint> raw;
-    layer->ResetReading();
-    for (auto& f : *layer) {
-      const OGRGeometry* g = f->GetGeometryRef();
-      if (g != nullptr && wkbFlatten(g->getGeometryType()) == wkbPoint) {
-        const auto* p = g->toPoint();
-        raw.push_back({p->getY(), p->getX(), 0.0});
-      }
+  // From the store's validated, decimated copy: the server never re-opens package files
+  // to draw a map.
+  std::vector<GeoPoint> raw;
+  try {
+    for (const TrajectorySample& t : store.drive_trajectory(drive.drive_id)) {
+      raw.push_back({t.lat_deg, t.lon_deg, 0.0});
     }
-    if (!raw.empty()) {
-      const tiles::LocalFrame frame(raw.front());
-      std::vector<Eigen::Vector2d> xy;
-      xy.reserve(raw.size());
-      for (const GeoPoint& g : raw) xy.push_back(frame.to_local(g));
-      std::vector<bool> keep(raw.size(), false);
-      keep.front() = keep.back() = true;
-      simplify(xy, 0, raw.size() - 1, 0.25, keep);
-      for (std::size_t i = 0; i < raw.size(); ++i) {
-        if (keep[i]) out->push_back(raw[i]);
-      }
-    }
+  } catch (const NotFoundError&) {  // deleted meanwhile: nothing to draw
   }
+  auto out = std::make_shared<std::vector<GeoPoint>>(tiles::simplify_polyline(raw, 0.25));
   std::lock_guard lock(trajectory_mutex);
   return trajectories.try_emplace(drive.content_hash, std::move(out)).first->second;
 }

@@ -9,6 +9,7 @@
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <set>
+#include <thread>
 
 #include "mapping_service/server_fixture.hpp"
 #include "polmap/mapping_service/ustar.hpp"
@@ -20,6 +21,20 @@ namespace polmap::mapping::testing {
 namespace {
 
 using nlohmann::json;
+
+/// The package archive `tar` with one field of its manifest.json set to `value`.
+std::string with_manifest_field(const std::string& tar, const std::string& field,
+                                const json& value) {
+  auto members = read_ustar(tar);
+  for (auto& m : members) {
+    if (m.name == "manifest.json") {
+      json mf = json::parse(m.data);
+      mf[field] = value;
+      m.data = mf.dump(2);
+    }
+  }
+  return write_ustar(members);
+}
 
 // Sends raw bytes on a fresh connection; optionally half-closes; returns what the server sent.
 std::string raw_exchange(int port, const std::string& bytes, bool read_reply = true) {
@@ -130,12 +145,17 @@ TEST_F(ServerTest, HealthMetricsCorsAndUnknownRoutes) {
   EXPECT_NE(r->get_header_value("Access-Control-Allow-Headers").find("Authorization"),
             std::string::npos);
 
-  r = c.Get("/metrics");
+  // The server records a request after writing its response: a new connection may be
+  // answered before that, so poll briefly.
+  const std::string health_line =
+      "polmap_http_requests_total{route=\"health\",method=\"GET\",status=\"200\"} 1";
+  for (int i = 0; i < 100; ++i) {
+    r = c.Get("/metrics");
+    if (r && r->body.find(health_line) != std::string::npos) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
   EXPECT_EQ(r->status, 200);
-  EXPECT_NE(
-      r->body.find("polmap_http_requests_total{route=\"health\",method=\"GET\",status=\"200\"} 1"),
-      std::string::npos)
-      << r->body;
+  EXPECT_NE(r->body.find(health_line), std::string::npos) << r->body;
   EXPECT_NE(
       r->body.find("polmap_http_request_duration_seconds_bucket{route=\"health\",le=\"+Inf\"} 1"),
       std::string::npos);
@@ -212,16 +232,10 @@ TEST_F(ServerTest, UploadIsIdempotentAndConflictsAreRejected) {
 
   // Same drive id, different content: 409, nothing changes.
   const std::size_t entries = drive_store_entries();
-  auto members = read_ustar(scene_tar("scene_drive_1", 12));
   // Re-use drive 1's files under drive 0's id: a different archive with the same drive_id.
-  for (auto& m : members) {
-    if (m.name == "manifest.json") {
-      json mf = json::parse(m.data);
-      mf["drive_id"] = "scene_drive_0";
-      m.data = mf.dump(2);
-    }
-  }
-  r = c.Post("/v1/drives", auth(), write_ustar(members), "application/x-tar");
+  r = c.Post("/v1/drives", auth(),
+             with_manifest_field(scene_tar("scene_drive_1", 12), "drive_id", "scene_drive_0"),
+             "application/x-tar");
   EXPECT_EQ(r->status, 409) << r->body;
   EXPECT_EQ(body_json(r)["field"], "drive_id");
   EXPECT_EQ(store_->list_drives().size(), 1u);
@@ -238,6 +252,69 @@ TEST_F(ServerTest, UploadIsIdempotentAndConflictsAreRejected) {
   EXPECT_EQ(c.Get("/v1/drives/scene_drive_0")->status, 404);
   EXPECT_EQ(c.Delete("/v1/drives/scene_drive_0", auth())->status, 404);
   EXPECT_EQ(upload_leftovers(), 0u);
+}
+
+TEST_F(ServerTest, StoredPackagesAreTheValidatedMembersNotTheUpload) {
+  auto c = client();
+  auto r = c.Post("/v1/drives", auth(), scene_tar("scene_drive_0", 11), "application/x-tar");
+  ASSERT_EQ(r->status, 201) << r->body;
+  // The store holds the members the validator read (no archive for GDAL's /vsitar/ to read
+  // differently), byte for byte as in the upload.
+  const auto d = store_->get_drive("scene_drive_0");
+  ASSERT_TRUE(d);
+  ASSERT_TRUE(std::filesystem::is_directory(d->package_path)) << d->package_path;
+  std::set<std::string> names;
+  for (const auto& e : std::filesystem::directory_iterator(d->package_path)) {
+    EXPECT_TRUE(e.is_regular_file()) << e.path();
+    names.insert(e.path().filename().string());
+  }
+  EXPECT_EQ(names, (std::set<std::string>{"manifest.json", "gridmap.tif", "candidates.gpkg"}));
+  for (const auto& m : read_ustar(scene_tar("scene_drive_0", 11))) {
+    EXPECT_EQ(util::read_file_bytes(d->package_path / m.name), m.data) << m.name;
+  }
+  EXPECT_EQ(upload_leftovers(), 0u);
+}
+
+TEST_F(ServerTest, InternalErrorsAreLoggedNotShownAndLogsAreEscaped) {
+  store_options_.fault_hook = [](std::string_view stage) {
+    if (stage == "rows_inserted") throw std::runtime_error("disk detail /srv/secret/path");
+  };
+  restart(ServerConfig{});
+  auto c = client();
+  auto r = c.Post("/v1/drives", auth(), scene_tar("scene_drive_0", 11), "application/x-tar");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 500);
+  EXPECT_EQ(r->body.find("secret"), std::string::npos) << r->body;
+  EXPECT_NE(body_json(r)["error"].get<std::string>().find("internal error (logged as #"),
+            std::string::npos)
+      << r->body;
+  EXPECT_FALSE(store_->get_drive("scene_drive_0"));  // nothing half-stored
+  bool logged = false;
+  for (const auto& l : log_lines())
+    logged = logged || l.find("/srv/secret/path") != std::string::npos;
+  EXPECT_TRUE(logged);
+
+  // A path with a line break and an escape sequence is logged as one escaped line.
+  r = c.Get("/v1/no%0Asuch%1B[31m");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 404);
+  for (const auto& l : log_lines()) {
+    for (const char ch : l) EXPECT_TRUE(ch >= 0x20 && ch < 0x7f) << l;
+  }
+  // Unknown methods do not mint metric label values.
+  for (int i = 0; i < 20; ++i) {
+    httplib::Request req;
+    req.method = "XMETHOD";
+    req.method.push_back(static_cast<char>('A' + i));
+    req.path = "/v1/health";
+    httplib::Response res;
+    httplib::Error err;
+    c.send(req, res, err);
+  }
+  r = c.Get("/metrics");
+  ASSERT_EQ(r->status, 200);
+  EXPECT_EQ(r->body.find("method=\"XMETHOD"), std::string::npos) << r->body;
+  EXPECT_NE(r->body.find("method=\"other\""), std::string::npos) << r->body;
 }
 
 TEST_F(ServerTest, BadUploadsLeaveNoTrace) {
@@ -272,15 +349,8 @@ TEST_F(ServerTest, BadUploadsLeaveNoTrace) {
   unchanged();
 
   // Parses, but violates the schema: 422 naming file and field.
-  auto members = read_ustar(good);
-  for (auto& m : members) {
-    if (m.name == "manifest.json") {
-      json mf = json::parse(m.data);
-      mf["pol_level"] = "quadruple";
-      m.data = mf.dump(2);
-    }
-  }
-  r = c.Post("/v1/drives", auth(), write_ustar(members), "application/x-tar");
+  r = c.Post("/v1/drives", auth(), with_manifest_field(good, "pol_level", "quadruple"),
+             "application/x-tar");
   EXPECT_EQ(r->status, 422) << r->body;
   const json e = body_json(r);
   EXPECT_EQ(e["field"], "pol_level") << r->body;
@@ -288,7 +358,7 @@ TEST_F(ServerTest, BadUploadsLeaveNoTrace) {
   unchanged();
 
   // A data file that does not match its manifest hash.
-  members = read_ustar(good);
+  auto members = read_ustar(good);
   for (auto& m : members) {
     if (m.name == "candidates.gpkg") m.data[m.data.size() / 2] ^= 0x55;
   }

@@ -1,0 +1,56 @@
+#include "polmap/tiles/polyline_simplify.hpp"
+
+#include <cmath>
+#include <utility>
+
+#include "polmap/schema/errors.hpp"
+#include "polmap/tiles/local_frame.hpp"
+
+namespace polmap::tiles {
+
+std::vector<bool> douglas_peucker_keep(const std::vector<Eigen::Vector2d>& p, double tol_m) {
+  POLMAP_EXPECT(tol_m > 0.0);
+  std::vector<bool> keep(p.size(), false);
+  if (p.empty()) return keep;
+  keep.front() = keep.back() = true;
+  std::vector<std::pair<std::size_t, std::size_t>> todo{{0, p.size() - 1}};
+  while (!todo.empty()) {
+    const auto [a, b] = todo.back();
+    todo.pop_back();
+    if (b <= a + 1) continue;
+    const Eigen::Vector2d d = p[b] - p[a];
+    const double len = d.norm();
+    double worst = -1.0;
+    std::size_t at = a;
+    for (std::size_t i = a + 1; i < b; ++i) {
+      const Eigen::Vector2d v = p[i] - p[a];
+      const double dist = len > 1e-9 ? std::abs(d.x() * v.y() - d.y() * v.x()) / len : v.norm();
+      if (dist > worst) {
+        worst = dist;
+        at = i;
+      }
+    }
+    if (worst > tol_m) {
+      keep[at] = true;
+      todo.emplace_back(at, b);
+      todo.emplace_back(a, at);
+    }
+  }
+  return keep;
+}
+
+std::vector<GeoPoint> simplify_polyline(const std::vector<GeoPoint>& polyline, double tol_m) {
+  if (polyline.size() < 3) return polyline;
+  const LocalFrame frame(polyline.front());
+  std::vector<Eigen::Vector2d> xy;
+  xy.reserve(polyline.size());
+  for (const GeoPoint& g : polyline) xy.push_back(frame.to_local(g));
+  const std::vector<bool> keep = douglas_peucker_keep(xy, tol_m);
+  std::vector<GeoPoint> out;
+  for (std::size_t i = 0; i < polyline.size(); ++i) {
+    if (keep[i]) out.push_back(polyline[i]);
+  }
+  return out;
+}
+
+}  // namespace polmap::tiles

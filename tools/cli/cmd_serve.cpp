@@ -1,17 +1,12 @@
 // `polmap serve --db FILE --listen HOST:PORT --api-key-file FILE [...]`: the mapping
 // service's HTTP server on an embedded SQLite store. Stops gracefully on SIGINT/SIGTERM
 // (requests in flight finish, a running map build is cancelled and marked failed).
-#include <pthread.h>
-#include <signal.h>
-
 #include <CLI/CLI.hpp>
-#include <atomic>
 #include <cstdio>
-#include <ctime>
 #include <string>
-#include <thread>
 
 #include "command.hpp"
+#include "polmap/eval/serve_until_signal.hpp"
 #include "polmap/mapping_service/server.hpp"
 #include "polmap/mapping_service/sqlite_store.hpp"
 #include "polmap/schema/errors.hpp"
@@ -27,6 +22,7 @@ struct ServeOptions {
   int threads = 32;
   int current_max_age_s = 60;
   std::string public_url;
+  std::string cors_origin;
   std::string upload_dir;
   bool quiet = false;
 };
@@ -61,41 +57,19 @@ void run(const ServeOptions& o) {
   cfg.threads = o.threads;
   cfg.current_tile_max_age_s = o.current_max_age_s;
   cfg.public_url = o.public_url;
+  cfg.cors_allow_origin = o.cors_origin;
   cfg.upload_dir = o.upload_dir;
   cfg.log_requests = !o.quiet;
 
   // Block the stop signals in every thread (the server's threads inherit this mask);
   // one thread waits for them and stops the server.
-  sigset_t signals;
-  sigemptyset(&signals);
-  sigaddset(&signals, SIGINT);
-  sigaddset(&signals, SIGTERM);
-  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
-
+  const sigset_t signals = eval::block_stop_signals();
   mapping::SqliteMapStore store(o.db);
   mapping::Server server(store, cfg);
-  std::atomic<bool> done{false};
-  std::thread waiter([&] {
-    const timespec tick{0, 200'000'000};
-    while (!done) {
-      const int sig = sigtimedwait(&signals, nullptr, &tick);
-      if (sig == SIGINT || sig == SIGTERM) {
-        std::fprintf(stderr, "polmap serve: %s received, stopping\n",
-                     sig == SIGINT ? "SIGINT" : "SIGTERM");
-        server.stop();
-        return;
-      }
-    }
+  eval::listen_until_signal(server, signals, host, port, [](int sig) {
+    std::fprintf(stderr, "polmap serve: %s received, stopping\n",
+                 sig == SIGINT ? "SIGINT" : "SIGTERM");
   });
-  try {
-    server.listen(host, port);
-  } catch (...) {
-    done = true;
-    waiter.join();
-    throw;
-  }
-  done = true;
-  waiter.join();
 }
 
 void setup(CLI::App& app) {
@@ -123,6 +97,9 @@ void setup(CLI::App& app) {
                   "Base URL written into TileJSON (default: from the Host header)");
   cmd->add_option("--upload-dir", opts->upload_dir,
                   "Directory for in-flight uploads (default: system temp dir)");
+  cmd->add_option("--cors-origin", opts->cors_origin,
+                  "Access-Control-Allow-Origin for browsers on other origins ('*' or one "
+                  "origin; default: none)");
   cmd->add_flag("--quiet", opts->quiet, "No per-request log lines");
   cmd->callback([opts] { run(*opts); });
 }

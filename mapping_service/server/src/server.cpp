@@ -268,13 +268,66 @@ std::shared_ptr<const VersionIndex> Server::Impl::resolve_version(const httplib:
   return idx;
 }
 
+// ---- admission: limits checked after the headers, before any body byte is read ------------
+
+bool Server::Impl::admit(const httplib::Request& req, httplib::Response& res) const {
+  // A refusal leaves the body unread, so the connection cannot carry another request.
+  auto refuse = [&](int status, std::string_view message, std::string_view field) {
+    set_route("refused");
+    reply_error(res, status, message, field);
+    res.set_header("Connection", "close");
+    return false;
+  };
+  std::size_t header_bytes = 0;
+  for (const auto& [k, v] : req.headers) header_bytes += k.size() + v.size() + 4;
+  if (req.headers.size() > cfg.max_header_count || header_bytes > cfg.max_header_bytes) {
+    return refuse(431,
+                  "request headers exceed " + std::to_string(cfg.max_header_count) + " fields or " +
+                      std::to_string(cfg.max_header_bytes) + " bytes",
+                  "headers");
+  }
+  if (req.get_header_value("Range").find(',') != std::string::npos) {
+    return refuse(416, "at most one byte range per request", "Range");
+  }
+  const std::string encoding = req.get_header_value("Content-Encoding");
+  if (!encoding.empty() && encoding != "identity") {
+    return refuse(415, "request bodies are not decompressed: send them without Content-Encoding",
+                  "Content-Encoding");
+  }
+  const bool write = req.method != "GET" && req.method != "HEAD" && req.method != "OPTIONS";
+  if (!write) return true;
+  // Writes need a key before their body is read (a 401 costs the client, not the server).
+  if (!require_key(req, res)) {
+    set_route("refused");
+    res.set_header("Connection", "close");
+    return false;
+  }
+  const bool upload = req.method == "POST" && req.path == "/v1/drives";
+  if (upload) return true;  // streamed to disk by its handler, capped at max_upload_bytes
+  // Other bodies are small JSON that cpp-httplib buffers whole: they must declare their
+  // length, and it must be within max_json_bytes.
+  if (req.has_header("Transfer-Encoding")) {
+    return refuse(411, "send a Content-Length (chunked request bodies are not accepted here)",
+                  "Transfer-Encoding");
+  }
+  if (req.has_header("Content-Length")) {
+    const auto len = http::parse_int(req.get_header_value("Content-Length"));
+    if (!len || *len < 0 || static_cast<std::uint64_t>(*len) > cfg.max_json_bytes) {
+      return refuse(413, "request body exceeds " + std::to_string(cfg.max_json_bytes) + " bytes",
+                    "Content-Length");
+    }
+  }
+  return true;
+}
+
 // ---- routes: health, metrics, CORS preflight, errors ----------------------------------------
 
 void Server::Impl::register_routes() {
-  http.set_pre_routing_handler([](const httplib::Request&, httplib::Response&) {
+  http.set_pre_routing_handler([this](const httplib::Request& req, httplib::Response& res) {
     t_start = Clock::now();
     t_route = nullptr;
-    return httplib::Server::HandlerResponse::Unhandled;
+    return admit(req, res) ? httplib::Server::HandlerResponse::Unhandled
+                           : httplib::Server::HandlerResponse::Handled;
   });
   http.set_logger([this](const httplib::Request& req, const httplib::Response& res) {
     const double seconds = t_start == Clock::time_point{}

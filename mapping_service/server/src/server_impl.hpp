@@ -65,6 +65,10 @@ struct Server::Impl {
   std::atomic<std::uint64_t> internal_errors{0};
 
   // ---- helpers for handlers
+  /// The limits applied once the headers are parsed and before any body byte is read
+  /// (header count and size, one range, no encoded bodies, a key for every write,
+  /// declared and bounded JSON bodies). False: the refusal is in `res`.
+  bool admit(const httplib::Request& req, httplib::Response& res) const;
   /// True if the request carries a valid bearer key; otherwise fills a 401 reply.
   bool require_key(const httplib::Request& req, httplib::Response& res) const;
   static void reply_json(httplib::Response& res, int status, const nlohmann::json& body);

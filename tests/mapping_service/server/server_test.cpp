@@ -133,17 +133,11 @@ TEST_F(ServerTest, HealthMetricsCorsAndUnknownRoutes) {
   EXPECT_EQ(r->status, 200);
   EXPECT_EQ(body_json(r)["status"], "ok");
   EXPECT_TRUE(body_json(r)["current_map_version"].is_null());
-  EXPECT_EQ(r->get_header_value("Access-Control-Allow-Origin"), "*");
+  EXPECT_FALSE(r->has_header("Access-Control-Allow-Origin"));  // no CORS unless configured
 
   r = c.Get("/no/such/thing");
   EXPECT_EQ(r->status, 404);
   EXPECT_NE(body_json(r)["error"].get<std::string>().find("no such endpoint"), std::string::npos);
-
-  r = c.Options("/v1/tiles/16/1/2");
-  EXPECT_EQ(r->status, 204);
-  EXPECT_NE(r->get_header_value("Access-Control-Allow-Methods").find("GET"), std::string::npos);
-  EXPECT_NE(r->get_header_value("Access-Control-Allow-Headers").find("Authorization"),
-            std::string::npos);
 
   // The server records a request after writing its response: a new connection may be
   // answered before that, so poll briefly.
@@ -168,6 +162,19 @@ TEST_F(ServerTest, HealthMetricsCorsAndUnknownRoutes) {
              l.find(" ms") != std::string::npos;
   }
   EXPECT_TRUE(found);
+
+  // CORS only for a configured origin.
+  ServerConfig with_cors;
+  with_cors.cors_allow_origin = "https://console.example.com";
+  restart(with_cors);
+  auto cc = client();
+  r = cc.Get("/health");
+  EXPECT_EQ(r->get_header_value("Access-Control-Allow-Origin"), "https://console.example.com");
+  r = cc.Options("/v1/tiles/16/1/2");
+  EXPECT_EQ(r->status, 204);
+  EXPECT_NE(r->get_header_value("Access-Control-Allow-Methods").find("GET"), std::string::npos);
+  EXPECT_NE(r->get_header_value("Access-Control-Allow-Headers").find("Authorization"),
+            std::string::npos);
 }
 
 TEST_F(ServerTest, WritesNeedAValidKey) {
@@ -273,6 +280,43 @@ TEST_F(ServerTest, StoredPackagesAreTheValidatedMembersNotTheUpload) {
     EXPECT_EQ(util::read_file_bytes(d->package_path / m.name), m.data) << m.name;
   }
   EXPECT_EQ(upload_leftovers(), 0u);
+}
+
+TEST_F(ServerTest, LimitsApplyBeforeAnyBodyByteIsRead) {
+  auto status_of = [](const std::string& reply) {
+    return reply.size() > 12 ? std::atoi(reply.substr(9, 3).c_str()) : 0;
+  };
+  // An unauthenticated write announcing 100 MB, body never sent: refused at once.
+  std::string reply = raw_exchange(port_,
+                                   "POST /v1/maps HTTP/1.1\r\nHost: x\r\nContent-Type: "
+                                   "application/json\r\nContent-Length: 100000000\r\n\r\n");
+  EXPECT_EQ(status_of(reply), 401) << reply;
+  reply = raw_exchange(port_,
+                       "POST /v1/drives HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\n\r\n");
+  EXPECT_EQ(status_of(reply), 401) << reply;
+  const std::string key = "Authorization: Bearer " + std::string(kKey) + "\r\n";
+  // With a key: JSON bodies must declare a bounded length and must not be encoded.
+  reply = raw_exchange(
+      port_, "POST /v1/maps HTTP/1.1\r\nHost: x\r\n" + key + "Transfer-Encoding: chunked\r\n\r\n");
+  EXPECT_EQ(status_of(reply), 411) << reply;
+  reply = raw_exchange(
+      port_, "POST /v1/maps HTTP/1.1\r\nHost: x\r\n" + key + "Content-Length: 2000000\r\n\r\n");
+  EXPECT_EQ(status_of(reply), 413) << reply;
+  reply = raw_exchange(port_, "POST /v1/maps HTTP/1.1\r\nHost: x\r\n" + key +
+                                  "Content-Encoding: gzip\r\nContent-Length: 10\r\n\r\n");
+  EXPECT_EQ(status_of(reply), 415) << reply;
+  // Many ranges, many headers.
+  reply = raw_exchange(port_, "GET /health HTTP/1.1\r\nHost: x\r\nRange: bytes=0-1,2-3\r\n\r\n");
+  EXPECT_EQ(status_of(reply), 416) << reply;
+  std::string many = "GET /health HTTP/1.1\r\nHost: x\r\n";
+  for (int i = 0; i < 100; ++i) many += "X-Filler-" + std::to_string(i) + ": y\r\n";
+  reply = raw_exchange(port_, many + "\r\n");
+  EXPECT_EQ(status_of(reply), 431) << reply;
+  // And the server is still there for ordinary requests.
+  auto c = client();
+  auto r = c.Get("/health");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 200);
 }
 
 TEST_F(ServerTest, InternalErrorsAreLoggedNotShownAndLogsAreEscaped) {

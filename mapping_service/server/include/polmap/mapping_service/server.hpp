@@ -71,8 +71,14 @@ struct ServerConfig {
   /// Base URL written into TileJSON (e.g. "https://maps.example.com"); empty =
   /// "http://" + the request's Host header.
   std::string public_url;
-  /// Access-Control-Allow-Origin value ("*": any origin; empty: no CORS headers).
-  std::string cors_allow_origin = "*";
+  /// Access-Control-Allow-Origin value: empty (default) sends no CORS headers, so
+  /// browsers on other origins cannot read responses; "*" any origin; or one origin.
+  std::string cors_allow_origin;
+  /// Requests with more header fields, or more header bytes in all, are refused with
+  /// 431 before routing (cpp-httplib has already read them by then, each line capped at
+  /// 8 KiB; the nginx front of docs/ bounds them before they reach us).
+  std::size_t max_header_count = 64;
+  std::size_t max_header_bytes = 32u << 10;
   /// MVT zoom range served and announced in TileJSON.
   int mvt_min_zoom = 12;
   int mvt_max_zoom = 22;

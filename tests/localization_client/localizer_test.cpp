@@ -257,13 +257,26 @@ GeoPose perturbed_start(const SyntheticDrive& drive, double err_m, double err_de
   return g;
 }
 
-TEST(Localizer, ConvergesFromCoarseInitialPoseAndTracks) {
-  SyntheticDrive drive(1, 12.0, 1e9, 1e9);
+/// A localizer with cfg and the map `tiles`, started at `start` (3 m / 3 deg initial
+/// uncertainty), run over the first duration_s of the drive.
+RunResult localize(SyntheticDrive& drive, const LocalizerConfig& cfg, TileSource& tiles,
+                   const GeoPose& start, double duration_s) {
+  Localizer loc(cfg, drive.mounts(), tiles);
+  loc.set_initial_pose(start, 3.0, 3.0 * kDeg);
+  return run(drive, loc, duration_s);
+}
+
+/// localize() with the drive's whole map available from the start.
+RunResult localize(SyntheticDrive& drive, const LocalizerConfig& cfg, const GeoPose& start,
+                   double duration_s) {
   InMemoryTileSource tiles;
   drive.fill_tiles(tiles);
-  Localizer loc(fast_config(), drive.mounts(), tiles);
-  loc.set_initial_pose(perturbed_start(drive, 3.0, 3.0, 2.0), 3.0, 3.0 * kDeg);
-  const RunResult r = run(drive, loc, 12.0);
+  return localize(drive, cfg, tiles, start, duration_s);
+}
+
+TEST(Localizer, ConvergesFromCoarseInitialPoseAndTracks) {
+  SyntheticDrive drive(1, 12.0, 1e9, 1e9);
+  const RunResult r = localize(drive, fast_config(), perturbed_start(drive, 3.0, 3.0, 2.0), 12.0);
   ASSERT_GT(r.first_tracking_s, 0.0) << "never reached Tracking";
   EXPECT_LT(r.first_tracking_s, 10.0);
   EXPECT_LT(r.rms_pos_error_tracking_m, 0.15);
@@ -283,13 +296,9 @@ TEST(Localizer, ConvergesFromCoarseInitialPoseAndTracks) {
 TEST(Localizer, DegradesInAMapGapThenLosesAndRecovers) {
   // 6..16 s: 100 m whose poles are not in the map.
   SyntheticDrive drive(2, 26.0, 60.0, 160.0);
-  InMemoryTileSource tiles;
-  drive.fill_tiles(tiles);
   LocalizerConfig cfg = fast_config();
   cfg.lost_after_s = 4.0;
-  Localizer loc(cfg, drive.mounts(), tiles);
-  loc.set_initial_pose(perturbed_start(drive, 2.0, -2.0, -1.0), 3.0, 3.0 * kDeg);
-  const RunResult r = run(drive, loc, 26.0);
+  const RunResult r = localize(drive, cfg, perturbed_start(drive, 2.0, -2.0, -1.0), 26.0);
   ASSERT_GT(r.first_tracking_s, 0.0);
   bool saw_degraded = false;
   for (const auto& [t, out] : r.outputs) {
@@ -310,11 +319,7 @@ TEST(Localizer, SurvivesAnEgoMotionOutage) {
   // graph window and is back on track without a full re-initialization.
   SyntheticDrive drive(5, 16.0, 1e9, 1e9);
   drive.set_detection_outage(7.0, 9.0);
-  InMemoryTileSource tiles;
-  drive.fill_tiles(tiles);
-  Localizer loc(fast_config(), drive.mounts(), tiles);
-  loc.set_initial_pose(perturbed_start(drive, 1.0, 1.0, 0.3), 3.0, 3.0 * kDeg);
-  const RunResult r = run(drive, loc, 16.0);
+  const RunResult r = localize(drive, fast_config(), perturbed_start(drive, 1.0, 1.0, 0.3), 16.0);
   ASSERT_GT(r.first_tracking_s, 0.0);
   ASSERT_LT(r.first_tracking_s, 7.0);
   EXPECT_FALSE(r.saw_lost);
@@ -335,11 +340,7 @@ TEST(Localizer, HoldsThePoseThroughAStandstill) {
   // held (no drift, no Degraded for lack of new associations) and tracking
   // continues when it drives off.
   SyntheticDrive drive(6, 30.0, 1e9, 1e9, 8.0, 20.0);
-  InMemoryTileSource tiles;
-  drive.fill_tiles(tiles);
-  Localizer loc(fast_config(), drive.mounts(), tiles);
-  loc.set_initial_pose(perturbed_start(drive, 2.0, 2.0, 1.0), 3.0, 3.0 * kDeg);
-  const RunResult r = run(drive, loc, 30.0);
+  const RunResult r = localize(drive, fast_config(), perturbed_start(drive, 2.0, 2.0, 1.0), 30.0);
   ASSERT_GT(r.first_tracking_s, 0.0);
   ASSERT_LT(r.first_tracking_s, 6.0);
   EXPECT_FALSE(r.saw_lost);
@@ -398,9 +399,8 @@ TEST(Localizer, TilesNotReadyOnlyDelayInitialization) {
   InMemoryTileSource tiles;
   drive.fill_tiles(tiles);
   SlowTileSource slow(tiles, 20);  // the first ~2 s of extractions without map
-  Localizer loc(fast_config(), drive.mounts(), slow);
-  loc.set_initial_pose(perturbed_start(drive, 1.0, 1.0, 0.5), 3.0, 3.0 * kDeg);
-  const RunResult r = run(drive, loc, 10.0);
+  const RunResult r =
+      localize(drive, fast_config(), slow, perturbed_start(drive, 1.0, 1.0, 0.5), 10.0);
   EXPECT_GT(slow.prefetched_, 0U);
   ASSERT_GT(r.first_tracking_s, 0.0);
   for (const auto& [t, out] : r.outputs) {

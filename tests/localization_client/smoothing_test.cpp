@@ -56,6 +56,11 @@ void expect_injective(const std::vector<Assignment>& as) {
   }
 }
 
+/// Adds `rounds` matching results, each with the one association (cluster, landmark).
+void vote(AssociationSmoother& s, int rounds, std::uint64_t cluster, std::int64_t landmark) {
+  for (int i = 0; i < rounds; ++i) s.add_votes({{cluster, landmark}});
+}
+
 TEST(Hungarian, MinCostEqualsBruteForce) {
   std::mt19937 rng(1);
   std::uniform_real_distribution<double> u(-5.0, 10.0);
@@ -109,14 +114,11 @@ TEST(AssociationSmoother, StolenLandmarkGoesToTheStrongerCluster) {
   // times and with 200 twice. Per-cluster arg-max would give both clusters
   // landmark 100; the injective smoothing gives 100 to cluster 1 and lets
   // cluster 2 take its second choice.
-  SmoothingConfig cfg;
-  cfg.decay = 1.0;
-  cfg.min_count = 2.0;
-  AssociationSmoother s(cfg);
-  for (int i = 0; i < 10; ++i) s.add_votes({{1, 100}});
-  for (int i = 0; i < 3; ++i) s.add_votes({{2, 100}});
-  for (int i = 0; i < 2; ++i) s.add_votes({{2, 200}});
-  s.add_votes({{3, 300}});  // single vote: below min_count
+  AssociationSmoother s(SmoothingConfig{.min_count = 2.0, .decay = 1.0});
+  vote(s, 10, 1, 100);
+  vote(s, 3, 2, 100);
+  vote(s, 2, 2, 200);
+  vote(s, 1, 3, 300);  // single vote: below min_count
   const auto out = s.smoothed();
   ASSERT_EQ(out.size(), 2U);
   EXPECT_EQ(out[0].cluster_id, 1U);
@@ -133,12 +135,9 @@ TEST(AssociationSmoother, StolenLandmarkGoesToTheStrongerCluster) {
 }
 
 TEST(AssociationSmoother, DecayLetsACorrectedAssociationWin) {
-  SmoothingConfig cfg;
-  cfg.decay = 0.9;
-  cfg.min_count = 2.0;
-  AssociationSmoother s(cfg);
-  for (int i = 0; i < 10; ++i) s.add_votes({{1, 100}});
-  for (int i = 0; i < 12; ++i) s.add_votes({{1, 200}});
+  AssociationSmoother s(SmoothingConfig{.min_count = 2.0, .decay = 0.9});
+  vote(s, 10, 1, 100);
+  vote(s, 12, 1, 200);
   const auto out = s.smoothed();
   ASSERT_EQ(out.size(), 1U);
   EXPECT_EQ(out[0].landmark_id, 200);

@@ -284,8 +284,28 @@ struct TileFetcher::Impl {
     if (!etag.empty()) headers.emplace("If-None-Match", etag);
     std::string path = "/v1/tiles/" + tiles::to_string(key);
     if (!cfg.query.empty()) path += "?" + cfg.query;
-    const httplib::Result res = client->Get(path, headers);
+    std::string body;
+    bool over_limit = false;
+    const auto deadline =
+        SteadyClock::now() + std::chrono::duration_cast<SteadyClock::duration>(
+                                 std::chrono::duration<double>(cfg.request_deadline_s));
+    const httplib::Result res = client->Get(path, headers, [&](const char* data, std::size_t n) {
+      if (body.size() + n > cfg.max_tile_bytes || SteadyClock::now() > deadline) {
+        over_limit = true;
+        return false;
+      }
+      body.append(data, n);
+      return true;
+    });
     lock.lock();
+    if (over_limit) {  // too large or too slow: the server misbehaves, retry later
+      ++stats.server_errors;
+      lock.unlock();
+      client.reset();
+      lock.lock();
+      retry_locked(key, job);
+      return;
+    }
     if (!res) {
       ++stats.transport_errors;
       stats.server_reachable = false;
@@ -305,9 +325,12 @@ struct TileFetcher::Impl {
     offline_until = {};
     std::uint64_t header_version = 0;
     if (res->has_header("X-Polmap-Map-Version")) {
+      // Only a plain decimal number counts; anything else is ignored.
       const std::string v = res->get_header_value("X-Polmap-Map-Version");
-      std::from_chars(v.data(), v.data() + v.size(), header_version);
-      note_version_locked(header_version);
+      std::uint64_t parsed = 0;
+      const auto [p, ec] = std::from_chars(v.data(), v.data() + v.size(), parsed);
+      if (v.size() <= 20 && ec == std::errc{} && p == v.data() + v.size()) header_version = parsed;
+      if (header_version != 0) note_version_locked(header_version);
     }
     Entry e;
     e.fetched_unix_s = unix_now_s();
@@ -315,18 +338,22 @@ struct TileFetcher::Impl {
     e.last_used = have ? it->second.last_used : ++use_tick;
     switch (res->status) {
       case 200: {
+        bool ok = false;
         try {
-          e.tile = tiles::decode_localization_tile(res->body, cfg.server_url + path);
+          e.tile = tiles::decode_localization_tile(body, cfg.server_url + path);
+          ok = e.tile.key == key;  // a tile for another place is not this tile
         } catch (const Error&) {
+        }
+        if (!ok || res->get_header_value("ETag").size() > 256) {
           ++stats.server_errors;
           retry_locked(key, job);
           return;
         }
         ++stats.responses_200;
-        stats.bytes_downloaded += res->body.size();
+        stats.bytes_downloaded += body.size();
         e.http_status = 200;
         e.etag = res->get_header_value("ETag");
-        e.payload = res->body;
+        e.payload = std::move(body);
         break;
       }
       case 304: {
@@ -348,8 +375,16 @@ struct TileFetcher::Impl {
         changed.notify_all();
         return;
       }
-      case 204:
-      case 404: {
+      case 404:
+        // Only the server's own "outside the map" answer is remembered; any other 404
+        // (a proxy's error page, a wrong URL) is an error, retried later.
+        if (res->get_header_value("X-Polmap-Coverage") != "outside") {
+          ++stats.server_errors;
+          retry_locked(key, job);
+          return;
+        }
+        [[fallthrough]];
+      case 204: {
         (res->status == 204 ? stats.responses_204 : stats.responses_404) += 1;
         e.http_status = res->status;
         e.tile = empty_tile(key, header_version);

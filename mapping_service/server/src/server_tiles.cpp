@@ -105,6 +105,7 @@ void Server::Impl::get_localization_tile(const httplib::Request& req, httplib::R
       return metrics.tile_served("localization", 204);
     }
     metrics.tile_served("localization", 404);
+    res.set_header("X-Polmap-Coverage", "outside");  // the one 404 clients may remember
     return reply_error(res, 404,
                        "tile " + tiles::to_string(*key) +
                            " is outside the coverage of map version " +

@@ -66,9 +66,11 @@ class FakeTileServer {
                     return;
                   }
                   res.set_header("X-Polmap-Map-Version", std::to_string(version_));
+                  if (hostile_ != Hostile::None) return serve_hostile(key, res);
                   const auto it = tiles_.find(key);
                   if (it == tiles_.end()) {
                     res.status = covered_.contains(key) ? 204 : 404;
+                    if (res.status == 404) res.set_header("X-Polmap-Coverage", "outside");
                     return;
                   }
                   // (Built with += : GCC 12 warns falsely (-Wrestrict) on "\"" + s + "\"".)
@@ -125,7 +127,42 @@ class FakeTileServer {
   }
   [[nodiscard]] std::string url() const { return "http://127.0.0.1:" + std::to_string(port_); }
 
+  /// Misbehaviours of a hostile (or broken) server.
+  enum class Hostile { None, Oversized, Drip, WrongKey, Bare404 };
+  void set_hostile(Hostile h) {
+    std::lock_guard lock(mutex_);
+    hostile_ = h;
+  }
+
  private:
+  void serve_hostile(const TileKey& key, httplib::Response& res) {
+    switch (hostile_) {
+      case Hostile::Oversized:  // 8 MB "tile"
+        res.set_content(std::string(8u << 20, 'x'), "application/octet-stream");
+        return;
+      case Hostile::Drip:  // one byte every 50 ms, for 20 s
+        res.set_chunked_content_provider(
+            "application/octet-stream", [](std::size_t offset, httplib::DataSink& sink) {
+              if (offset > 400) return false;
+              std::this_thread::sleep_for(std::chrono::milliseconds(50));
+              return sink.write("x", 1);
+            });
+        return;
+      case Hostile::WrongKey:  // a valid tile, but of another place
+        res.set_content(tiles::encode_localization_tile(
+                            make_tile(TileKey{key.z, key.x + 1, key.y}, version_, 4)),
+                        std::string(tiles::kLocalizationTileMediaType));
+        return;
+      case Hostile::Bare404:  // a proxy's error page
+        res.status = 404;
+        res.set_content("<html>not found</html>", "text/html");
+        return;
+      case Hostile::None:
+        return;
+    }
+  }
+
+  Hostile hostile_ = Hostile::None;
   httplib::Server server_;
   std::thread thread_;
   int port_ = 0;
@@ -300,6 +337,31 @@ TEST(TilesAround, CoversTheRadius) {
   const TileKey own = tiles::tile_at(p.lat_deg, p.lon_deg, tiles::kLocalizationZoom);
   for (const auto& k : keys) contains_own = contains_own || k == own;
   EXPECT_TRUE(contains_own);
+}
+
+TEST_F(TileFetcherTest, SurvivesAHostileServer) {
+  // Each misbehaviour: the tile is not served, nothing is cached, the worker stays free.
+  for (const auto mode : {FakeTileServer::Hostile::Oversized, FakeTileServer::Hostile::Drip,
+                          FakeTileServer::Hostile::WrongKey, FakeTileServer::Hostile::Bare404}) {
+    FakeTileServer server;
+    server.set_hostile(mode);
+    auto cfg = config(server.url());
+    cfg.request_deadline_s = 1.0;
+    cfg.max_tile_bytes = 1u << 20;
+    const auto t0 = std::chrono::steady_clock::now();
+    {
+      TileFetcher fetcher(cfg);
+      EXPECT_FALSE(fetcher.tile(k1).has_value());
+      EXPECT_FALSE(fetcher.wait_for(std::vector<TileKey>{k1}, 2.0)) << static_cast<int>(mode);
+      EXPECT_FALSE(fetcher.tile(k1).has_value());
+      EXPECT_GE(fetcher.stats().server_errors, 1U) << static_cast<int>(mode);
+      EXPECT_EQ(fetcher.stats().responses_200 + fetcher.stats().responses_404, 0U);
+    }
+    EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(), 10.0);
+    EXPECT_FALSE(std::filesystem::exists(dir_ / "16" / "34000" / "22000.pmtc"))
+        << static_cast<int>(mode);
+    server.stop();
+  }
 }
 
 }  // namespace

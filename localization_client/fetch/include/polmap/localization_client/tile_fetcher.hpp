@@ -56,7 +56,14 @@ struct TileFetcherConfig {
   /// matches the server's max-age of current-version tiles.
   double revalidate_after_s = 60.0;
   double connect_timeout_s = 2.0;
+  /// Longest silence between two reads of a response.
   double read_timeout_s = 5.0;
+  /// Longest time for a whole response body: a server dripping bytes is cut off here
+  /// (read_timeout_s alone would let it hold the fetch worker forever).
+  double request_deadline_s = 15.0;
+  /// Largest tile body accepted (after any HTTP decompression). Localization tiles are
+  /// a few kB; a larger answer is treated as a server error, not stored.
+  std::size_t max_tile_bytes = 4u << 20;
   /// Retry delays after 5xx/transport errors: initial, doubled up to max.
   double backoff_initial_s = 0.25;
   double backoff_max_s = 10.0;

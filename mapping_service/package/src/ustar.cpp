@@ -62,6 +62,10 @@ bool parse_octal(const char* field, std::size_t len, std::uint64_t& out) {
     v = (v << 3U) | static_cast<std::uint64_t>(c - '0');
     any = true;
   }
+  // Digits only: after the terminator nothing but NUL and space ("12 x" is not 10).
+  for (; i < len; ++i) {
+    if (field[i] != '\0' && field[i] != ' ') return false;
+  }
   out = v;
   return any;
 }
@@ -130,6 +134,14 @@ std::vector<TarMemberView> read_ustar_views(std::string_view bytes, const std::s
     const auto* h = reinterpret_cast<const unsigned char*>(bytes.data() + off);
     if (std::all_of(h, h + kBlock, [](unsigned char c) { return c == 0; })) {
       // End of archive: two zero blocks (tolerate a lone one at the very end, as GNU tar does).
+      // Only zeros may follow (tar pads to its record size); anything else is data another
+      // reader might still take for members.
+      const auto rest = bytes.substr(off);
+      const auto bad = std::find_if(rest.begin(), rest.end(), [](char c) { return c != '\0'; });
+      if (bad != rest.end()) {
+        throw fail(off + static_cast<std::size_t>(bad - rest.begin()),
+                   "data after the end-of-archive marker");
+      }
       break;
     }
     const char* hc = bytes.data() + off;
@@ -153,8 +165,12 @@ std::vector<TarMemberView> read_ustar_views(std::string_view bytes, const std::s
                                      (type >= 32 && type < 127 ? std::string(1, type) : "?") +
                                      "' (only regular files)");
     }
-    if (name.empty() || name.find('/') != std::string::npos || name == "." || name == "..") {
-      throw fail(off + kNameOff, "member name '" + name + "' is not a flat file name");
+    const bool printable = std::all_of(name.begin(), name.end(), [](char c) {
+      return static_cast<unsigned char>(c) >= 0x20 && static_cast<unsigned char>(c) < 0x7f;
+    });
+    if (name.empty() || !printable || name.find('/') != std::string::npos || name == "." ||
+        name == "..") {
+      throw fail(off + kNameOff, "member name is not a flat, printable file name");
     }
     std::uint64_t size = 0;
     if (!parse_octal(hc + kSizeOff, kSizeLen, size)) {

@@ -62,5 +62,29 @@ TEST(FileBytes, RoundTripAndErrorsNameTheFile) {
   EXPECT_THROW(write_file_bytes(d.path() / "no" / "dir" / "x", "a"), IoError);
 }
 
+TEST(Sync, FilesAndDirectoriesAndErrors) {
+  const ScopedTempDir d = ScopedTempDir::create("polmap-util-test");
+  fs::create_directories(d.path() / "a" / "b");
+  write_file_bytes(d.path() / "a" / "b" / "f", "x");
+  EXPECT_NO_THROW(sync_tree(d.path()));
+  EXPECT_NO_THROW(sync_file(d.path() / "a" / "b" / "f"));
+  EXPECT_THROW(sync_file(d.path() / "missing"), IoError);
+  EXPECT_THROW(sync_directory(d.path() / "a" / "b" / "f"), IoError);  // not a directory
+}
+
+TEST(FileLock, ExclusiveUntilReleased) {
+  const ScopedTempDir d = ScopedTempDir::create("polmap-util-test");
+  const fs::path p = d.path() / "x.lock";
+  {
+    FileLock a(p);
+    EXPECT_TRUE(a.try_acquire());
+    FileLock b(p);  // a second open file description, like another process
+    EXPECT_FALSE(b.try_acquire());
+    EXPECT_FALSE(b.held());
+  }
+  FileLock c(p);
+  EXPECT_TRUE(c.try_acquire());
+}
+
 }  // namespace
 }  // namespace polmap::util

@@ -1,7 +1,12 @@
 #include "polmap/util/file.hpp"
 
+#include <fcntl.h>
 #include <stdlib.h>
+#include <sys/file.h>
+#include <unistd.h>
 
+#include <cerrno>
+#include <cstring>
 #include <fstream>
 
 #include "polmap/schema/errors.hpp"
@@ -38,6 +43,48 @@ fs::path make_unique_dir(const fs::path& parent, std::string_view stem) {
     throw IoError(base.string() + ": cannot create a temporary directory");
   }
   return templ;
+}
+
+namespace {
+
+void sync_path(const fs::path& path, int flags) {
+  const int fd = ::open(path.c_str(), flags | O_CLOEXEC);
+  if (fd < 0) throw IoError(path.string() + ": cannot open to sync: " + std::strerror(errno));
+  const int rc = ::fsync(fd);
+  const int err = errno;
+  ::close(fd);
+  if (rc != 0) throw IoError(path.string() + ": fsync failed: " + std::strerror(err));
+}
+
+}  // namespace
+
+void sync_file(const fs::path& path) { sync_path(path, O_RDONLY); }
+
+void sync_directory(const fs::path& dir) { sync_path(dir, O_RDONLY | O_DIRECTORY); }
+
+void sync_tree(const fs::path& dir) {
+  std::error_code ec;
+  for (auto it = fs::recursive_directory_iterator(dir, ec); !ec && it != fs::end(it);
+       it.increment(ec)) {
+    if (it->is_regular_file(ec)) sync_file(it->path());
+    if (it->is_directory(ec)) sync_directory(it->path());
+  }
+  if (ec) throw IoError(dir.string() + ": cannot list to sync: " + ec.message());
+  sync_directory(dir);
+}
+
+FileLock::FileLock(const fs::path& path) {
+  fd_ = ::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  if (fd_ < 0) throw IoError(path.string() + ": cannot open lock file: " + std::strerror(errno));
+}
+
+FileLock::~FileLock() {
+  if (fd_ >= 0) ::close(fd_);  // closing releases the flock
+}
+
+bool FileLock::try_acquire() {
+  if (!held_) held_ = ::flock(fd_, LOCK_EX | LOCK_NB) == 0;
+  return held_;
 }
 
 ScopedTempDir ScopedTempDir::create(const fs::path& parent, std::string_view stem) {

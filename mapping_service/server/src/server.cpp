@@ -84,6 +84,7 @@ Server::Impl::Impl(MapStore& s, ServerConfig config)
                               {"Access-Control-Expose-Headers",
                                "ETag, Location, Content-Encoding, X-Polmap-Map-Version"}});
   }
+  sweep_upload_dir();
   register_routes();
   build_thread = std::thread([this] { build_loop(); });
   if (cfg.fail_stale_builds_on_start) {
@@ -108,6 +109,25 @@ Server::Impl::~Impl() {
   }
   build_cv.notify_all();
   if (build_thread.joinable()) build_thread.join();
+}
+
+void Server::Impl::sweep_upload_dir() {
+  // What a killed process left behind: upload files, unpacked members, export directories.
+  // Only our own names, and only untouched for a while (the upload directory may be the
+  // shared system temporary directory, and another server's upload may be in flight).
+  const std::filesystem::path dir =
+      cfg.upload_dir.empty() ? std::filesystem::temp_directory_path() : cfg.upload_dir;
+  const auto now = std::filesystem::file_time_type::clock::now();
+  std::error_code ec;
+  std::size_t removed = 0;
+  for (const auto& e : std::filesystem::directory_iterator(dir, ec)) {
+    const std::string name = e.path().filename().string();
+    if (!name.starts_with("polmap-upload-") && !name.starts_with("polmap-export-")) continue;
+    const auto age = std::chrono::duration<double>(now - e.last_write_time(ec)).count();
+    if (ec || age < cfg.upload_leftover_age_s) continue;
+    if (std::filesystem::remove_all(e.path(), ec) > 0 && !ec) ++removed;
+  }
+  if (removed > 0) log("info", "removed " + std::to_string(removed) + " upload/export leftovers");
 }
 
 void Server::Impl::log(std::string_view level, std::string_view message) const {

@@ -58,6 +58,9 @@ struct Server::Impl {
   mutable std::condition_variable state_cv;
   bool listening = false;
 
+  /// Removes leftovers of a killed process from the upload directory (start-up).
+  void sweep_upload_dir();
+
   // ---- logging
   /// One line to the log sink; the message is escaped (escape_for_log).
   void log(std::string_view level, std::string_view message) const;

@@ -10,6 +10,7 @@
 #include <set>
 
 #include "polmap/schema/json.hpp"
+#include "polmap/util/file.hpp"
 #include "polmap/util/sha256.hpp"
 #include "polmap/util/text.hpp"
 #include "sqlite_store_impl.hpp"
@@ -246,8 +247,13 @@ SqliteMapStore::SqliteMapStore(const fs::path& db_path, SqliteStoreOptions optio
   if (ec)
     throw IoError("cannot create drive store " + impl_->drives_dir.string() + ": " + ec.message());
   impl_->migrate();
-  impl_->sweep_orphans();
+  // Only the process that owns the store sweeps: a second process opening it (an export,
+  // a CLI read) must never fail the owner's running build or delete its staging files.
+  impl_->owner = std::make_unique<util::FileLock>(db_path.string() + ".lock");
+  if (impl_->owner->try_acquire()) impl_->sweep_orphans();
 }
+
+bool SqliteMapStore::owns_store() const { return impl_->owner && impl_->owner->held(); }
 
 SqliteMapStore::~SqliteMapStore() = default;
 

@@ -110,6 +110,7 @@ PutDriveResult SqliteMapStore::put_drive(const DrivePackage& package,
       fs::copy_file(package_location, tmp / fname);
       rel_path += "/" + fname;
     }
+    util::sync_tree(tmp);  // the files are durable before any row names them
     const std::int64_t bytes = dir_bytes(tmp);
     I.hook("files_copied");
 
@@ -208,6 +209,7 @@ PutDriveResult SqliteMapStore::put_drive(const DrivePackage& package,
       if (fs::exists(final_dir, e)) fs::remove_all(final_dir, e);  // crash leftover
       fs::rename(tmp, final_dir);
       staging.release();
+      util::sync_directory(I.drives_dir);  // the rename too, before the commit
       placed = util::ScopedTempDir(final_dir);
       I.hook("files_renamed");
       return std::nullopt;

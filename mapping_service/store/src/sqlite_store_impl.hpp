@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "polmap/mapping_service/sqlite_store.hpp"
+#include "polmap/util/file.hpp"
 #include "sqlite_db.hpp"
 
 namespace polmap::mapping {
@@ -59,7 +60,8 @@ struct SqliteMapStore::Impl {
   SqliteStoreOptions opt;
   mutable std::mutex pool_mu;
   mutable std::vector<std::unique_ptr<Connection>> idle;
-  mutable std::mutex write_mu;  // in-process writers queue here, not on SQLITE_BUSY
+  mutable std::mutex write_mu;            // in-process writers queue here, not on SQLITE_BUSY
+  std::unique_ptr<util::FileLock> owner;  ///< <db>.lock, held by the store's owner
 
   /// A pooled connection, returned on destruction.
   class Lease {

@@ -319,6 +319,29 @@ TEST_F(ServerTest, LimitsApplyBeforeAnyBodyByteIsRead) {
   EXPECT_EQ(r->status, 200);
 }
 
+TEST_F(ServerTest, StartRemovesOldUploadLeftoversOnly) {
+  const auto uploads = dir_ / "uploads";
+  std::ofstream(uploads / "polmap-upload-old.tar") << "x";
+  std::filesystem::create_directories(uploads / "polmap-upload-members-old" / "sub");
+  std::ofstream(uploads / "polmap-upload-fresh.tar") << "y";
+  std::ofstream(uploads / "someone-elses.tar") << "z";
+  const auto old = std::filesystem::file_time_type::clock::now() - std::chrono::hours(2);
+  std::filesystem::last_write_time(uploads / "polmap-upload-old.tar", old);
+  std::filesystem::last_write_time(uploads / "polmap-upload-members-old", old);
+  std::filesystem::last_write_time(uploads / "someone-elses.tar", old);
+  // Same directory, new server process (stop() would remove dir_: restart by hand).
+  server_->stop();
+  if (thread_.joinable()) thread_.join();
+  ServerConfig cfg;
+  cfg.upload_dir = uploads;
+  cfg.log_sink = [](std::string_view) {};
+  Server again(*store_, cfg);
+  EXPECT_FALSE(std::filesystem::exists(uploads / "polmap-upload-old.tar"));
+  EXPECT_FALSE(std::filesystem::exists(uploads / "polmap-upload-members-old"));
+  EXPECT_TRUE(std::filesystem::exists(uploads / "polmap-upload-fresh.tar"));  // maybe in flight
+  EXPECT_TRUE(std::filesystem::exists(uploads / "someone-elses.tar"));        // not ours
+}
+
 TEST_F(ServerTest, InternalErrorsAreLoggedNotShownAndLogsAreEscaped) {
   store_options_.fault_hook = [](std::string_view stage) {
     if (stage == "rows_inserted") throw std::runtime_error("disk detail /srv/secret/path");

@@ -75,6 +75,13 @@ std::pair<fs::path, std::string> write_archive(const fs::path& dir, const std::s
   return {p, content_etag(content)};
 }
 
+/// Puts pkg with a fake archive (write_archive(dir, name, content)).
+PutDriveResult put_with_archive(SqliteMapStore& store, const fs::path& dir, const DrivePackage& pkg,
+                                const std::string& name, const std::string& content) {
+  const auto [tar, hash] = write_archive(dir, name, content);
+  return store.put_drive(pkg, tar, hash);
+}
+
 std::int64_t count_rows(const fs::path& db, const std::string& sql) {
   sqlite3* h = nullptr;
   EXPECT_EQ(sqlite3_open_v2(db.c_str(), &h, SQLITE_OPEN_READONLY, nullptr), SQLITE_OK);
@@ -123,10 +130,9 @@ void exec_sql(const fs::path& db, const std::string& sql) {
 TEST(SqliteStore, UpgradesAnOlderDatabaseByApplyingOnlyMissingMigrations) {
   TempDir tmp;
   const fs::path db = tmp.path() / "map.db";
-  const auto [tar, hash] = write_archive(tmp.path(), "a", "A");
   {
     SqliteMapStore store(db);
-    (void)store.put_drive(make_package("a", 3, 1, 1), tar, hash);
+    (void)put_with_archive(store, tmp.path(), make_package("a", 3, 1, 1), "a", "A");
     EXPECT_EQ(store.drive_trajectory("a").size(), 10U);  // 10 m apart: all kept
   }
   // Turn it into a schema-1 database (as written by an older build).
@@ -135,8 +141,7 @@ TEST(SqliteStore, UpgradesAnOlderDatabaseByApplyingOnlyMissingMigrations) {
   EXPECT_EQ(store.schema_version(), 2);
   EXPECT_EQ(store.get_drive("a")->num_points, 3);    // data kept
   EXPECT_TRUE(store.drive_trajectory("a").empty());  // ingested before migration 2
-  const auto [tar2, hash2] = write_archive(tmp.path(), "b", "B");
-  (void)store.put_drive(make_package("b", 3, 1, 2), tar2, hash2);
+  (void)put_with_archive(store, tmp.path(), make_package("b", 3, 1, 2), "b", "B");
   const auto traj = store.drive_trajectory("b");
   ASSERT_EQ(traj.size(), 10U);
   EXPECT_DOUBLE_EQ(traj[3].time_s, 13.0);
@@ -261,10 +266,8 @@ TEST(SqliteStore, DeleteDriveRemovesRowsIndexEntriesAndFiles) {
   TempDir tmp;
   const fs::path db = tmp.path() / "map.db";
   SqliteMapStore store(db);
-  const auto [ta, ha] = write_archive(tmp.path(), "a", "A");
-  const auto [tb, hb] = write_archive(tmp.path(), "b", "B");
-  const auto a = store.put_drive(make_package("a", 30, 5, 1), ta, ha);
-  const auto b = store.put_drive(make_package("b", 20, 4, 2), tb, hb);
+  const auto a = put_with_archive(store, tmp.path(), make_package("a", 30, 5, 1), "a", "A");
+  const auto b = put_with_archive(store, tmp.path(), make_package("b", 20, 4, 2), "b", "B");
   EXPECT_TRUE(store.delete_drive("a"));
   EXPECT_FALSE(store.delete_drive("a"));
   EXPECT_FALSE(store.get_drive("a").has_value());
@@ -289,8 +292,8 @@ TEST(SqliteStore, InterruptedPutLeavesTheStoreUnchanged) {
       if (s == stage) throw std::runtime_error("simulated crash at " + stage);
     };
     SqliteMapStore store(db, opt);
-    const auto [tar, hash] = write_archive(tmp.path(), "a", "A");
-    EXPECT_THROW((void)store.put_drive(make_package("a", 40, 6, 1), tar, hash), std::runtime_error)
+    EXPECT_THROW((void)put_with_archive(store, tmp.path(), make_package("a", 40, 6, 1), "a", "A"),
+                 std::runtime_error)
         << stage;
     EXPECT_TRUE(store.list_drives().empty()) << stage;
     EXPECT_EQ(count_rows(db, "SELECT COUNT(*) FROM candidates"), 0) << stage;
@@ -307,8 +310,7 @@ TEST(SqliteStore, ReopenSweepsCrashLeftovers) {
   {
     SqliteMapStore store(db);
     drives = store.drive_store_dir();
-    const auto [tar, hash] = write_archive(tmp.path(), "a", "A");
-    (void)store.put_drive(make_package("a", 3, 0, 1), tar, hash);
+    (void)put_with_archive(store, tmp.path(), make_package("a", 3, 0, 1), "a", "A");
     (void)store.begin_map_version({{"notes", "crashed build"}});
   }
   // A hard crash between rename and commit leaves a hash-named dir without a
@@ -324,14 +326,35 @@ TEST(SqliteStore, ReopenSweepsCrashLeftovers) {
   EXPECT_EQ(versions[0].status, MapVersionStatus::Failed);
 }
 
+TEST(SqliteStore, ASecondOpenerNeverSweepsTheOwnersWork) {
+  TempDir tmp;
+  const fs::path db = tmp.path() / "map.db";
+  SqliteStoreOptions opt;
+  opt.orphan_grace_s = 0.0;
+  SqliteMapStore owner(db, opt);
+  EXPECT_TRUE(owner.owns_store());
+  const std::int64_t v = owner.begin_map_version({{"notes", "running build"}});
+  fs::create_directories(owner.drive_store_dir() / ".tmp-inflight-1");
+  {
+    // E.g. `polmap export --db` while the server builds: reads work, nothing is swept.
+    SqliteMapStore reader(db, opt);
+    EXPECT_FALSE(reader.owns_store());
+    EXPECT_EQ(reader.get_map_version(v)->status, MapVersionStatus::Building);
+    EXPECT_TRUE(fs::exists(owner.drive_store_dir() / ".tmp-inflight-1"));
+  }
+  EXPECT_EQ(owner.get_map_version(v)->status, MapVersionStatus::Building);
+  owner.put_landmarks(v, {}, {});
+  owner.publish_map_version(v, {}, true);  // the owner's build still publishes
+  EXPECT_EQ(owner.current_map_version(), v);
+}
+
 TEST(SqliteStore, RegionQueryMatchesBruteForce) {
   TempDir tmp;
   SqliteMapStore store(tmp.path() / "map.db");
   for (int d = 0; d < 4; ++d) {
-    const auto [tar, hash] =
-        write_archive(tmp.path(), "d" + std::to_string(d), "D" + std::to_string(d));
-    (void)store.put_drive(make_package("d" + std::to_string(d), 400, 100, 10 + d, 1500.0), tar,
-                          hash);
+    (void)put_with_archive(store, tmp.path(),
+                           make_package("d" + std::to_string(d), 400, 100, 10 + d, 1500.0),
+                           "d" + std::to_string(d), "D" + std::to_string(d));
   }
   const auto all = store.candidates_in(std::nullopt);
   ASSERT_EQ(all.points.size(), 1600U);
@@ -392,8 +415,7 @@ StoredPointLandmark point_lm(double dlat, std::int64_t key,
 TEST(SqliteStore, MapVersionsPublishAtomicallyAndReadersSeeOnlyPublishedMaps) {
   TempDir tmp;
   SqliteMapStore store(tmp.path() / "map.db");
-  const auto [tar, hash] = write_archive(tmp.path(), "a", "A");
-  (void)store.put_drive(make_package("a", 5, 0, 1), tar, hash);
+  (void)put_with_archive(store, tmp.path(), make_package("a", 5, 0, 1), "a", "A");
   const auto cands = store.candidates_in(std::nullopt);
   const tiles::TileKey key =
       tiles::tile_at(kOrigin.lat_deg, kOrigin.lon_deg, tiles::kLocalizationZoom);
@@ -483,8 +505,7 @@ TEST(SqliteStore, MapVersionsPublishAtomicallyAndReadersSeeOnlyPublishedMaps) {
 TEST(SqliteStore, LandmarkBoxQueryAndDriveDeleteKeepsPublishedLandmarks) {
   TempDir tmp;
   SqliteMapStore store(tmp.path() / "map.db");
-  const auto [tar, hash] = write_archive(tmp.path(), "a", "A");
-  (void)store.put_drive(make_package("a", 5, 0, 1), tar, hash);
+  (void)put_with_archive(store, tmp.path(), make_package("a", 5, 0, 1), "a", "A");
   const auto cands = store.candidates_in(std::nullopt);
   const auto v = store.begin_map_version({});
   std::vector<StoredPointLandmark> pts;

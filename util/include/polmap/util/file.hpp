@@ -19,6 +19,30 @@ void write_file_bytes(const std::filesystem::path& path, std::string_view bytes)
 [[nodiscard]] std::filesystem::path make_unique_dir(const std::filesystem::path& parent,
                                                     std::string_view stem);
 
+/// fsync(2) of a regular file, so its bytes survive a crash. Throws IoError.
+void sync_file(const std::filesystem::path& path);
+/// fsync(2) of a directory, so the names created or renamed in it survive a crash.
+void sync_directory(const std::filesystem::path& dir);
+/// sync_file of every regular file below `dir`, then sync_directory of every directory.
+void sync_tree(const std::filesystem::path& dir);
+
+/// An exclusive advisory lock (flock) on `path` (created if missing), held while the
+/// object lives. try_acquire() tells whether this process got it.
+class FileLock {
+ public:
+  explicit FileLock(const std::filesystem::path& path);
+  ~FileLock();
+  FileLock(const FileLock&) = delete;
+  FileLock& operator=(const FileLock&) = delete;
+  /// Non-blocking; true if the lock is (now) held by this object.
+  bool try_acquire();
+  [[nodiscard]] bool held() const { return held_; }
+
+ private:
+  int fd_ = -1;
+  bool held_ = false;
+};
+
 /// Owns a directory and removes it (recursively, errors ignored) when destroyed, unless
 /// release() was called: the guard of every "build in a temporary directory, then
 /// commit by rename" sequence, and of the test fixtures.

@@ -56,6 +56,9 @@ struct ServerConfig {
   std::uint64_t max_json_bytes = 1ull << 20;
   /// Directory for in-flight uploads (removed after each request); empty = system temp dir.
   std::filesystem::path upload_dir;
+  /// At start, our upload and export leftovers in upload_dir that nobody touched for this
+  /// long are removed (what a killed process left behind).
+  double upload_leftover_age_s = 600.0;
   /// Worker threads. cpp-httplib keeps a worker per open keep-alive connection,
   /// so this bounds the number of concurrently served connections.
   int threads = 32;

@@ -68,6 +68,9 @@ class SqliteMapStore final : public MapStore {
  public:
   /// Opens (creating if needed) the database and drive store, applies
   /// pending migrations. Throws IoError if the file cannot be opened.
+  /// The first opener holds an exclusive lock on `<db>.lock` for its lifetime (the
+  /// owner) and alone sweeps crash leftovers; later openers (another process, an export)
+  /// read and write but never sweep, so they cannot fail the owner's running build.
   explicit SqliteMapStore(const std::filesystem::path& db_path, SqliteStoreOptions options = {});
   ~SqliteMapStore() override;
   SqliteMapStore(const SqliteMapStore&) = delete;
@@ -75,6 +78,8 @@ class SqliteMapStore final : public MapStore {
 
   [[nodiscard]] const std::filesystem::path& path() const;
   [[nodiscard]] const std::filesystem::path& drive_store_dir() const;
+  /// True if this object holds the owner lock (see the constructor).
+  [[nodiscard]] bool owns_store() const;
   /// Schema version of the open database (highest applied migration).
   [[nodiscard]] int schema_version() const;
   /// Value of a PRAGMA on a pooled connection (tests: "journal_mode", "foreign_keys").

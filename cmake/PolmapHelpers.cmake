@@ -4,8 +4,8 @@ function(polmap_target_defaults target)
   set_target_properties(${target} PROPERTIES CXX_EXTENSIONS OFF)
   get_target_property(_type ${target} TYPE)
   if(NOT _type STREQUAL "INTERFACE_LIBRARY")
-    target_compile_options(${target} PRIVATE -Wall -Wextra -Wpedantic -Werror
-      -Wno-error=deprecated-declarations)
+    target_compile_options(${target} PRIVATE -Wall -Wextra -Wpedantic
+      $<$<BOOL:${POLMAP_WERROR}>:-Werror -Wno-error=deprecated-declarations>)
   endif()
 endfunction()
 

@@ -4,6 +4,7 @@
 #include <array>
 #include <cstring>
 #include <set>
+#include <tuple>
 
 #include "polmap/schema/errors.hpp"
 
@@ -171,6 +172,17 @@ std::vector<TarMemberView> read_ustar_views(std::string_view bytes, const std::s
     if (name.empty() || !printable || name.find('/') != std::string::npos || name == "." ||
         name == "..") {
       throw fail(off + kNameOff, "member name is not a flat, printable file name");
+    }
+    // Every numeric field octal digits only (other readers reject the header otherwise and
+    // would see another archive than we do).
+    for (const auto& [field_off, field_len, what] :
+         {std::tuple{kModeOff, std::size_t{8}, "mode"}, std::tuple{kUidOff, std::size_t{8}, "uid"},
+          std::tuple{kGidOff, std::size_t{8}, "gid"},
+          std::tuple{kMtimeOff, std::size_t{12}, "mtime"}}) {
+      std::uint64_t ignored = 0;
+      if (!parse_octal(hc + field_off, field_len, ignored)) {
+        throw fail(off + field_off, "member '" + name + "': unreadable " + what + " field");
+      }
     }
     std::uint64_t size = 0;
     if (!parse_octal(hc + kSizeOff, kSizeLen, size)) {

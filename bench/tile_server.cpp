@@ -5,17 +5,14 @@
 // static files DIR/static/v1/tiles/16/X/Y (same URL paths, for nginx) and the list of
 // tile paths DIR/paths.txt, then serves the store with mapping::Server on 127.0.0.1:P
 // and prints "READY <port>" on stdout. Stops on SIGINT/SIGTERM.
-#include <pthread.h>
-#include <signal.h>
-
 #include <CLI/CLI.hpp>
-#include <atomic>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <random>
 #include <thread>
 
+#include "polmap/eval/serve_until_signal.hpp"
 #include "polmap/mapping_service/server.hpp"
 #include "polmap/mapping_service/sqlite_store.hpp"
 #include "polmap/tiles/localization_tile.hpp"
@@ -69,11 +66,7 @@ int main(int argc, char** argv) {
   app.add_option("--log", log_file, "Request log file (default: no request log)");
   CLI11_PARSE(app, argc, argv);
 
-  sigset_t signals;
-  sigemptyset(&signals);
-  sigaddset(&signals, SIGINT);
-  sigaddset(&signals, SIGTERM);
-  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+  const sigset_t signals = eval::block_stop_signals();
 
   const fs::path dir(out);
   fs::remove_all(dir);
@@ -125,26 +118,13 @@ int main(int argc, char** argv) {
     cfg.log_requests = false;
   }
   mapping::Server server(store, cfg);
-  std::atomic<bool> done{false};
-  std::thread waiter([&] {
-    const timespec tick{0, 200'000'000};
-    while (!done) {
-      const int sig = sigtimedwait(&signals, nullptr, &tick);
-      if (sig == SIGINT || sig == SIGTERM) {
-        server.stop();
-        return;
-      }
-    }
-  });
   std::thread announce([&] {
     if (server.wait_until_listening(std::chrono::seconds(30))) {
       std::printf("READY %d\n", server.bound_port());
       std::fflush(stdout);
     }
   });
-  server.listen("127.0.0.1", port);
-  done = true;
-  waiter.join();
+  eval::listen_until_signal(server, signals, "127.0.0.1", port);
   announce.join();
   return 0;
 }

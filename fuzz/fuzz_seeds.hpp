@@ -19,8 +19,8 @@ inline std::filesystem::path seed_dir() {
 inline void write_seed(const std::filesystem::path& dir, const std::string& name,
                        std::string_view bytes) {
   std::filesystem::create_directories(dir);
-  std::ofstream(dir / name, std::ios::binary).write(bytes.data(),
-                                                    static_cast<std::streamsize>(bytes.size()));
+  std::ofstream(dir / name, std::ios::binary)
+      .write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
 }
 
 }  // namespace polmap::fuzz

@@ -25,12 +25,14 @@ bool same(const tiles::LocalizationTile& a, const tiles::LocalizationTile& b) {
     return false;
   }
   for (std::size_t i = 0; i < a.points.size(); ++i) {
-    if (a.points[i].id != b.points[i].id || (a.points[i].position_m - b.points[i].position_m).norm() > 1e-9) {
+    if (a.points[i].id != b.points[i].id ||
+        (a.points[i].position_m - b.points[i].position_m).norm() > 1e-9) {
       return false;
     }
   }
   for (std::size_t i = 0; i < a.lines.size(); ++i) {
-    if (a.lines[i].id != b.lines[i].id || a.lines[i].polyline_m.size() != b.lines[i].polyline_m.size()) {
+    if (a.lines[i].id != b.lines[i].id ||
+        a.lines[i].polyline_m.size() != b.lines[i].polyline_m.size()) {
       return false;
     }
   }
@@ -67,8 +69,8 @@ extern "C" int LLVMFuzzerInitialize(int*, char***) {
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   tiles::LocalizationTile t;
   try {
-    t = tiles::decode_localization_tile(
-        std::string_view(reinterpret_cast<const char*>(data), size), "fuzz");
+    t = tiles::decode_localization_tile(std::string_view(reinterpret_cast<const char*>(data), size),
+                                        "fuzz");
   } catch (const FormatError&) {
     return 0;
   }

@@ -17,8 +17,8 @@ using namespace polmap;
 namespace {
 
 std::filesystem::path scratch() {
-  static const std::filesystem::path p =
-      std::filesystem::temp_directory_path() / ("polmap-fuzz-recording-" + std::to_string(::getpid()));
+  static const std::filesystem::path p = std::filesystem::temp_directory_path() /
+                                         ("polmap-fuzz-recording-" + std::to_string(::getpid()));
   return p;
 }
 

@@ -88,7 +88,7 @@ class ServerFixture : public ::testing::Test {
     SqliteStoreOptions so = store_options_;
     so.orphan_grace_s = 0;
     store_ = std::make_unique<SqliteMapStore>(dir_ / "map.db", so);
-    cfg.api_keys = {kKey, kOtherKey};
+    if (cfg.api_keys.empty()) cfg.api_keys = {kKey, kOtherKey};
     cfg.upload_dir = dir_ / "uploads";
     cfg.threads = 8;
     cfg.log_sink = [this](std::string_view line) {

@@ -97,36 +97,42 @@ void check_against_brute_force(const std::vector<Frame>& frames, const Covarianc
   EXPECT_GT(observed, checked / 10);
 }
 
+/// Maps `frames` (0.1 s apart) into a gridmap with cfg and checks it against brute force.
+void check_mapping_against_brute_force(const GridmapConfig& cfg, const std::vector<Frame>& frames,
+                                       int stride) {
+  CovarianceGridmap map(cfg);
+  for (std::size_t f = 0; f < frames.size(); ++f) {
+    map.add(frames[f].spectrum, frames[f].pose, static_cast<double>(f) * 0.1);
+  }
+  check_against_brute_force(frames, map, stride);
+}
+
 TEST(NearestNeighbourMapping, MatchesBruteForceForRandomPosesAndBeams) {
   std::mt19937 rng(7);
+  std::uniform_real_distribution<double> pos(-3.0, 3.0), yaw(-std::numbers::pi, std::numbers::pi);
+  std::vector<Frame> frames;
+  for (int f = 0; f < 4; ++f) {
+    frames.push_back(
+        {random_spectrum(rng, 160, 25, 0.15), {pos(rng) + 100.0, pos(rng) - 50.0, yaw(rng)}});
+  }
   GridmapConfig cfg;
   cfg.level = PolLevel::SingleRR;
   cfg.cell_size_m = 0.1;
-  CovarianceGridmap map(cfg);
-  std::vector<Frame> frames;
-  std::uniform_real_distribution<double> pos(-3.0, 3.0), yaw(-std::numbers::pi, std::numbers::pi);
-  for (int f = 0; f < 4; ++f) {
-    Frame fr{random_spectrum(rng, 160, 25, 0.15), {pos(rng) + 100.0, pos(rng) - 50.0, yaw(rng)}};
-    map.add(fr.spectrum, fr.pose, f * 0.1);
-    frames.push_back(fr);
-  }
-  check_against_brute_force(frames, map, 1);
+  check_mapping_against_brute_force(cfg, frames, 1);
 }
 
 TEST(NearestNeighbourMapping, FullRangeFootprintCountsMatchBruteForce) {
   // 80 m footprint: tile- and block-level coverage must agree with the per-cell rule.
   std::mt19937 rng(11);
+  std::uniform_real_distribution<double> yaw(-std::numbers::pi, std::numbers::pi);
+  std::vector<Frame> frames;
+  for (int f = 0; f < 2; ++f) {
+    frames.push_back(
+        {random_spectrum(rng, 1067, 81, 0.003), {f * 7.3 - 20.0, f * 3.1 + 5.0, yaw(rng)}});
+  }
   GridmapConfig cfg;
   cfg.level = PolLevel::SingleRR;
-  CovarianceGridmap map(cfg);
-  std::vector<Frame> frames;
-  std::uniform_real_distribution<double> yaw(-std::numbers::pi, std::numbers::pi);
-  for (int f = 0; f < 2; ++f) {
-    Frame fr{random_spectrum(rng, 1067, 81, 0.003), {f * 7.3 - 20.0, f * 3.1 + 5.0, yaw(rng)}};
-    map.add(fr.spectrum, fr.pose, f * 0.1);
-    frames.push_back(fr);
-  }
-  check_against_brute_force(frames, map, 7);
+  check_mapping_against_brute_force(cfg, frames, 7);
 }
 
 TEST(NearestNeighbourMapping, MaxRangeLimitsFootprint) {

@@ -245,6 +245,14 @@ void expect_records_close(const std::vector<RecordingRecord>& a,
   }
 }
 
+/// The bytes of write_sample_recording(dir / "good.pmrec", seed, cycles, cells, dets).
+std::vector<char> sample_recording_bytes(const TempDir& dir, std::uint32_t seed, int cycles,
+                                         int cells, int dets) {
+  const auto good = dir / "good.pmrec";
+  write_sample_recording(good, seed, cycles, cells, dets);
+  return read_bytes(good);
+}
+
 /// Runs a complete read and returns the FormatError message, or "" if the file read cleanly.
 std::string read_error(const fs::path& path) {
   try {
@@ -373,9 +381,7 @@ TEST(RecordingIo, FrameWithoutCellsOrDetections) {
 
 TEST(RecordingIo, TruncationAtEveryOffsetIsFormatErrorNamingFileAndOffset) {
   TempDir dir;
-  const auto good = dir / "good.pmrec";
-  write_sample_recording(good, 5, 2, 40, 8);
-  const auto bytes = read_bytes(good);
+  const auto bytes = sample_recording_bytes(dir, 5, 2, 40, 8);
   ASSERT_GT(bytes.size(), 1000u);
   const auto cut = dir / "cut.pmrec";
   for (std::size_t n = 0; n < bytes.size(); ++n) {
@@ -396,9 +402,7 @@ TEST(RecordingIo, TruncationAtEveryOffsetIsFormatErrorNamingFileAndOffset) {
 
 TEST(RecordingIo, EveryCorruptedByteIsDetected) {
   TempDir dir;
-  const auto good = dir / "good.pmrec";
-  write_sample_recording(good, 6, 2, 40, 8);
-  const auto bytes = read_bytes(good);
+  const auto bytes = sample_recording_bytes(dir, 6, 2, 40, 8);
   const auto bad = dir / "bad.pmrec";
   std::mt19937 rng(11);
   // Every position once with a random non-zero XOR mask: the format has no
@@ -415,9 +419,7 @@ TEST(RecordingIo, EveryCorruptedByteIsDetected) {
 
 TEST(RecordingIo, RandomMultiByteCorruptionNeverCrashes) {
   TempDir dir;
-  const auto good = dir / "good.pmrec";
-  write_sample_recording(good, 8, 3, 200, 20);
-  const auto bytes = read_bytes(good);
+  const auto bytes = sample_recording_bytes(dir, 8, 3, 200, 20);
   const auto bad = dir / "bad.pmrec";
   std::mt19937 rng(12);
   for (int trial = 0; trial < 300; ++trial) {

@@ -1,7 +1,6 @@
 #include "polmap/tiles/polyline_simplify.hpp"
 
 #include <gtest/gtest.h>
-
 #include <pthread.h>
 
 #include <algorithm>
@@ -63,7 +62,8 @@ TEST(DouglasPeucker, DroppedVerticesStayWithinTolerance) {
   std::size_t last = 0;
   for (std::size_t i = 1; i < p.size(); ++i) {
     if (!keep[i]) continue;
-    for (std::size_t j = last + 1; j < i; ++j) EXPECT_LE(line_distance(p[j], p[last], p[i]), 0.5 + 1e-9);
+    for (std::size_t j = last + 1; j < i; ++j)
+      EXPECT_LE(line_distance(p[j], p[last], p[i]), 0.5 + 1e-9);
     last = i;
   }
   EXPECT_TRUE(keep.front());

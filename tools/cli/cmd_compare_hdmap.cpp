@@ -6,14 +6,13 @@
 #include <CLI/CLI.hpp>
 #include <cmath>
 #include <cstdio>
-#include <filesystem>
 #include <memory>
 #include <string>
 
 #include "command.hpp"
+#include "map_db.hpp"
 #include "polmap/mapping_service/hdmap_compare.hpp"
 #include "polmap/mapping_service/sqlite_store.hpp"
-#include "polmap/schema/errors.hpp"
 
 namespace polmap::cli {
 namespace {
@@ -35,17 +34,10 @@ std::string fmt(const std::optional<double>& v, const char* spec, double scale =
 }
 
 void run(CompareOptions o) {
-  if (!std::filesystem::is_regular_file(o.db)) {
-    throw IoError("--db " + o.db + ": no such map database");
-  }
+  require_map_db(o.db);
   const mapping::HdMap hd = mapping::read_lanelet2_osm(o.hdmap);
   mapping::SqliteMapStore store(o.db);
-  std::int64_t version = o.version;
-  if (version == 0) {
-    const auto current = store.current_map_version();
-    if (!current) throw NotFoundError(o.db + ": no published map version (run build-map first)");
-    version = *current;
-  }
+  const std::int64_t version = map_version_or_current(store, o.db, o.version);
   o.cfg.restrict_to_overlap = !o.no_overlap;
   // Landmarks near the HD map only (its box grown by the evaluation margin).
   std::optional<mapping::GeoBox> box = mapping::hdmap_bounds(hd);

@@ -32,7 +32,7 @@ void run(const DrivesOptions& o) {
     std::printf("drive %s deleted\n", o.del.c_str());
     return;
   }
-  const auto r = cli->Get("/v1/drives");
+  const auto r = cli->Get("/v1/drives", {{"Authorization", "Bearer " + o.api_key}});
   const auto& res = expect_ok(r, o.server, "list drives");
   if (o.json) {
     std::printf("%s\n", res.body.c_str());

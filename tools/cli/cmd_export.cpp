@@ -6,13 +6,13 @@
 #include <CLI/CLI.hpp>
 #include <cmath>
 #include <cstdio>
-#include <filesystem>
 #include <memory>
 #include <optional>
 #include <sstream>
 #include <string>
 
 #include "command.hpp"
+#include "map_db.hpp"
 #include "polmap/mapping_service/export.hpp"
 #include "polmap/mapping_service/sqlite_store.hpp"
 #include "polmap/schema/errors.hpp"
@@ -56,16 +56,9 @@ void run(const ExportOptions& o) {
     throw ValidationError("--format '" + o.format + "': expected gpkg, geojson, shp or gtiff");
   }
   const auto bbox = parse_bbox(o.bbox);
-  if (!std::filesystem::is_regular_file(o.db)) {
-    throw IoError("--db " + o.db + ": no such map database");
-  }
+  require_map_db(o.db);
   mapping::SqliteMapStore store(o.db);
-  std::int64_t version = o.version;
-  if (version == 0) {
-    const auto current = store.current_map_version();
-    if (!current) throw NotFoundError(o.db + ": no published map version (run build-map first)");
-    version = *current;
-  }
+  const std::int64_t version = map_version_or_current(store, o.db, o.version);
   const auto s = mapping::export_map(store, version, *format, bbox, o.out);
   if (*format == mapping::ExportFormat::GeoTiff) {
     std::printf("map version %lld: fleet gridmap, %llu tiles -> %s (%llu bytes)\n",

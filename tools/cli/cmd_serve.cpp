@@ -53,6 +53,7 @@ void run(const ServeOptions& o) {
   const auto [host, port] = split_listen(o.listen);
   mapping::ServerConfig cfg;
   cfg.api_keys = mapping::read_api_key_file(o.api_key_file);
+  cfg.api_key_file = o.api_key_file;  // reloaded when it changes
   cfg.max_upload_bytes = static_cast<std::uint64_t>(o.max_upload_mib * 1024.0 * 1024.0);
   cfg.threads = o.threads;
   cfg.current_tile_max_age_s = o.current_max_age_s;

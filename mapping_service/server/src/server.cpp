@@ -26,15 +26,52 @@ std::string status_of(const MapVersionInfo& v) { return std::string(to_string(v.
 
 void set_route(const char* route) { t_route = route; }
 
-std::vector<std::string> read_api_key_file(const std::filesystem::path& path) {
+std::string_view to_string(KeyRole role) {
+  switch (role) {
+    case KeyRole::Vehicle:
+      return "vehicle";
+    case KeyRole::Viewer:
+      return "viewer";
+    default:
+      return "operator";
+  }
+}
+
+std::vector<ApiKey> read_api_key_file(const std::filesystem::path& path) {
   std::ifstream in(path);
   if (!in) throw IoError("cannot read API key file " + path.string());
-  std::vector<std::string> keys;
+  std::vector<ApiKey> keys;
   std::string line;
+  int number = 0;
   while (std::getline(in, line)) {
+    ++number;
     const std::string_view t = util::trim(line);
     if (t.empty() || t.front() == '#') continue;
-    keys.emplace_back(t);
+    std::vector<std::string_view> words;
+    for (std::size_t pos = 0; pos < t.size();) {
+      while (pos < t.size() && util::is_ascii_space(t[pos])) ++pos;
+      const std::size_t end = std::find_if(t.begin() + static_cast<std::ptrdiff_t>(pos), t.end(),
+                                           util::is_ascii_space) -
+                              t.begin();
+      if (end > pos) words.push_back(t.substr(pos, end - pos));
+      pos = end;
+    }
+    const auto where = path.string() + ":" + std::to_string(number);
+    if (words.size() == 1) {
+      keys.emplace_back(std::string(words[0]));
+      continue;
+    }
+    std::optional<KeyRole> role;
+    for (const KeyRole r : {KeyRole::Vehicle, KeyRole::Viewer, KeyRole::Operator}) {
+      if (words[0] == to_string(r)) role = r;
+    }
+    if (!role || words.size() > 3 || (words.size() == 3 && *role != KeyRole::Vehicle)) {
+      throw ValidationError(where +
+                            ": expected 'KEY' or 'vehicle|viewer|operator KEY' (vehicle keys may "
+                            "add a VEHICLE_ID)");
+    }
+    keys.emplace_back(std::string(words[1]), *role,
+                      words.size() == 3 ? std::string(words[2]) : std::string());
   }
   if (keys.empty()) throw ValidationError("API key file " + path.string() + " holds no key");
   return keys;
@@ -68,6 +105,12 @@ Server::Impl::Impl(MapStore& s, ServerConfig config)
       l.push_back('\n');
       std::fwrite(l.data(), 1, l.size(), stderr);  // one write: lines do not interleave
     };
+  }
+  keys = std::make_shared<const std::vector<ApiKey>>(cfg.api_keys);
+  if (!cfg.api_key_file.empty()) {
+    std::error_code ec;
+    keys_mtime = std::filesystem::last_write_time(cfg.api_key_file, ec);  // api_keys is its content
+    keys_checked_at = std::chrono::steady_clock::now();
   }
   const int threads = std::max(1, cfg.threads);
   http.new_task_queue = [threads] { return new httplib::ThreadPool(static_cast<size_t>(threads)); };
@@ -140,7 +183,7 @@ void Server::Impl::log(std::string_view level, std::string_view message) const {
   cfg.log_sink(line);
 }
 
-bool Server::Impl::require_key(const httplib::Request& req, httplib::Response& res) const {
+std::optional<ApiKey> Server::Impl::authenticate(const httplib::Request& req) const {
   const std::string auth = req.get_header_value("Authorization");
   std::string_view token;
   constexpr std::string_view kBearer = "Bearer ";
@@ -151,17 +194,77 @@ bool Server::Impl::require_key(const httplib::Request& req, httplib::Response& r
       })) {
     token = util::trim(std::string_view(auth).substr(kBearer.size()));
   }
+  if (token.empty()) return std::nullopt;
+  const auto keys = current_keys();
   // Compare against every key without early exit: timing does not depend on which
   // key matched, and secrets_equal compares digests in constant time.
-  bool ok = false;
-  for (const std::string& key : cfg.api_keys) ok |= http::secrets_equal(token, key);
-  if (ok && !token.empty()) return true;
-  res.set_header("WWW-Authenticate", "Bearer realm=\"polmap\"");
-  reply_error(
-      res, 401,
-      auth.empty() ? "missing API key: send 'Authorization: Bearer KEY'" : "invalid API key",
-      "Authorization");
+  std::optional<ApiKey> match;
+  for (const ApiKey& k : *keys) {
+    if (http::secrets_equal(token, k.key) && !match) match = k;
+  }
+  return match;
+}
+
+std::optional<ApiKey> Server::Impl::require(const httplib::Request& req, httplib::Response& res,
+                                            Access access) const {
+  auto key = authenticate(req);
+  if (!key) {
+    res.set_header("WWW-Authenticate", "Bearer realm=\"polmap\"");
+    reply_error(res, 401,
+                req.has_header("Authorization")
+                    ? "invalid API key"
+                    : "missing API key: send 'Authorization: Bearer KEY'",
+                "Authorization");
+    return std::nullopt;
+  }
+  if (!allows(*key, access)) {
+    reply_error(res, 403,
+                "a " + std::string(to_string(key->role)) + " key may not " +
+                    std::string(access == Access::Upload       ? "upload drives"
+                                : access == Access::ReadDrives ? "read drive data"
+                                                               : "run builds, deletes or exports"),
+                "Authorization");
+    return std::nullopt;
+  }
+  return key;
+}
+
+bool Server::Impl::allows(const ApiKey& key, Access access) {
+  if (access == Access::AnyKey) return true;
+  switch (key.role) {
+    case KeyRole::Operator:
+      return true;
+    case KeyRole::Viewer:
+      return access == Access::ReadDrives;
+    case KeyRole::Vehicle:
+      return access == Access::Upload;
+  }
   return false;
+}
+
+std::shared_ptr<const std::vector<ApiKey>> Server::Impl::current_keys() const {
+  std::lock_guard lock(keys_mutex);
+  if (!cfg.api_key_file.empty()) {
+    const auto now = std::chrono::steady_clock::now();
+    if (now - keys_checked_at >= std::chrono::seconds(1)) {
+      keys_checked_at = now;
+      std::error_code ec;
+      const auto mtime = std::filesystem::last_write_time(cfg.api_key_file, ec);
+      if (!ec && mtime != keys_mtime) {
+        try {
+          keys = std::make_shared<const std::vector<ApiKey>>(read_api_key_file(cfg.api_key_file));
+          keys_mtime = mtime;
+          log("info", "API keys reloaded from " + cfg.api_key_file.string() + " (" +
+                          std::to_string(keys->size()) + " keys)");
+        } catch (const std::exception& e) {
+          keys_mtime = mtime;  // do not retry a broken file every second; its next change will
+          log("error",
+              std::string("API key file not reloaded, keeping the previous keys: ") + e.what());
+        }
+      }
+    }
+  }
+  return keys;
 }
 
 void Server::Impl::reply_json(httplib::Response& res, int status, const nlohmann::json& body) {
@@ -316,14 +419,21 @@ bool Server::Impl::admit(const httplib::Request& req, httplib::Response& res) co
   }
   const bool write = req.method != "GET" && req.method != "HEAD" && req.method != "OPTIONS";
   if (!write) return true;
-  // Writes need a key before their body is read (a 401 costs the client, not the server).
-  if (!require_key(req, res)) {
+  // Uploads: their handler checks the key before it reads a byte, drains a small refused
+  // body (the keep-alive connection survives) and streams the rest to disk, capped.
+  const bool upload = req.method == "POST" && req.path == "/v1/drives";
+  if (upload) return true;
+  // Other writes without a valid key: refused before the body is read unless it is tiny
+  // (then the handler answers 401 on a connection that stays usable).
+  const auto declared = http::parse_int(req.get_header_value("Content-Length"));
+  const bool tiny = !req.has_header("Transfer-Encoding") &&
+                    (!req.has_header("Content-Length") || (declared && *declared <= (64 << 10)));
+  if (!tiny && !authenticate(req)) {
+    (void)require(req, res, Access::AnyKey);  // writes the 401
     set_route("refused");
     res.set_header("Connection", "close");
     return false;
   }
-  const bool upload = req.method == "POST" && req.path == "/v1/drives";
-  if (upload) return true;  // streamed to disk by its handler, capped at max_upload_bytes
   // Other bodies are small JSON that cpp-httplib buffers whole: they must declare their
   // length, and it must be within max_json_bytes.
   if (req.has_header("Transfer-Encoding")) {
@@ -437,7 +547,8 @@ void Server::Impl::register_routes() {
     reply_json(res, 200, j);
   });
 
-  http.Get("/metrics", [this](const httplib::Request&, httplib::Response& res) {
+  http.Get("/metrics", [this](const httplib::Request& req, httplib::Response& res) {
+    if (!require(req, res, Access::ReadDrives)) return;
     set_route("metrics");
     std::string out = metrics.render();
     const StoreStats s = store.stats();

@@ -97,7 +97,8 @@ void Server::Impl::register_drive_routes() {
         res.set_header("Connection", "close");
       }
     };
-    if (!require_key(req, res)) return reject_unread("unauthorized");
+    const auto key = require(req, res, Access::Upload);
+    if (!key) return reject_unread("unauthorized");
     if (!acceptable_upload_type(req.get_header_value("Content-Type"))) {
       reply_error(
           res, 415,
@@ -180,6 +181,13 @@ void Server::Impl::register_drive_routes() {
       nlohmann::json extra{{"file", e.file}};
       return reply_error(res, e.http_status == 422 ? 422 : 400, e.what(), e.field, extra);
     }
+    if (!key->vehicle_id.empty() && pkg->manifest.vehicle_id != key->vehicle_id) {
+      metrics.upload("forbidden", received);
+      return reply_error(res, 403,
+                         "this key uploads drives of vehicle '" + key->vehicle_id +
+                             "', the package is of vehicle '" + pkg->manifest.vehicle_id + "'",
+                         "vehicle_id");
+    }
     PutDriveResult put;
     try {
       const util::ScopedTempDir members = util::ScopedTempDir::create(dir, "polmap-upload-members");
@@ -206,8 +214,9 @@ void Server::Impl::register_drive_routes() {
     }
   });
 
-  http.Get("/v1/drives", [this](const httplib::Request&, httplib::Response& res) {
+  http.Get("/v1/drives", [this](const httplib::Request& req, httplib::Response& res) {
     set_route("drives_list");
+    if (!require(req, res, Access::ReadDrives)) return;
     nlohmann::json list = nlohmann::json::array();
     for (const DriveRecord& d : store.list_drives()) list.push_back(drive_to_json(d, false));
     reply_json(res, 200, {{"drives", list}, {"count", list.size()}});
@@ -215,6 +224,7 @@ void Server::Impl::register_drive_routes() {
 
   http.Get(R"(/v1/drives/([^/]+))", [this](const httplib::Request& req, httplib::Response& res) {
     set_route("drives_get");
+    if (!require(req, res, Access::ReadDrives)) return;
     const std::string id = req.matches[1];
     if (auto d = store.get_drive(id)) return reply_json(res, 200, drive_to_json(*d, true));
     reply_error(res, 404, "drive '" + id + "' does not exist", "drive_id");
@@ -222,7 +232,7 @@ void Server::Impl::register_drive_routes() {
 
   http.Delete(R"(/v1/drives/([^/]+))", [this](const httplib::Request& req, httplib::Response& res) {
     set_route("drives_delete");
-    if (!require_key(req, res)) return;
+    if (!require(req, res, Access::Operate)) return;
     const std::string id = req.matches[1];
     if (!store.delete_drive(id)) {
       return reply_error(res, 404, "drive '" + id + "' does not exist", "drive_id");

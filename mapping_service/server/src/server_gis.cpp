@@ -45,6 +45,7 @@ std::string gridmap_overzoom_png(std::string_view ancestor_png, const tiles::Til
 
 void Server::Impl::register_gis_routes() {
   http.Get("/v1/export", [this](const httplib::Request& req, httplib::Response& res) {
+    if (!require(req, res, Access::Operate)) return;
     set_route("export");
     const std::string fmt = req.get_param_value("format");
     const auto format = parse_export_format(fmt);

@@ -72,8 +72,21 @@ struct Server::Impl {
   /// (header count and size, one range, no encoded bodies, a key for every write,
   /// declared and bounded JSON bodies). False: the refusal is in `res`.
   bool admit(const httplib::Request& req, httplib::Response& res) const;
-  /// True if the request carries a valid bearer key; otherwise fills a 401 reply.
-  bool require_key(const httplib::Request& req, httplib::Response& res) const;
+  /// What a request needs its key for.
+  enum class Access { AnyKey, Upload, ReadDrives, Operate };
+  /// The request's key, if it carries a valid one (Authorization: Bearer KEY).
+  [[nodiscard]] std::optional<ApiKey> authenticate(const httplib::Request& req) const;
+  /// The request's key if its role allows `access`; otherwise writes 401 (no valid key)
+  /// or 403 (role) into `res` and returns nullopt.
+  std::optional<ApiKey> require(const httplib::Request& req, httplib::Response& res,
+                                Access access) const;
+  [[nodiscard]] static bool allows(const ApiKey& key, Access access);
+  /// The keys in force (reloaded from cfg.api_key_file when it changed).
+  [[nodiscard]] std::shared_ptr<const std::vector<ApiKey>> current_keys() const;
+  mutable std::mutex keys_mutex;
+  mutable std::shared_ptr<const std::vector<ApiKey>> keys;
+  mutable std::chrono::steady_clock::time_point keys_checked_at{};
+  mutable std::filesystem::file_time_type keys_mtime{};
   static void reply_json(httplib::Response& res, int status, const nlohmann::json& body);
   static void reply_error(httplib::Response& res, int status, std::string_view message,
                           std::string_view field = {}, const nlohmann::json& extra = nullptr);

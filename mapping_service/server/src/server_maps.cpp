@@ -108,7 +108,7 @@ void Server::Impl::run_build(const BuildJob& job) {
 void Server::Impl::register_map_routes() {
   http.Post("/v1/maps", [this](const httplib::Request& req, httplib::Response& res) {
     set_route("maps_build");
-    if (!require_key(req, res)) return;
+    if (!require(req, res, Access::Operate)) return;
     if (req.body.size() > cfg.max_json_bytes) {
       return reply_error(res, 413,
                          "request body exceeds " + std::to_string(cfg.max_json_bytes) + " bytes",

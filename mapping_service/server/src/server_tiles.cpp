@@ -159,8 +159,11 @@ void Server::Impl::get_mvt_tile(const httplib::Request& req, httplib::Response& 
     if (!idx) return metrics.tile_served("mvt", res.status);
   }
   const std::int64_t version = idx ? idx->version : 0;
-  const std::string ck = "M/" + std::to_string(version) + "/" +
-                         std::to_string(drives_generation.load()) + "/" + key_cache_id(*key);
+  // Trajectories are personal data: only for keys that may read drives.
+  const auto reader = authenticate(req);
+  const bool with_trajectories = reader && allows(*reader, Access::ReadDrives);
+  const std::string ck = std::string(with_trajectories ? "MT/" : "M/") + std::to_string(version) +
+                         "/" + std::to_string(drives_generation.load()) + "/" + key_cache_id(*key);
   auto blob = cache.get(ck);
   if (!blob) {
     const tiles::MvtOptions opt;
@@ -190,7 +193,8 @@ void Server::Impl::get_mvt_tile(const httplib::Request& req, httplib::Response& 
       }
     }
     std::uint64_t fid = 1;
-    for (const DriveRecord& d : store.drives_in(box)) {
+    for (const DriveRecord& d :
+         with_trajectories ? store.drives_in(box) : std::vector<DriveRecord>{}) {
       const auto traj = drive_trajectory(d);
       if (traj->size() < 2) continue;
       trajectories.features.push_back({fid++,
@@ -208,13 +212,16 @@ void Server::Impl::get_mvt_tile(const httplib::Request& req, httplib::Response& 
     cache.put(ck, b);
     blob = std::move(b);
   }
-  const std::string cache_control = "public, max-age=60";
+  // With trajectories the tile is one reader's: never in a shared cache.
+  const std::string cache_control =
+      with_trajectories ? "private, max-age=60" : "public, max-age=60";
   if (blob->body.empty()) {
     res.status = 204;  // no features: viewers treat 204 as an empty tile
     res.set_header("Cache-Control", cache_control);
     return metrics.tile_served("mvt", 204);
   }
   metrics.tile_served("mvt", reply_blob(req, res, *blob, cache_control));
+  res.set_header("Vary", "Authorization");  // the trajectories layer depends on the key
 }
 
 // ---- TileJSON 3.0 describing the MVT layers

@@ -89,6 +89,18 @@ void put(SqliteMapStore& store, const fs::path& dir, const DrivePackage& pkg) {
   (void)store.put_drive(pkg, tar, content_etag("fake package " + pkg.manifest.drive_id));
 }
 
+/// Puts drives "d0", "d1", ... (seeds first_seed, first_seed + 1, ...) that each observe
+/// the box [lo, hi] of w with `temporaries` single-drive objects.
+void put_drives(SqliteMapStore& store, const fs::path& dir, const World& w, int drives,
+                unsigned first_seed, const Eigen::Vector2d& lo, const Eigen::Vector2d& hi,
+                int temporaries = 20) {
+  for (int d = 0; d < drives; ++d) {
+    std::string id = "d";  // not "d" + to_string(d): GCC 12 -O3 warns falsely (-Wrestrict)
+    id += std::to_string(d);
+    put(store, dir, observe(w, id, first_seed + static_cast<unsigned>(d), lo, hi, temporaries));
+  }
+}
+
 MapBuildRequest no_gridmap() {
   MapBuildRequest r;
   r.build_gridmap = false;  // the fake packages have no gridmap.tif
@@ -101,9 +113,7 @@ TEST(MapBuilder, BuildsLandmarksAndTilesFromAllDrives) {
   TempDir tmp;
   SqliteMapStore store(tmp.path() / "map.db");
   const World w = make_world(1, 400, kExtent);
-  const Eigen::Vector2d lo(-kExtent, -kExtent), hi(kExtent, kExtent);
-  for (int d = 0; d < 3; ++d)
-    put(store, tmp.path(), observe(w, "d" + std::to_string(d), 10 + d, lo, hi));
+  put_drives(store, tmp.path(), w, 3, 10, {-kExtent, -kExtent}, {kExtent, kExtent});
 
   std::vector<std::string> stages;
   BuildControl ctl;
@@ -168,9 +178,7 @@ TEST(MapBuilder, ANewDriveRewritesOnlyTheTilesItTouches) {
   TempDir tmp;
   SqliteMapStore store(tmp.path() / "map.db");
   const World w = make_world(2, 600, kExtent);
-  const Eigen::Vector2d lo(-kExtent, -kExtent), hi(kExtent, kExtent);
-  for (int d = 0; d < 2; ++d)
-    put(store, tmp.path(), observe(w, "d" + std::to_string(d), 20 + d, lo, hi, 0));
+  put_drives(store, tmp.path(), w, 2, 20, {-kExtent, -kExtent}, {kExtent, kExtent}, 0);
   const MapBuilder builder;
   const auto v1 = builder.build(store, no_gridmap());
   ASSERT_EQ(v1.status, MapBuildResult::Status::Published) << v1.error;
@@ -215,9 +223,7 @@ TEST(MapBuilder, LeaveOneOutRegionAndCancellation) {
   TempDir tmp;
   SqliteMapStore store(tmp.path() / "map.db");
   const World w = make_world(3, 300, 300.0);
-  const Eigen::Vector2d lo(-200, -200), hi(200, 200);
-  for (int d = 0; d < 3; ++d)
-    put(store, tmp.path(), observe(w, "d" + std::to_string(d), 30 + d, lo, hi));
+  put_drives(store, tmp.path(), w, 3, 30, {-200, -200}, {200, 200});
   const MapBuilder builder;
   const auto full = builder.build(store, no_gridmap());
   ASSERT_EQ(full.status, MapBuildResult::Status::Published);
@@ -280,19 +286,27 @@ TEST(MapBuilder, LeaveOneOutRegionAndCancellation) {
   EXPECT_EQ(store.get_map_version(g.version)->statistics.at("gridmap").at("errors").size(), 3U);
 }
 
-/// A real package (written and validated by drive_package_io) with a gridmap:
-/// a 100 m x 60 m raster, observed (tr(C) = 1000, 30 dB) in a 20 m strip.
-GridmapRaster make_raster(int q) {
+/// A width x height raster of 0.1 m cells with its north-west corner at (origin_x_m,
+/// origin_y_m), q x q covariances, nothing observed yet.
+GridmapRaster unobserved_raster(int q, int width, int height, double origin_x_m,
+                                double origin_y_m) {
   GridmapRaster r;
   r.q = q;
   r.cell_size_m = 0.1;
-  r.width = 1000;
-  r.height = 600;
-  r.origin_x_m = -70.0;
-  r.origin_y_m = 30.0;
+  r.width = width;
+  r.height = height;
+  r.origin_x_m = origin_x_m;
+  r.origin_y_m = origin_y_m;
   r.count.assign(static_cast<std::size_t>(r.width) * r.height, 0);
   r.layers.assign(static_cast<std::size_t>(q * (q + 1) / 2),
                   std::vector<cdouble>(r.count.size(), cdouble(0, 0)));
+  return r;
+}
+
+/// A real package (written and validated by drive_package_io) with a gridmap:
+/// a 100 m x 60 m raster, observed (tr(C) = 1000, 30 dB) in a 20 m strip.
+GridmapRaster make_raster(int q) {
+  GridmapRaster r = unobserved_raster(q, 1000, 600, -70.0, 30.0);
   for (int row = 200; row < 400; ++row) {
     for (int col = 0; col < r.width; ++col) {
       const std::size_t i = static_cast<std::size_t>(row) * r.width + col;
@@ -367,15 +381,7 @@ TEST(MapBuilder, RealPackagesBuildTheFleetGridmap) {
 
 TEST(FleetGridmap, AccumulatesPowerAndCountsIntoWebMercatorPixels) {
   const tiles::LocalFrame frame(kWorldOrigin);
-  GridmapRaster r;
-  r.q = 2;
-  r.cell_size_m = 0.1;
-  r.width = 300;
-  r.height = 200;
-  r.origin_x_m = -15.0;
-  r.origin_y_m = 10.0;
-  r.count.assign(static_cast<std::size_t>(r.width) * r.height, 0);
-  r.layers.assign(3, std::vector<cdouble>(r.count.size(), cdouble(0, 0)));
+  GridmapRaster r = unobserved_raster(2, 300, 200, -15.0, 10.0);
   double n_total = 0;
   for (int row = 0; row < r.height; ++row) {
     for (int col = 0; col < r.width; ++col) {

@@ -26,6 +26,14 @@ class DrivePackageTest : public ::testing::Test {
     root_ = polmap::test::unique_test_dir("pkg");
   }
   void TearDown() override { fs::remove_all(root_); }
+  /// Writes d as the package root_/pkg and opens its `file` read-only with GDAL
+  /// (kind: GDAL_OF_RASTER or GDAL_OF_VECTOR).
+  [[nodiscard]] GDALDatasetUniquePtr write_and_open(const testing::SyntheticDrive& d,
+                                                    const char* file, unsigned kind) const {
+    write_drive_package(d.pkg, d.raster, root_ / "pkg");
+    return GDALDatasetUniquePtr(
+        GDALDataset::Open((root_ / "pkg" / file).c_str(), kind | GDAL_OF_READONLY));
+  }
   fs::path root_;
 };
 
@@ -160,9 +168,7 @@ TEST_F(DrivePackageTest, Sha256MatchesKnownVectors) {
 
 TEST_F(DrivePackageTest, GdalOpensGridmapWithCrsBandsAndTiling) {
   const auto d = make_synthetic_drive();
-  write_drive_package(d.pkg, d.raster, root_ / "pkg");
-  GDALDatasetUniquePtr ds(GDALDataset::Open((root_ / "pkg" / "gridmap.tif").c_str(),
-                                            GDAL_OF_RASTER | GDAL_OF_READONLY));
+  const GDALDatasetUniquePtr ds = write_and_open(d, "gridmap.tif", GDAL_OF_RASTER);
   ASSERT_TRUE(ds);
   EXPECT_STREQ(ds->GetDriver()->GetDescription(), "GTiff");
   EXPECT_EQ(ds->GetRasterCount(), 10);
@@ -244,9 +250,7 @@ TEST_F(DrivePackageTest, EmptyBlocksTakeNoSpace) {
 
 TEST_F(DrivePackageTest, OgrOpensCandidatesLayers) {
   const auto d = make_synthetic_drive();
-  write_drive_package(d.pkg, d.raster, root_ / "pkg");
-  GDALDatasetUniquePtr ds(GDALDataset::Open((root_ / "pkg" / "candidates.gpkg").c_str(),
-                                            GDAL_OF_VECTOR | GDAL_OF_READONLY));
+  const GDALDatasetUniquePtr ds = write_and_open(d, "candidates.gpkg", GDAL_OF_VECTOR);
   ASSERT_TRUE(ds);
   EXPECT_STREQ(ds->GetDriver()->GetDescription(), "GPKG");
   OGRSpatialReference wgs84;

@@ -22,8 +22,7 @@ std::string archive() { return write_ustar({{"a.json", "{}"}, {"b.bin", std::str
 void fix_checksum(std::string& tar, std::size_t off) {
   unsigned sum = 0;
   for (std::size_t i = 0; i < 512; ++i) {
-    sum += (i >= kChksumOff && i < kChksumOff + 8) ? ' '
-                                                    : static_cast<unsigned char>(tar[off + i]);
+    sum += (i >= kChksumOff && i < kChksumOff + 8) ? ' ' : static_cast<unsigned char>(tar[off + i]);
   }
   char buf[8];
   std::snprintf(buf, sizeof buf, "%06o", sum);
@@ -54,7 +53,8 @@ TEST(Ustar, RejectsDataAfterTheEndMarker) {
   const std::string tar = archive() + std::string(512, '\0');
   std::string bad = tar;
   bad[bad.size() - 100] = 'x';
-  EXPECT_NE(error_of(bad).find("after the end-of-archive marker"), std::string::npos) << error_of(bad);
+  EXPECT_NE(error_of(bad).find("after the end-of-archive marker"), std::string::npos)
+      << error_of(bad);
   // A whole hidden member after the marker, too.
   const std::string hidden = archive() + write_ustar({{"evil.vrt", "<OGRVRTDataSource/>"}});
   EXPECT_NE(error_of(hidden).find("after the end-of-archive marker"), std::string::npos);

@@ -144,7 +144,7 @@ TEST_F(ServerTest, HealthMetricsCorsAndUnknownRoutes) {
   const std::string health_line =
       "polmap_http_requests_total{route=\"health\",method=\"GET\",status=\"200\"} 1";
   for (int i = 0; i < 100; ++i) {
-    r = c.Get("/metrics");
+    r = c.Get("/metrics", auth());
     if (r && r->body.find(health_line) != std::string::npos) break;
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
   }
@@ -248,15 +248,15 @@ TEST_F(ServerTest, UploadIsIdempotentAndConflictsAreRejected) {
   EXPECT_EQ(store_->list_drives().size(), 1u);
   EXPECT_EQ(drive_store_entries(), entries);
 
-  r = c.Get("/v1/drives");
+  r = c.Get("/v1/drives", auth());
   EXPECT_EQ(body_json(r)["count"], 1);
-  r = c.Get("/v1/drives/scene_drive_0");
+  r = c.Get("/v1/drives/scene_drive_0", auth());
   EXPECT_EQ(r->status, 200);
   EXPECT_EQ(body_json(r)["manifest"]["drive_id"], "scene_drive_0");
-  EXPECT_EQ(c.Get("/v1/drives/nope")->status, 404);
+  EXPECT_EQ(c.Get("/v1/drives/nope", auth())->status, 404);
 
   EXPECT_EQ(c.Delete("/v1/drives/scene_drive_0", auth())->status, 204);
-  EXPECT_EQ(c.Get("/v1/drives/scene_drive_0")->status, 404);
+  EXPECT_EQ(c.Get("/v1/drives/scene_drive_0", auth())->status, 404);
   EXPECT_EQ(c.Delete("/v1/drives/scene_drive_0", auth())->status, 404);
   EXPECT_EQ(upload_leftovers(), 0u);
 }
@@ -342,6 +342,47 @@ TEST_F(ServerTest, StartRemovesOldUploadLeftoversOnly) {
   EXPECT_TRUE(std::filesystem::exists(uploads / "someone-elses.tar"));        // not ours
 }
 
+TEST_F(ServerTest, KeyRolesLimitWhatAKeyMayDo) {
+  // The fixture's keys are operators; scoped ones come from a key file.
+  const util::ScopedTempDir keys_dir(polmap::test::unique_test_dir("keys"));
+  const auto key_file = keys_dir.path() / "keys";
+  std::ofstream(key_file) << "operator " << kKey << "\nvehicle veh-key veh_01\n"
+                          << "vehicle other-veh-key someone-else\nviewer view-key\n";
+  ServerConfig cfg;
+  cfg.api_key_file = key_file;
+  cfg.api_keys = read_api_key_file(key_file);
+  const std::string& tar = scene_tar("scene_drive_0", 11);  // of vehicle veh_01
+  restart(cfg);
+  auto as = [](const std::string& k) { return httplib::Headers{{"Authorization", "Bearer " + k}}; };
+  auto cl = client();
+  // Public: tiles and map versions; not drive data.
+  EXPECT_EQ(cl.Get("/v1/drives")->status, 401);
+  EXPECT_EQ(cl.Get("/metrics")->status, 401);
+  // A vehicle key uploads its own vehicle's drives only, and reads nothing.
+  EXPECT_EQ(cl.Post("/v1/drives", as("other-veh-key"), tar, "application/x-tar")->status, 403);
+  auto r = cl.Post("/v1/drives", as("veh-key"), tar, "application/x-tar");
+  ASSERT_EQ(r->status, 201) << r->body;
+  EXPECT_EQ(cl.Get("/v1/drives", as("veh-key"))->status, 403);
+  EXPECT_EQ(cl.Delete("/v1/drives/scene_drive_0", as("veh-key"))->status, 403);
+  EXPECT_EQ(cl.Post("/v1/maps", as("veh-key"), "{}", "application/json")->status, 403);
+  // A viewer reads drives and metrics, and may not write.
+  EXPECT_EQ(cl.Get("/v1/drives", as("view-key"))->status, 200);
+  EXPECT_EQ(cl.Get("/v1/drives/scene_drive_0", as("view-key"))->status, 200);
+  EXPECT_EQ(cl.Get("/metrics", as("view-key"))->status, 200);
+  EXPECT_EQ(cl.Delete("/v1/drives/scene_drive_0", as("view-key"))->status, 403);
+  EXPECT_EQ(cl.Get("/v1/export?format=geojson", as("view-key"))->status, 403);
+  EXPECT_EQ(cl.Post("/v1/drives", as("view-key"), tar, "application/x-tar")->status, 403);
+  // Keys are revoked by editing the file, without a restart.
+  std::ofstream(key_file) << "operator " << kKey << "\n";
+  std::filesystem::last_write_time(
+      key_file, std::filesystem::file_time_type::clock::now() + std::chrono::seconds(5));
+  std::this_thread::sleep_for(std::chrono::milliseconds(1100));
+  EXPECT_EQ(cl.Get("/v1/drives", as("view-key"))->status, 401);
+  EXPECT_EQ(cl.Get("/v1/drives", as(kKey))->status, 200);
+  // The operator may delete.
+  EXPECT_EQ(cl.Delete("/v1/drives/scene_drive_0", as(kKey))->status, 204);
+}
+
 TEST_F(ServerTest, InternalErrorsAreLoggedNotShownAndLogsAreEscaped) {
   store_options_.fault_hook = [](std::string_view stage) {
     if (stage == "rows_inserted") throw std::runtime_error("disk detail /srv/secret/path");
@@ -378,7 +419,7 @@ TEST_F(ServerTest, InternalErrorsAreLoggedNotShownAndLogsAreEscaped) {
     httplib::Error err;
     c.send(req, res, err);
   }
-  r = c.Get("/metrics");
+  r = c.Get("/metrics", auth());
   ASSERT_EQ(r->status, 200);
   EXPECT_EQ(r->body.find("method=\"XMETHOD"), std::string::npos) << r->body;
   EXPECT_NE(r->body.find("method=\"other\""), std::string::npos) << r->body;
@@ -587,7 +628,7 @@ TEST_F(ServerTest, UploadBuildTileDecodeGivesBackTheLandmarks) {
   EXPECT_EQ(body_json(r)["current"], version);
   EXPECT_EQ(c.Get("/v1/maps/current")->status, 200);
   EXPECT_EQ(c.Get("/v1/maps/77")->status, 404);
-  r = c.Get("/metrics");
+  r = c.Get("/metrics", auth());
   EXPECT_NE(r->body.find("polmap_current_map_version " + std::to_string(version)),
             std::string::npos);
   EXPECT_NE(r->body.find("polmap_tiles_served_total{kind=\"localization\",status=\"304\"} 2"),
@@ -627,19 +668,27 @@ TEST_F(ServerTest, VectorTilesTileJsonAndGridmap) {
   const tiles::TileKey k = tiles::tile_at(g.lat_deg, g.lon_deg, 18);
   (void)k18;
 
+  // Public: landmarks only. With a key that may read drives: their trajectories too.
   auto r = c.Get("/v1/mvt/" + tiles::to_string(k) + ".mvt");
+  ASSERT_EQ(r->status, 200) << r->body;
+  EXPECT_EQ(r->get_header_value("Cache-Control"), "public, max-age=60");
+  const std::string public_mvt = r->body;
+  r = c.Get("/v1/mvt/" + tiles::to_string(k) + ".mvt", auth());
   ASSERT_TRUE(r);
   ASSERT_EQ(r->status, 200) << r->body;
+  EXPECT_EQ(r->get_header_value("Cache-Control"), "private, max-age=60");
   EXPECT_EQ(r->get_header_value("Content-Type"), "application/vnd.mapbox-vector-tile");
   EXPECT_EQ(r->get_header_value("Vary"), "Accept-Encoding");
   const std::string mvt = r->body;
   const std::string etag = r->get_header_value("ETag");
 
-  r = c.Get("/v1/mvt/" + tiles::to_string(k) + ".mvt", {{"Accept-Encoding", "gzip"}});
+  r = c.Get("/v1/mvt/" + tiles::to_string(k) + ".mvt",
+            {{"Accept-Encoding", "gzip"}, {"Authorization", std::string("Bearer ") + kKey}});
   // httplib's client inflates transparently only when asked; check the header and the bytes.
   EXPECT_EQ(r->get_header_value("Content-Encoding"), "gzip");
   EXPECT_NE(r->get_header_value("ETag"), etag);
-  r = c.Get("/v1/mvt/" + tiles::to_string(k) + ".mvt", {{"If-None-Match", etag}});
+  r = c.Get("/v1/mvt/" + tiles::to_string(k) + ".mvt",
+            {{"If-None-Match", etag}, {"Authorization", std::string("Bearer ") + kKey}});
   EXPECT_EQ(r->status, 304);
   EXPECT_EQ(c.Get("/v1/mvt/5/1/1.mvt")->status, 404);  // below minzoom
   EXPECT_EQ(c.Get("/v1/mvt/18/1/x.mvt")->status, 400);
@@ -658,6 +707,13 @@ TEST_F(ServerTest, VectorTilesTileJsonAndGridmap) {
   for (int i = 0; i < ds->GetLayerCount(); ++i) names.insert(ds->GetLayer(i)->GetName());
   EXPECT_TRUE(names.count("points") && names.count("lines") && names.count("trajectories"));
   EXPECT_GE(ds->GetLayerByName("points")->GetFeatureCount(), 1);
+  ds.reset();
+  std::ofstream(tile_file, std::ios::binary | std::ios::trunc) << public_mvt;
+  ds.reset(GDALDataset::Open(tile_file.c_str(), GDAL_OF_VECTOR, drivers, nullptr, nullptr));
+  ASSERT_TRUE(ds);
+  names.clear();
+  for (int i = 0; i < ds->GetLayerCount(); ++i) names.insert(ds->GetLayer(i)->GetName());
+  EXPECT_TRUE(names.count("points") && !names.count("trajectories"));
   ds.reset();
 
   // TileJSON 3.0.
@@ -698,7 +754,7 @@ TEST_F(ServerTest, VectorTilesTileJsonAndGridmap) {
 TEST_F(ServerTest, ExportStreamsGisFiles) {
   const std::int64_t version = upload_and_build();
   auto c = client();
-  auto r = c.Get("/v1/export?format=geojson");
+  auto r = c.Get("/v1/export?format=geojson", auth());
   ASSERT_TRUE(r);
   ASSERT_EQ(r->status, 200) << r->body;
   EXPECT_EQ(r->get_header_value("Content-Type"), "application/geo+json");
@@ -710,7 +766,7 @@ TEST_F(ServerTest, ExportStreamsGisFiles) {
   for (const auto& f : fc["features"]) points += f["geometry"]["type"] == "Point";
   EXPECT_EQ(points, true_points().size());
 
-  r = c.Get("/v1/export?format=gpkg&version=" + std::to_string(version));
+  r = c.Get("/v1/export?format=gpkg&version=" + std::to_string(version), auth());
   ASSERT_EQ(r->status, 200);
   const auto gpkg = dir_ / "export.gpkg";
   std::ofstream(gpkg, std::ios::binary) << r->body;
@@ -722,17 +778,17 @@ TEST_F(ServerTest, ExportStreamsGisFiles) {
             static_cast<GIntBig>(true_points().size()));
   ds.reset();
 
-  r = c.Get("/v1/export?format=shp");
+  r = c.Get("/v1/export?format=shp", auth());
   ASSERT_EQ(r->status, 200);
   EXPECT_EQ(r->body.substr(0, 2), "PK");  // zip
 
   // A bbox far away: a valid, empty file. Bad arguments: 400.
-  r = c.Get("/v1/export?format=geojson&bbox=10,47,10.01,47.01");
+  r = c.Get("/v1/export?format=geojson&bbox=10,47,10.01,47.01", auth());
   ASSERT_EQ(r->status, 200);
   EXPECT_TRUE(json::parse(r->body)["features"].empty());
-  EXPECT_EQ(c.Get("/v1/export?format=pdf")->status, 400);
-  EXPECT_EQ(c.Get("/v1/export?format=gpkg&bbox=1,2,3")->status, 400);
-  EXPECT_EQ(c.Get("/v1/export?format=gpkg&version=42")->status, 404);
+  EXPECT_EQ(c.Get("/v1/export?format=pdf", auth())->status, 400);
+  EXPECT_EQ(c.Get("/v1/export?format=gpkg&bbox=1,2,3", auth())->status, 400);
+  EXPECT_EQ(c.Get("/v1/export?format=gpkg&version=42", auth())->status, 404);
   // Temp files are gone once the responses are done.
   EXPECT_TRUE(eventually([&] { return upload_leftovers() == 0; }));
 }
@@ -740,8 +796,28 @@ TEST_F(ServerTest, ExportStreamsGisFiles) {
 TEST(ApiKeyFile, CommentsBlankLinesAndWhitespace) {
   const util::ScopedTempDir dir(polmap::test::unique_test_dir("keys"));
   const auto f = dir.path() / "keys";
-  std::ofstream(f) << "# fleet keys\n\n  key-one  \n#disabled\nkey-two\r\n\t\n";
-  EXPECT_EQ(read_api_key_file(f), (std::vector<std::string>{"key-one", "key-two"}));
+  std::ofstream(f) << "# fleet keys\n\n  key-one  \n#disabled\nkey-two\r\n\t\n"
+                      "vehicle  key-v   veh-7\nviewer key-w\noperator\tkey-o\n";
+  const auto keys = read_api_key_file(f);
+  ASSERT_EQ(keys.size(), 5U);
+  EXPECT_EQ(keys[0].key, "key-one");
+  EXPECT_EQ(keys[0].role, KeyRole::Operator);  // a bare key: operator, as before roles
+  EXPECT_EQ(keys[1].key, "key-two");
+  EXPECT_EQ(keys[2].key, "key-v");
+  EXPECT_EQ(keys[2].role, KeyRole::Vehicle);
+  EXPECT_EQ(keys[2].vehicle_id, "veh-7");
+  EXPECT_EQ(keys[3].role, KeyRole::Viewer);
+  EXPECT_EQ(keys[4].key, "key-o");
+  EXPECT_EQ(keys[4].role, KeyRole::Operator);
+  for (const char* bad : {"root key-x\n", "viewer key-x veh-1\n", "vehicle a b c\n"}) {
+    std::ofstream(f) << bad;
+    try {
+      (void)read_api_key_file(f);
+      ADD_FAILURE() << bad;
+    } catch (const ValidationError& e) {
+      EXPECT_NE(std::string(e.what()).find(":1"), std::string::npos) << e.what();  // names the line
+    }
+  }
   std::ofstream(f) << "# nothing here\n\n";
   EXPECT_THROW((void)read_api_key_file(f), ValidationError);
   std::filesystem::remove(f);

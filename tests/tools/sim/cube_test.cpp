@@ -15,13 +15,44 @@ namespace {
 
 using test::kDeg;
 
+/// The largest |LL| + |LR| of the spectrum's cells.
+double peak_amplitude(const PolSpectrum& sp) {
+  double peak = 0;
+  for (const auto& c : sp.cells)
+    peak = std::max(peak, static_cast<double>(std::abs(c.s[0]) + std::abs(c.s[1])));
+  return peak;
+}
+
+/// Polarisation channel pol of range bin r of the cube, beamformed towards sin_phi (the
+/// simulator's taper over the virtual channels) and Doppler-processed at v_mps (a Hann
+/// window over the chirps; v_ua_mps: unambiguous velocity), normalised by the window sum.
+std::complex<double> beamformed(const DataCube& cube, int pol, int r, double sin_phi, double v_mps,
+                                double v_ua_mps) {
+  const int nr = cube.num_range_bins, nv = cube.num_virtual_channels, nc = cube.num_chirps;
+  std::complex<double> acc = 0;
+  double sw = 0;
+  for (int v = 0; v < nv; ++v) {
+    const double x = (v - 0.5 * (nv - 1)) / (nv - 1);
+    const double wv = 0.7 + 0.3 * std::cos(M_PI * x) * std::cos(M_PI * x);
+    for (int c = 0; c < nc; ++c) {
+      const double wc = std::pow(std::sin(M_PI * (c + 0.5) / nc), 2);
+      const double ph = -2 * M_PI * 0.5 * (v - 0.5 * (nv - 1)) * sin_phi +
+                        M_PI * v_mps * (c - 0.5 * (nc - 1)) / v_ua_mps;
+      const std::complex<double> d(
+          cube.data[((static_cast<std::size_t>(pol) * nv + v) * nc + c) * nr + r]);
+      acc += wv * wc * std::polar(1.0, ph) * d;
+      sw += wv * wc;
+    }
+  }
+  return acc / sw;
+}
+
 TEST(Cube, StaticReductionOfCubeMatchesDirectSpectrum) {
   auto w = test::empty_world(200);
   test::add_point(*w, {3.7 + 6.0, 1.2}, odd_bounce(), 0.0);
   test::add_point(*w, {3.7 + 4.0, -2.5}, dihedral(0.4), 5.0);
   w->build_index();
-  SimConfig cfg = test::quiet_config();
-  cfg.radar.thermal_noise = false;
+  SimConfig cfg = test::noise_free_config();
   cfg.radar.cube_max_range_m = 8.0;
   FrameRenderer rend(w, cfg);
   const ExactState st = test::state_at(0, 0, 0, 7.0, 0.1);
@@ -40,9 +71,7 @@ TEST(Cube, StaticReductionOfCubeMatchesDirectSpectrum) {
   const Eigen::Vector2d vs(st.v_mps - st.yaw_rate_rps * m.T_vehicle_sensor.y_m,
                            st.yaw_rate_rps * m.T_vehicle_sensor.x_m);
   const double v_ua = 5.0;
-  double peak = 0;
-  for (const auto& c : f.spectrum.cells)
-    peak = std::max(peak, static_cast<double>(std::abs(c.s[0]) + std::abs(c.s[1])));
+  const double peak = peak_amplitude(f.spectrum);
   ASSERT_GT(peak, 100.0);
   int compared = 0;
   for (const auto& cell : f.spectrum.cells) {
@@ -53,22 +82,8 @@ TEST(Cube, StaticReductionOfCubeMatchesDirectSpectrum) {
     const double phi = (-60.0 + 1.5 * cell.azimuth_bin) * kDeg;
     const double v_static = -(vs.x() * std::cos(phi) + vs.y() * std::sin(phi));
     for (int p = 0; p < 4; ++p) {
-      std::complex<double> acc = 0;
-      double sw = 0;
-      for (int v = 0; v < nv; ++v) {
-        const double x = (v - 0.5 * (nv - 1)) / (nv - 1);
-        const double wv = 0.7 + 0.3 * std::cos(M_PI * x) * std::cos(M_PI * x);
-        for (int c = 0; c < nc; ++c) {
-          const double wc = std::pow(std::sin(M_PI * (c + 0.5) / nc), 2);
-          const double ph = -2 * M_PI * 0.5 * (v - 0.5 * (nv - 1)) * std::sin(phi) +
-                            M_PI * v_static * (c - 0.5 * (nc - 1)) / v_ua;
-          const std::complex<double> d(
-              cube.data[((static_cast<std::size_t>(p) * nv + v) * nc + c) * nr + cell.range_bin]);
-          acc += wv * wc * std::polar(1.0, ph) * d;
-          sw += wv * wc;
-        }
-      }
-      acc /= sw;
+      const std::complex<double> acc =
+          beamformed(cube, p, cell.range_bin, std::sin(phi), v_static, v_ua);
       EXPECT_LT(std::abs(acc - std::complex<double>(cell.s[p])), 0.01 * peak)
           << "cell r=" << cell.range_bin << " b=" << cell.azimuth_bin << " pol " << p;
     }
@@ -84,8 +99,7 @@ TEST(Cube, RadarStaticReductionReproducesDirectSpectrum) {
   test::add_point(*w, {3.5 + 5.0, 5.5}, odd_bounce(), 0.0);
   test::add_point(*w, {3.5 + 7.0, 3.0}, dihedral(1.1), 3.0);
   w->build_index();
-  SimConfig cfg = test::quiet_config();
-  cfg.radar.thermal_noise = false;
+  SimConfig cfg = test::noise_free_config();
   cfg.radar.cube_max_range_m = 10.0;
   FrameRenderer rend(w, cfg);
   const ExactState st = test::state_at(0, 0, 0, 9.0, -0.2);
@@ -96,9 +110,7 @@ TEST(Cube, RadarStaticReductionReproducesDirectSpectrum) {
   rc.noise_sigma = 1.0;
   rc.floor_sigmas = 0.0;
   const PolSpectrum red = radar::static_reduce(*f.cube, m, st.v_mps, st.yaw_rate_rps, rc);
-  double peak = 0;
-  for (const auto& c : f.spectrum.cells)
-    peak = std::max(peak, static_cast<double>(std::abs(c.s[0]) + std::abs(c.s[1])));
+  const double peak = peak_amplitude(f.spectrum);
   ASSERT_GT(peak, 100.0);
   int compared = 0;
   for (const auto& cell : f.spectrum.cells) {
@@ -124,26 +136,13 @@ TEST(Cube, NoiseIsScaledToTheSpectrumNoiseAfterProcessing) {
   const SensorFrame f =
       rend.render(cfg.sensors[0], test::state_at(0, 0, 0, 0.0), nullptr, 0, true, 9);
   const DataCube& cube = *f.cube;
-  const int nr = cube.num_range_bins, nv = cube.num_virtual_channels, nc = cube.num_chirps;
-  // Beamform + Doppler at 0 m/s over many range bins / pols: processed variance ~ sigma^2 = 1.
+  // Beamform (boresight) + Doppler at 0 m/s over many range bins / pols: processed
+  // variance ~ sigma^2 = 1.
   double acc2 = 0;
   int n = 0;
   for (int p = 0; p < 4; ++p) {
-    for (int r = 0; r < nr; ++r) {
-      std::complex<double> acc = 0;
-      double sw = 0;
-      for (int v = 0; v < nv; ++v) {
-        const double x = (v - 0.5 * (nv - 1)) / (nv - 1);
-        const double wv = 0.7 + 0.3 * std::cos(M_PI * x) * std::cos(M_PI * x);
-        for (int c = 0; c < nc; ++c) {
-          const double wc = std::pow(std::sin(M_PI * (c + 0.5) / nc), 2);
-          acc += wv * wc *
-                 std::complex<double>(
-                     cube.data[((static_cast<std::size_t>(p) * nv + v) * nc + c) * nr + r]);
-          sw += wv * wc;
-        }
-      }
-      acc2 += std::norm(acc / sw);
+    for (int r = 0; r < cube.num_range_bins; ++r) {
+      acc2 += std::norm(beamformed(cube, p, r, 0.0, 0.0, 5.0));
       ++n;
     }
   }

@@ -85,11 +85,9 @@ TEST(Psf, RenderedPointTargetFollowsRadarEquationAndPsf) {
   const double r = 30.0;
   test::add_point(*w, {3.7 + r, 0.0}, odd_bounce(), 0.0);
   w->build_index();
-  SimConfig cfg = test::quiet_config();
-  cfg.radar.thermal_noise = false;
+  const SimConfig cfg = test::noise_free_config();
   FrameRenderer rend(w, cfg);
-  const SensorFrame f =
-      rend.render(cfg.sensors[0], test::state_at(0, 0, 0, 0.0), nullptr, 0, false, 1);
+  const SensorFrame f = test::render_standing_at_origin(rend, cfg);
   const int rb = static_cast<int>(std::lround(r / 0.075));
   const int b0 = 40;  // boresight beam
   auto lr_power = [&](int rbin, int beam) {

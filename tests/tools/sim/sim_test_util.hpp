@@ -3,6 +3,8 @@
 #include <cmath>
 #include <memory>
 #include <numbers>
+#include <utility>
+#include <vector>
 
 #include "polmap/sim/drive_simulator.hpp"
 #include "polmap/sim/scattering.hpp"
@@ -27,14 +29,20 @@ inline std::shared_ptr<World> empty_world(double length_m = 200.0) {
   return w;
 }
 
+/// Adds an object of class cls with the given geometry and RCS, without scattering centres.
+inline std::uint32_t add_object(World& w, ObjectClass cls, std::vector<Eigen::Vector2d> geometry_m,
+                                double rcs_dbsm = 0.0) {
+  WorldObject o;
+  o.cls = cls;
+  o.geometry_m = std::move(geometry_m);
+  o.rcs_dbsm = rcs_dbsm;
+  return w.add_object(std::move(o));
+}
+
 /// Adds a point object at xy with the given scattering vector and RCS.
 inline std::uint32_t add_point(World& w, const Eigen::Vector2d& xy, const ScatteringVector& omega,
                                double rcs_dbsm, ObjectClass cls = ObjectClass::Pole) {
-  WorldObject o;
-  o.cls = cls;
-  o.geometry_m = {xy};
-  o.rcs_dbsm = rcs_dbsm;
-  const std::uint32_t id = w.add_object(o);
+  const std::uint32_t id = add_object(w, cls, {xy}, rcs_dbsm);
   PointScatterer p;
   p.pos_m = xy;
   p.omega = normalized(omega);
@@ -63,6 +71,27 @@ inline ExactState state_at(double x, double y, double yaw, double v, double yaw_
   s.v_mps = v;
   s.yaw_rate_rps = yaw_rate;
   return s;
+}
+
+/// quiet_config() without thermal noise: exact amplitudes.
+inline SimConfig noise_free_config() {
+  SimConfig c = quiet_config();
+  c.radar.thermal_noise = false;
+  return c;
+}
+
+/// The frame of cfg's first sensor on a vehicle standing at the origin heading +x
+/// (no plan, no cube, frame seed 1).
+inline SensorFrame render_standing_at_origin(FrameRenderer& rend, const SimConfig& cfg) {
+  return rend.render(cfg.sensors[0], state_at(0, 0, 0, 0.0), nullptr, 0, false, 1);
+}
+
+/// Indexes w and renders its noise-free render_standing_at_origin frame.
+inline SensorFrame render_noise_free_at_origin(const std::shared_ptr<World>& w) {
+  w->build_index();
+  const SimConfig cfg = noise_free_config();
+  FrameRenderer rend(w, cfg);
+  return render_standing_at_origin(rend, cfg);
 }
 
 /// The strongest spectrum cell by total power.

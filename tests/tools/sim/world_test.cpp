@@ -101,22 +101,17 @@ TEST(World, WallOccludesPoleBehindIt) {
   auto w = test::empty_world();
   const std::uint32_t pole = test::add_point(*w, {3.7 + 30.0, 0.0}, odd_bounce(), 10.0);
   (void)pole;
-  WorldObject wo;
-  wo.cls = ObjectClass::Wall;
-  wo.geometry_m = {{3.7 + 20.0, -3.0}, {3.7 + 20.0, 3.0}};
-  const std::uint32_t wall = w->add_object(wo);
   LineScatterer l;
-  l.p0_m = wo.geometry_m[0];
-  l.p1_m = wo.geometry_m[1];
+  l.p0_m = {3.7 + 20.0, -3.0};
+  l.p1_m = {3.7 + 20.0, 3.0};
   l.opaque = true;
   l.rcs_per_m_dbsm = -30.0F;  // weak so it does not mask the pole's range anyway
-  l.object = wall;
+  l.object = test::add_object(*w, ObjectClass::Wall, {l.p0_m, l.p1_m});
   w->lines.push_back(l);
   w->build_index();
   SimConfig cfg = test::quiet_config();
   FrameRenderer rend(w, cfg);
-  const SensorFrame f =
-      rend.render(cfg.sensors[0], test::state_at(0, 0, 0, 0.0), nullptr, 0, false, 1);
+  const SensorFrame f = test::render_standing_at_origin(rend, cfg);
   for (const auto& c : f.spectrum.cells) {
     EXPECT_FALSE(std::abs(c.range_bin * 0.075 - 30.0) < 0.3 && std::norm(c.s[1]) > 100.0);
   }
@@ -125,8 +120,7 @@ TEST(World, WallOccludesPoleBehindIt) {
   test::add_point(*w2, {3.7 + 30.0, 0.0}, odd_bounce(), 10.0);
   w2->build_index();
   FrameRenderer rend2(w2, cfg);
-  const SensorFrame f2 =
-      rend2.render(cfg.sensors[0], test::state_at(0, 0, 0, 0.0), nullptr, 0, false, 1);
+  const SensorFrame f2 = test::render_standing_at_origin(rend2, cfg);
   const SpectrumCell* pk = test::peak_cell(f2.spectrum);
   ASSERT_NE(pk, nullptr);
   EXPECT_NEAR(pk->range_bin * 0.075, 30.0, 0.1);
@@ -138,12 +132,8 @@ TEST(World, SignPlateIsSpecular) {
   double p[2];
   for (int k = 0; k < 2; ++k) {
     auto w = test::empty_world();
-    WorldObject o;
-    o.cls = ObjectClass::SignPlate;
-    o.geometry_m = {{3.7 + 25.0, 0.0}};
-    const std::uint32_t id = w->add_object(o);
     PointScatterer s;
-    s.pos_m = o.geometry_m[0];
+    s.pos_m = {3.7 + 25.0, 0.0};
     s.omega = odd_bounce();
     s.rcs_dbsm = 15.0F;
     s.aspect = Aspect::Specular;
@@ -151,14 +141,9 @@ TEST(World, SignPlateIsSpecular) {
     s.lobe_rad = static_cast<float>(3.3 * test::kDeg);
     s.back_gain_db = -20.0F;
     s.two_sided = true;
-    s.object = id;
+    s.object = test::add_object(*w, ObjectClass::SignPlate, {s.pos_m});
     w->points.push_back(s);
-    w->build_index();
-    SimConfig cfg = test::quiet_config();
-    cfg.radar.thermal_noise = false;
-    FrameRenderer rend(w, cfg);
-    const SensorFrame f =
-        rend.render(cfg.sensors[0], test::state_at(0, 0, 0, 0.0), nullptr, 0, false, 1);
+    const SensorFrame f = test::render_noise_free_at_origin(w);
     p[k] = std::norm(test::peak_cell(f.spectrum)->s[1]);
   }
   EXPECT_NEAR(10 * std::log10(p[0] / p[1]), 20.0, 0.5);
@@ -170,25 +155,16 @@ TEST(World, VegetationAttenuatesWhatIsBehindIt) {
     auto w = test::empty_world();
     test::add_point(*w, {3.7 + 20.0, 2.0}, odd_bounce(), 0.0, ObjectClass::GuidePost);
     if (k == 1) {
-      WorldObject o;
-      o.cls = ObjectClass::Vegetation;
-      o.geometry_m = {{3.7 + 19.4, 0.0}, {3.7 + 19.4, 4.0}};
-      const std::uint32_t id = w->add_object(o);
       LineScatterer l;
-      l.p0_m = o.geometry_m[0];
-      l.p1_m = o.geometry_m[1];
+      l.p0_m = {3.7 + 19.4, 0.0};
+      l.p1_m = {3.7 + 19.4, 4.0};
       l.model = ExtendedModel::Volume;
       l.rcs_per_m_dbsm = -80.0F;  // scattering negligible here: measure the loss only
       l.vegetation = true;
-      l.object = id;
+      l.object = test::add_object(*w, ObjectClass::Vegetation, {l.p0_m, l.p1_m});
       w->lines.push_back(l);
     }
-    w->build_index();
-    SimConfig cfg = test::quiet_config();
-    cfg.radar.thermal_noise = false;
-    FrameRenderer rend(w, cfg);
-    const SensorFrame f =
-        rend.render(cfg.sensors[0], test::state_at(0, 0, 0, 0.0), nullptr, 0, false, 1);
+    const SensorFrame f = test::render_noise_free_at_origin(w);
     peak[k] = std::norm(test::peak_cell(f.spectrum)->s[1]);
   }
   EXPECT_NEAR(10 * std::log10(peak[0] / peak[1]), 15.0, 0.1);
@@ -199,15 +175,12 @@ TEST(World, ExtendedObjectsShowRayleighSpeckle) {
   // different sensor positions is circular Gaussian, so E|s|^4 / (E|s|^2)^2 = 2 (a constant
   // target would give 1). Standing still, the speckle is frozen (only noise changes).
   auto w = test::empty_world();
-  WorldObject o;
-  o.cls = ObjectClass::Wall;
-  o.geometry_m = {{3.7 + 5.0, 6.0}, {3.7 + 25.0, 6.0}};
-  const std::uint32_t id = w->add_object(o);
+  const std::vector<Eigen::Vector2d> wall_m = {{3.7 + 5.0, 6.0}, {3.7 + 25.0, 6.0}};
   LineScatterer proto;
   proto.model = ExtendedModel::Surface;
   proto.rcs_per_m_dbsm = 0.0F;
-  proto.object = id;
-  w->add_line_pieces(o.geometry_m, proto);
+  proto.object = test::add_object(*w, ObjectClass::Wall, wall_m);
+  w->add_line_pieces(wall_m, proto);
   w->build_index();
   SimConfig cfg = test::quiet_config();
   FrameRenderer rend(w, cfg);
@@ -235,8 +208,7 @@ TEST(World, ExtendedObjectsShowRayleighSpeckle) {
   double diff = 0, pow = 0;
   int same = 0;
   for (int k = 0; k < 50; ++k) {
-    const SensorFrame a =
-        rend.render(cfg.sensors[0], test::state_at(0, 0, 0, 0.0), nullptr, 0, false, 1);
+    const SensorFrame a = test::render_standing_at_origin(rend, cfg);
     const SensorFrame b =
         rend.render(cfg.sensors[0], test::state_at(0, 0, 0, 0.0), nullptr, 1, false, 2 + k);
     for (const auto& ca : a.spectrum.cells) {

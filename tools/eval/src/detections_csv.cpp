@@ -8,21 +8,15 @@
 #include <numbers>
 #include <sstream>
 
+#include "csv_text.hpp"
 #include "polmap/schema/errors.hpp"
-#include "polmap/util/text.hpp"
 
 namespace polmap::eval {
 
 namespace {
 
-std::vector<std::string_view> split_commas(std::string_view line) {
-  return util::split_trimmed(line, ',');
-}
-
-bool blank_or_comment(std::string_view line) {
-  const std::string_view t = util::trim(line);
-  return t.empty() || t.front() == '#';
-}
+using detail::blank_or_comment;
+using detail::split_commas;
 
 enum Col { kTime = 0, kSensor, kRange, kAzimuth, kVr, kAmp, kNumCols };
 
@@ -94,13 +88,12 @@ struct DetectionsCsvReader::Impl {
 
   double number(const std::vector<std::string_view>& f, int c) const {
     const std::string_view s = f[col[c]];
-    double v = 0.0;
-    const auto [p, ec] = std::from_chars(s.data(), s.data() + s.size(), v);
-    if (s.empty() || ec != std::errc{} || p != s.data() + s.size()) {
+    const std::optional<double> v = detail::parse_double(s);
+    if (!v) {
       fail(line_no, col[c], kDetectionsCsvColumns[c], "'" + std::string(s) + "' is not a number");
     }
-    if (!std::isfinite(v)) fail(line_no, col[c], kDetectionsCsvColumns[c], "value is not finite");
-    return v;
+    if (!std::isfinite(*v)) fail(line_no, col[c], kDetectionsCsvColumns[c], "value is not finite");
+    return *v;
   }
 
   std::optional<Row> read_row() {

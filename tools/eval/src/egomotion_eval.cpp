@@ -1,15 +1,14 @@
 #include "polmap/eval/egomotion_eval.hpp"
 
 #include <algorithm>
-#include <charconv>
 #include <cmath>
 #include <ctime>
 #include <fstream>
 #include <map>
 #include <numbers>
 
+#include "csv_text.hpp"
 #include "polmap/schema/errors.hpp"
-#include "polmap/util/text.hpp"
 
 namespace polmap::eval {
 
@@ -17,9 +16,8 @@ namespace {
 
 constexpr double kRadToDeg = 180.0 / std::numbers::pi;
 
-std::vector<std::string_view> split_commas(std::string_view line) {
-  return util::split_trimmed(line, ',');
-}
+using detail::blank_or_comment;
+using detail::split_commas;
 
 double percentile(std::vector<double> v, double q) {
   if (v.empty()) return 0.0;
@@ -102,7 +100,7 @@ MotionTruth read_truth_csv(const std::filesystem::path& path, std::optional<GeoP
   std::map<std::string, int, std::less<>> col;
   while (std::getline(in, line)) {
     ++line_no;
-    if (util::trim(line).empty() || util::trim(line).front() == '#') continue;
+    if (blank_or_comment(line)) continue;
     const auto f = split_commas(line);
     for (std::size_t i = 0; i < f.size(); ++i) col[std::string(f[i])] = static_cast<int>(i);
     break;
@@ -125,7 +123,7 @@ MotionTruth read_truth_csv(const std::filesystem::path& path, std::optional<GeoP
   std::vector<Raw> raw;
   while (std::getline(in, line)) {
     ++line_no;
-    if (util::trim(line).empty() || util::trim(line).front() == '#') continue;
+    if (blank_or_comment(line)) continue;
     const auto f = split_commas(line);
     if (f.size() < min_fields) {
       throw FormatError(src + ": line " + std::to_string(line_no) + ", column " +
@@ -135,14 +133,13 @@ MotionTruth read_truth_csv(const std::filesystem::path& path, std::optional<GeoP
     auto num = [&](const char* name) {
       const int c = col.at(name);
       const std::string_view s = f[c];
-      double v = 0;
-      const auto [p, ec] = std::from_chars(s.data(), s.data() + s.size(), v);
-      if (s.empty() || ec != std::errc{} || p != s.data() + s.size() || !std::isfinite(v)) {
+      const std::optional<double> v = detail::parse_double(s);
+      if (!v || !std::isfinite(*v)) {
         throw FormatError(src + ": line " + std::to_string(line_no) + ", column " +
                           std::to_string(c + 1) + " (" + name + "): '" + std::string(s) +
                           "' is not a finite number");
       }
-      return v;
+      return *v;
     };
     Raw r{num("time_s"), num("v_mps"), num("yaw_rate_rps"), 0, 0, 0};
     if (geo) {

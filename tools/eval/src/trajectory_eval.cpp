@@ -1,13 +1,13 @@
 #include "polmap/eval/trajectory_eval.hpp"
 
 #include <algorithm>
-#include <charconv>
 #include <cmath>
 #include <cstdio>
 #include <map>
 #include <numbers>
 #include <string_view>
 
+#include "csv_text.hpp"
 #include "polmap/localization_client/localizer.hpp"
 #include "polmap/schema/errors.hpp"
 #include "polmap/schema/pose2.hpp"
@@ -69,14 +69,13 @@ void read_csv(const std::filesystem::path& path, const std::vector<std::string>&
 
 double parse_double(std::string_view s, const std::filesystem::path& path, std::uint64_t line,
                     int column, std::string_view name) {
-  double v = 0.0;
-  const auto [p, ec] = std::from_chars(s.data(), s.data() + s.size(), v);
-  if (ec != std::errc() || p != s.data() + s.size() || !std::isfinite(v)) {
+  const std::optional<double> v = detail::parse_double(s);
+  if (!v || !std::isfinite(*v)) {
     throw FormatError(path.string() + ": line " + std::to_string(line) + ", column " +
                       std::to_string(column + 1) + " (" + std::string(name) + "): '" +
                       std::string(s) + "' is not a finite number");
   }
-  return v;
+  return *v;
 }
 
 }  // namespace

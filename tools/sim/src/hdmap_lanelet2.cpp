@@ -196,13 +196,7 @@ std::shared_ptr<World> load_lanelet2_world(const std::filesystem::path& path, co
     route_pts = std::move(cut);
   }
   w.route = Path::from_polyline(route_pts, cfg.drive.trajectory_step_m, 4.0);
-  w.road = {.oncoming_lane_m = 3.5,
-            .has_same_dir_lane = false,
-            .same_dir_lane_m = 0.0,
-            .oncoming_per_km = cfg.traffic.oncoming_per_km_hdmap,
-            .same_dir_per_km = 0.0,
-            .traffic_max_speed_mps = cfg.traffic.max_speed_mps,
-            .default_max_speed_mps = 15.0};
+  w.road = oncoming_lane_road(cfg, 3.5, cfg.traffic.oncoming_per_km_hdmap);
 
   // Objects: tagged line strings -> scatterers.
   Rng rng(seed_of(seed, 0x6f736dULL));

@@ -224,13 +224,7 @@ std::shared_ptr<World> load_opendrive_world(const std::filesystem::path& path, c
   for (double s = 0; s <= route_len + 1e-9; s += 0.5) pts.push_back(main.point(s, lane_t));
   if (pts.size() < 3) throw FormatError(name, 0, "road " + main.id + " is too short for a route");
   w.route = Path::from_polyline(pts, cfg.drive.trajectory_step_m, 1.0);
-  w.road = {.oncoming_lane_m = -lane_t + 0.5 * lane_w,
-            .has_same_dir_lane = false,
-            .same_dir_lane_m = 0.0,
-            .oncoming_per_km = cfg.traffic.oncoming_per_km_hdmap,
-            .same_dir_per_km = 0.0,
-            .traffic_max_speed_mps = cfg.traffic.max_speed_mps,
-            .default_max_speed_mps = 15.0};
+  w.road = oncoming_lane_road(cfg, -lane_t + 0.5 * lane_w, cfg.traffic.oncoming_per_km_hdmap);
 
   Rng rng(seed_of(seed, 0x786f6472ULL));
   WorldBuilder b(w, rng, seed);

@@ -237,26 +237,32 @@ void finish_route(World& w, const KappaProfile& kappa, double length, double ste
       {0.0, 0.0}, 0.0, length, [&](double s) { return kappa(s); }, step);
 }
 
-void build_urban(World& w, WorldBuilder& b, Rng& rng, double length, const SimConfig& cfg) {
-  GridRoute gr = make_grid_route(rng, length, 90, 220, 18, 26, 70, 150, 0.6, 9.0);
+/// Lays gr out as w's route with the given road, puts traffic lights at both curbs of each
+/// light station, and curbs both sides of each stretch between intersections (driveways
+/// interrupt the curbs now and then) before furnish(a, e) furnishes the stretch [a, e].
+template <class Furnish>
+void build_grid_streets(World& w, WorldBuilder& b, const GridRoute& gr, double length,
+                        const SimConfig& cfg, const RoadLayout& road, double curb_r, double curb_l,
+                        Furnish&& furnish) {
   finish_route(w, gr.kappa, length, cfg.drive.trajectory_step_m);
   w.light_stations_m = gr.lights;
-  w.road = {.oncoming_lane_m = 3.3,
-            .has_same_dir_lane = false,
-            .same_dir_lane_m = 0.0,
-            .oncoming_per_km = cfg.traffic.oncoming_per_km_urban,
-            .same_dir_per_km = 0.0,
-            .traffic_max_speed_mps = cfg.traffic.max_speed_mps,
-            .default_max_speed_mps = 15.0};
-  const double curb_r = -3.6, curb_l = 5.0;
+  w.road = road;
   for (double ls : gr.lights) {
     b.traffic_light(ls, curb_r - 0.6);
     b.traffic_light(ls, curb_l + 0.6);
   }
   for (const auto& [a, e] : free_intervals(length, gr.gaps)) {
-    // Driveways interrupt curbs now and then.
     b.curb_with_driveways(a, e, curb_r);
     b.curb_with_driveways(a, e, curb_l);
+    furnish(a, e);
+  }
+}
+
+void build_urban(World& w, WorldBuilder& b, Rng& rng, double length, const SimConfig& cfg) {
+  const GridRoute gr = make_grid_route(rng, length, 90, 220, 18, 26, 70, 150, 0.6, 9.0);
+  const RoadLayout road = oncoming_lane_road(cfg, 3.3, cfg.traffic.oncoming_per_km_urban);
+  const double curb_r = -3.6, curb_l = 5.0;
+  build_grid_streets(w, b, gr, length, cfg, road, curb_r, curb_l, [&](double a, double e) {
     for (int side : {-1, 1}) {
       const double curb = side < 0 ? curb_r : curb_l;
       double s = a + rng.uniform(0.0, 4.0);
@@ -300,28 +306,17 @@ void build_urban(World& w, WorldBuilder& b, Rng& rng, double length, const SimCo
     for (double t = a + rng.uniform(5, 30); t < e; t += rng.uniform(20, 60)) {
       b.bin(t, curb_r - 0.7, cfg.traffic.bin_presence);
     }
-  }
+  });
 }
 
 void build_industrial(World& w, WorldBuilder& b, Rng& rng, double length, const SimConfig& cfg) {
-  GridRoute gr = make_grid_route(rng, length, 150, 400, 25, 35, 150, 300, 0.3, 12.0);
-  finish_route(w, gr.kappa, length, cfg.drive.trajectory_step_m);
-  w.light_stations_m = gr.lights;
-  w.road = {.oncoming_lane_m = 7.5,
-            .has_same_dir_lane = true,
-            .same_dir_lane_m = 3.75,
-            .oncoming_per_km = cfg.traffic.oncoming_per_km_industrial,
-            .same_dir_per_km = cfg.traffic.same_dir_per_km_industrial,
-            .traffic_max_speed_mps = cfg.traffic.max_speed_mps,
-            .default_max_speed_mps = 15.0};
+  const GridRoute gr = make_grid_route(rng, length, 150, 400, 25, 35, 150, 300, 0.3, 12.0);
+  RoadLayout road = oncoming_lane_road(cfg, 7.5, cfg.traffic.oncoming_per_km_industrial);
+  road.has_same_dir_lane = true;
+  road.same_dir_lane_m = 3.75;
+  road.same_dir_per_km = cfg.traffic.same_dir_per_km_industrial;
   const double curb_r = -2.0, curb_l = 9.4;
-  for (double ls : gr.lights) {
-    b.traffic_light(ls, curb_r - 0.6);
-    b.traffic_light(ls, curb_l + 0.6);
-  }
-  for (const auto& [a, e] : free_intervals(length, gr.gaps)) {
-    b.curb_with_driveways(a, e, curb_r);
-    b.curb_with_driveways(a, e, curb_l);
+  build_grid_streets(w, b, gr, length, cfg, road, curb_r, curb_l, [&](double a, double e) {
     for (int side : {-1, 1}) {
       const double curb = side < 0 ? curb_r : curb_l;
       double s = a + rng.uniform(0.0, 5.0);
@@ -349,7 +344,7 @@ void build_industrial(World& w, WorldBuilder& b, Rng& rng, double length, const 
     for (double s = a + rng.uniform(10, 60); s < e; s += rng.uniform(40, 120)) {
       b.parked_car(s, curb_r - 1.2, cfg.traffic.parked_presence * 0.8);
     }
-  }
+  });
 }
 
 void build_rural(World& w, WorldBuilder& b, Rng& rng, double length, const SimConfig& cfg) {
@@ -374,13 +369,9 @@ void build_rural(World& w, WorldBuilder& b, Rng& rng, double length, const SimCo
     s += 2 * ramp + arc;
   }
   finish_route(w, kappa, length, cfg.drive.trajectory_step_m);
-  w.road = {.oncoming_lane_m = 3.5,
-            .has_same_dir_lane = false,
-            .same_dir_lane_m = 0.0,
-            .oncoming_per_km = cfg.traffic.oncoming_per_km_rural,
-            .same_dir_per_km = 0.0,
-            .traffic_max_speed_mps = cfg.traffic.max_speed_mps + 5.0,
-            .default_max_speed_mps = 20.0};
+  w.road = oncoming_lane_road(cfg, 3.5, cfg.traffic.oncoming_per_km_rural);
+  w.road.traffic_max_speed_mps = cfg.traffic.max_speed_mps + 5.0;
+  w.road.default_max_speed_mps = 20.0;
   const double edge_r = -1.9, edge_l = 5.4;
   // Villages: short sections with curbs and lamps.
   std::vector<std::pair<double, double>> villages;

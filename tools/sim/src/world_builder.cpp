@@ -14,6 +14,29 @@ double polyline_length(const std::vector<Eigen::Vector2d>& p) {
   for (std::size_t i = 1; i < p.size(); ++i) l += (p[i] - p[i - 1]).norm();
   return l;
 }
+
+/// Source of the objects implied by one from `source` (posts of a mapped fence, ...).
+std::string implied_by(const std::string& source) {
+  return source == "procedural" ? source : "implied";
+}
+
+/// Calls at(p) for the points `first`, first + spacing, ... metres along poly; a point
+/// still falls on a segment up to `slack` metres past the segment's end.
+template <class At>
+void every_along(const std::vector<Eigen::Vector2d>& poly, double first, double spacing,
+                 double slack, At&& at) {
+  double next = first, acc = 0.0;
+  for (std::size_t i = 0; i + 1 < poly.size(); ++i) {
+    const Eigen::Vector2d a = poly[i], b = poly[i + 1];
+    const double len = (b - a).norm();
+    while (next <= acc + len + slack) {
+      const Eigen::Vector2d p = a + (b - a) * ((next - acc) / std::max(len, 1e-9));
+      at(p);
+      next += spacing;
+    }
+    acc += len;
+  }
+}
 }  // namespace
 
 std::uint32_t WorldBuilder::object(ObjectClass cls, Mechanism m, std::vector<Eigen::Vector2d> geom,
@@ -47,6 +70,29 @@ ScatteringVector WorldBuilder::mixed_omega() {
   return normalized(o);
 }
 
+float WorldBuilder::random_phase() { return static_cast<float>(rng_.uniform(0, 2 * kPi)); }
+
+void WorldBuilder::surface_lines(const std::vector<Eigen::Vector2d>& poly, double rcs_per_m_dbsm,
+                                 std::uint32_t object) {
+  LineScatterer l = line_scatterer(ExtendedModel::Surface, rcs_per_m_dbsm, 1.0F, object);
+  l.specular_gain_db = 20.0F;
+  l.specular_width_rad = static_cast<float>(1.5 * kDeg);
+  l.opaque = true;
+  w_.add_line_pieces(poly, l);
+}
+
+void WorldBuilder::end_corners(const std::vector<Eigen::Vector2d>& poly, const std::string& source,
+                               bool with_phase) {
+  for (const Eigen::Vector2d& c : {poly.front(), poly.back()}) {
+    const double r = rng_.uniform(0.0, 8.0);
+    PointScatterer p = point_scatterer(
+        c, odd_bounce(), r,
+        object(ObjectClass::FacadeCorner, Mechanism::Odd, {c}, r, true, 1.0, source));
+    if (with_phase) p.phase_rad = random_phase();
+    point(p);
+  }
+}
+
 // --- route-relative --------------------------------------------------------
 
 void WorldBuilder::pole(ObjectClass cls, double s, double d) {
@@ -59,12 +105,8 @@ std::uint32_t WorldBuilder::pole_at(ObjectClass cls, const Eigen::Vector2d& xy,
   if (cls == ObjectClass::TrafficLight) lo = 3.0, hi = 8.0;
   const double rcs = rng_.uniform(lo, hi);
   const std::uint32_t id = object(cls, Mechanism::Odd, {xy}, rcs, true, 1.0, source);
-  PointScatterer p;
-  p.pos_m = xy;
-  p.omega = odd_bounce();
-  p.rcs_dbsm = static_cast<float>(rcs);
-  p.object = id;
-  p.phase_rad = static_cast<float>(rng_.uniform(0, 2 * kPi));
+  PointScatterer p = point_scatterer(xy, odd_bounce(), rcs, id);
+  p.phase_rad = random_phase();
   point(p);
   return id;
 }
@@ -82,17 +124,13 @@ void WorldBuilder::sign_at(const Eigen::Vector2d& xy, double normal_rad,
       xy + 0.04 * Eigen::Vector2d(std::cos(normal_rad), std::sin(normal_rad));
   const std::uint32_t id =
       object(ObjectClass::SignPlate, Mechanism::Odd, {pp}, rcs, true, 1.0, source);
-  PointScatterer p;
-  p.pos_m = pp;
-  p.omega = odd_bounce();
-  p.rcs_dbsm = static_cast<float>(rcs);
+  PointScatterer p = point_scatterer(pp, odd_bounce(), rcs, id);
   p.aspect = Aspect::Specular;
   p.normal_rad = static_cast<float>(normal_rad);
   p.lobe_rad = static_cast<float>(3.3 * kDeg);  // -20 dB at +-10 deg
   p.back_gain_db = -20.0F;
   p.two_sided = true;
-  p.object = id;
-  p.phase_rad = static_cast<float>(rng_.uniform(0, 2 * kPi));
+  p.phase_rad = random_phase();
   point(p);
 }
 
@@ -115,45 +153,22 @@ void WorldBuilder::facade(double s0, double s1, double d, int side) {
   const auto poly = w_.route.offset_polyline(s0, s1, d);
   if (poly.size() < 2) return;
   const double rcs = -10.0 + 10.0 * std::log10(3.0);  // -10 dBsm/m^2 over ~3 m seen height
-  const std::uint32_t id = object(ObjectClass::Facade, Mechanism::Diffuse, poly, rcs);
-  LineScatterer l;
-  l.model = ExtendedModel::Surface;
-  l.rcs_per_m_dbsm = static_cast<float>(rcs);
-  l.grazing_exponent = 1.0F;
-  l.specular_gain_db = 20.0F;
-  l.specular_width_rad = static_cast<float>(1.5 * kDeg);
-  l.opaque = true;
-  l.object = id;
-  w_.add_line_pieces(poly, l);
+  surface_lines(poly, rcs, object(ObjectClass::Facade, Mechanism::Diffuse, poly, rcs));
   // Door/window recesses (even, vertical inner corners) and the outer corners (odd).
   for (double s = s0 + rng_.uniform(2.0, 6.0); s < s1 - 1.5; s += rng_.uniform(4.0, 10.0)) {
     const double n = yaw(s) - side * 0.5 * kPi;  // facade normal towards the road
     const Eigen::Vector2d xy = at(s, d + side * 0.25);
     const double r = rng_.uniform(0.0, 10.0);
-    const std::uint32_t rid = object(ObjectClass::FacadeRecess, Mechanism::Even, {xy}, r);
-    PointScatterer p;
-    p.pos_m = xy;
-    p.omega = dihedral(0.5 * kPi);
-    p.rcs_dbsm = static_cast<float>(r);
+    PointScatterer p = point_scatterer(xy, dihedral(0.5 * kPi), r,
+                                       object(ObjectClass::FacadeRecess, Mechanism::Even, {xy}, r));
     p.aspect = Aspect::FrontLobe;
     p.normal_rad = static_cast<float>(n);
     p.lobe_rad = static_cast<float>(45.0 * kDeg);
     p.back_gain_db = -25.0F;
-    p.object = rid;
-    p.phase_rad = static_cast<float>(rng_.uniform(0, 2 * kPi));
+    p.phase_rad = random_phase();
     point(p);
   }
-  for (const Eigen::Vector2d& c : {poly.front(), poly.back()}) {
-    const double r = rng_.uniform(0.0, 8.0);
-    const std::uint32_t cid = object(ObjectClass::FacadeCorner, Mechanism::Odd, {c}, r);
-    PointScatterer p;
-    p.pos_m = c;
-    p.omega = odd_bounce();
-    p.rcs_dbsm = static_cast<float>(r);
-    p.object = cid;
-    p.phase_rad = static_cast<float>(rng_.uniform(0, 2 * kPi));
-    point(p);
-  }
+  end_corners(poly, "procedural", /*with_phase=*/true);
 }
 
 void WorldBuilder::wall(double s0, double s1, double d, int /*side*/) {
@@ -167,26 +182,8 @@ std::uint32_t WorldBuilder::wall_line(const std::vector<Eigen::Vector2d>& poly,
   const double rcs = -10.0 + 10.0 * std::log10(3.0);
   const std::uint32_t id =
       object(ObjectClass::Wall, Mechanism::Diffuse, poly, rcs, true, 1.0, source);
-  LineScatterer l;
-  l.model = ExtendedModel::Surface;
-  l.rcs_per_m_dbsm = static_cast<float>(rcs);
-  l.grazing_exponent = 1.0F;
-  l.specular_gain_db = 20.0F;
-  l.specular_width_rad = static_cast<float>(1.5 * kDeg);
-  l.opaque = true;
-  l.object = id;
-  w_.add_line_pieces(poly, l);
-  for (const Eigen::Vector2d& c : {poly.front(), poly.back()}) {
-    const double r = rng_.uniform(0.0, 8.0);
-    const std::uint32_t cid = object(ObjectClass::FacadeCorner, Mechanism::Odd, {c}, r, true, 1.0,
-                                     source == "procedural" ? source : "implied");
-    PointScatterer p;
-    p.pos_m = c;
-    p.omega = odd_bounce();
-    p.rcs_dbsm = static_cast<float>(r);
-    p.object = cid;
-    point(p);
-  }
+  surface_lines(poly, rcs, id);
+  end_corners(poly, implied_by(source), /*with_phase=*/false);
   return id;
 }
 
@@ -201,14 +198,8 @@ std::uint32_t WorldBuilder::fence_line(const std::vector<Eigen::Vector2d>& poly,
   const double rcs = -15.0;
   const std::uint32_t id =
       object(ObjectClass::FenceMesh, Mechanism::Volume, poly, rcs, true, 1.0, source);
-  LineScatterer l;
-  l.model = ExtendedModel::Volume;
-  l.rcs_per_m_dbsm = static_cast<float>(rcs);
-  l.grazing_exponent = 0.5F;
-  l.object = id;
-  w_.add_line_pieces(poly, l);
-  posts_along(poly, spacing, ObjectClass::FencePost, 0.0,
-              source == "procedural" ? source : "implied");
+  w_.add_line_pieces(poly, line_scatterer(ExtendedModel::Volume, rcs, 0.5F, id));
+  posts_along(poly, spacing, ObjectClass::FencePost, 0.0, implied_by(source));
   return id;
 }
 
@@ -216,46 +207,37 @@ void WorldBuilder::posts_along(const std::vector<Eigen::Vector2d>& poly, double 
                                ObjectClass cls, double behind_m, const std::string& source) {
   const double total = polyline_length(poly);
   if (total <= 0) return;
-  double next = 0.0, acc = 0.0;
-  for (std::size_t i = 0; i + 1 < poly.size(); ++i) {
-    const Eigen::Vector2d a = poly[i], b = poly[i + 1];
-    const double len = (b - a).norm();
-    while (next <= acc + len + 1e-9) {
-      const Eigen::Vector2d p = a + (b - a) * ((next - acc) / std::max(len, 1e-9));
-      const double to_road = toward_route(p);
-      const Eigen::Vector2d xy =
-          p - behind_m * Eigen::Vector2d(std::cos(to_road), std::sin(to_road));
-      PointScatterer s;
-      s.pos_m = xy;
-      s.phase_rad = static_cast<float>(rng_.uniform(0, 2 * kPi));
-      if (cls == ObjectClass::GuardrailPost) {
-        const double r = rng_.uniform(0.0, 8.0);
-        const double theta = rng_.uniform(0.0, kPi);
-        s.object = object(cls, Mechanism::Even, {xy}, r, true, 1.0, source);
-        s.omega = dihedral(theta);
-        s.rcs_dbsm = static_cast<float>(r);
-        s.aspect = Aspect::FrontLobe;  // C/U profile: open side towards the road (+-30 deg)
-        s.normal_rad = static_cast<float>(to_road + rng_.uniform(-30.0, 30.0) * kDeg);
+  every_along(poly, 0.0, spacing, 1e-9, [&](const Eigen::Vector2d& p) {
+    const double to_road = toward_route(p);
+    const Eigen::Vector2d xy = p - behind_m * Eigen::Vector2d(std::cos(to_road), std::sin(to_road));
+    PointScatterer s;
+    s.pos_m = xy;
+    s.phase_rad = random_phase();
+    if (cls == ObjectClass::GuardrailPost) {
+      const double r = rng_.uniform(0.0, 8.0);
+      const double theta = rng_.uniform(0.0, kPi);
+      s.object = object(cls, Mechanism::Even, {xy}, r, true, 1.0, source);
+      s.omega = dihedral(theta);
+      s.rcs_dbsm = static_cast<float>(r);
+      s.aspect = Aspect::FrontLobe;  // C/U profile: open side towards the road (+-30 deg)
+      s.normal_rad = static_cast<float>(to_road + rng_.uniform(-30.0, 30.0) * kDeg);
+      s.lobe_rad = static_cast<float>(60.0 * kDeg);
+      s.back_gain_db = -15.0F;
+    } else {  // fence post: round (odd) or angle profile (even)
+      const double r = rng_.uniform(-3.0, 3.0);
+      const bool even = rng_.bernoulli(0.3);
+      s.object = object(cls, even ? Mechanism::Even : Mechanism::Odd, {xy}, r, true, 1.0, source);
+      s.omega = even ? dihedral(0.5 * kPi) : odd_bounce();
+      s.rcs_dbsm = static_cast<float>(r);
+      if (even) {
+        s.aspect = Aspect::FrontLobe;
+        s.normal_rad = static_cast<float>(to_road);
         s.lobe_rad = static_cast<float>(60.0 * kDeg);
-        s.back_gain_db = -15.0F;
-      } else {  // fence post: round (odd) or angle profile (even)
-        const double r = rng_.uniform(-3.0, 3.0);
-        const bool even = rng_.bernoulli(0.3);
-        s.object = object(cls, even ? Mechanism::Even : Mechanism::Odd, {xy}, r, true, 1.0, source);
-        s.omega = even ? dihedral(0.5 * kPi) : odd_bounce();
-        s.rcs_dbsm = static_cast<float>(r);
-        if (even) {
-          s.aspect = Aspect::FrontLobe;
-          s.normal_rad = static_cast<float>(to_road);
-          s.lobe_rad = static_cast<float>(60.0 * kDeg);
-          s.back_gain_db = -10.0F;
-        }
+        s.back_gain_db = -10.0F;
       }
-      point(s);
-      next += spacing;
     }
-    acc += len;
-  }
+    point(s);
+  });
 }
 
 void WorldBuilder::guardrail(double s0, double s1, double d, int side, double spacing) {
@@ -270,16 +252,11 @@ std::uint32_t WorldBuilder::guardrail_line(const std::vector<Eigen::Vector2d>& p
   const double rcs = -5.0;
   const std::uint32_t id =
       object(ObjectClass::GuardrailBeam, Mechanism::Mixed, poly, rcs, true, 1.0, source);
-  LineScatterer l;
-  l.model = ExtendedModel::MixedRandom;
-  l.rcs_per_m_dbsm = static_cast<float>(rcs);
-  l.grazing_exponent = 1.0F;
+  LineScatterer l = line_scatterer(ExtendedModel::MixedRandom, rcs, 1.0F, id);
   l.specular_gain_db = 20.0F;
   l.specular_width_rad = static_cast<float>(1.5 * kDeg);
-  l.object = id;
   w_.add_line_pieces(poly, l);
-  posts_along(poly, spacing, ObjectClass::GuardrailPost, 0.15,
-              source == "procedural" ? source : "implied");
+  posts_along(poly, spacing, ObjectClass::GuardrailPost, 0.15, implied_by(source));
   return id;
 }
 
@@ -287,12 +264,8 @@ std::uint32_t WorldBuilder::curb_line(ObjectClass cls, const std::vector<Eigen::
                                       const std::string& source) {
   const double rcs = rng_.uniform(-20.0, -12.0);
   const std::uint32_t id = object(cls, Mechanism::Even, poly, rcs, true, 1.0, source);
-  LineScatterer l;
-  l.model = ExtendedModel::EvenDihedral;
+  LineScatterer l = line_scatterer(ExtendedModel::EvenDihedral, rcs, 1.0F, id);
   l.theta_rad = 0.0F;  // horizontal fold (curb face + road surface)
-  l.rcs_per_m_dbsm = static_cast<float>(rcs);
-  l.grazing_exponent = 1.0F;
-  l.object = id;
   w_.add_line_pieces(poly, l);
   return id;
 }
@@ -300,29 +273,23 @@ std::uint32_t WorldBuilder::curb_line(ObjectClass cls, const std::vector<Eigen::
 void WorldBuilder::guide_post(double s, double d) {
   const Eigen::Vector2d xy = at(s, d);
   const double r = rng_.uniform(-10.0, 0.0);
-  PointScatterer p;
-  p.pos_m = xy;
-  p.omega = odd_bounce();
-  p.rcs_dbsm = static_cast<float>(r);
+  PointScatterer p =
+      point_scatterer(xy, odd_bounce(), r, object(ObjectClass::GuidePost, Mechanism::Odd, {xy}, r));
   p.aspect = Aspect::FrontLobe;  // reflector towards approaching traffic
   p.normal_rad = static_cast<float>(yaw(s) + kPi);
   p.lobe_rad = static_cast<float>(60.0 * kDeg);
   p.back_gain_db = -6.0F;
-  p.object = object(ObjectClass::GuidePost, Mechanism::Odd, {xy}, r);
-  p.phase_rad = static_cast<float>(rng_.uniform(0, 2 * kPi));
+  p.phase_rad = random_phase();
   point(p);
 }
 
 void WorldBuilder::tree(double s, double d) {
   const Eigen::Vector2d xy = at(s, d);
   const double r = rng_.uniform(-5.0, 5.0);
-  PointScatterer p;
-  p.pos_m = xy;
-  p.omega = odd_bounce();
-  p.rcs_dbsm = static_cast<float>(r);
+  PointScatterer p =
+      point_scatterer(xy, odd_bounce(), r, object(ObjectClass::TreeTrunk, Mechanism::Odd, {xy}, r));
   p.diffuse_fraction = 0.3F;  // bark roughness: part of the power re-drawn per frame
-  p.object = object(ObjectClass::TreeTrunk, Mechanism::Odd, {xy}, r);
-  p.phase_rad = static_cast<float>(rng_.uniform(0, 2 * kPi));
+  p.phase_rad = random_phase();
   point(p);
   const double rad = 0.5 * rng_.uniform(0.25, 0.5);
   w_.occluders.push_back(
@@ -337,12 +304,8 @@ void WorldBuilder::vegetation(double s0, double s1, double d, bool permanent, do
   const double rcs = -15.0;  // -15 dBsm/m^2 over ~1 m depth
   const std::uint32_t id =
       object(ObjectClass::Vegetation, Mechanism::Volume, poly, rcs, permanent, presence);
-  LineScatterer l;
-  l.model = ExtendedModel::Volume;
-  l.rcs_per_m_dbsm = static_cast<float>(rcs);
-  l.grazing_exponent = 0.3F;
+  LineScatterer l = line_scatterer(ExtendedModel::Volume, rcs, 0.3F, id);
   l.vegetation = true;
-  l.object = id;
   w_.add_line_pieces(poly, l);
 }
 
@@ -367,7 +330,7 @@ void WorldBuilder::car_like(ObjectClass cls, const Eigen::Vector2d& c, double ya
     p.omega = mixed_omega();
     p.rcs_dbsm = static_cast<float>(each + rng_.uniform(-3.0, 3.0));
     p.object = id;
-    p.phase_rad = static_cast<float>(rng_.uniform(0, 2 * kPi));
+    p.phase_rad = random_phase();
     point(p);
   }
   const Eigen::Vector2d corners[4] = {c + hl * ex + hw * ey, c - hl * ex + hw * ey,
@@ -389,19 +352,11 @@ void WorldBuilder::lamps_along(const std::vector<Eigen::Vector2d>& poly, double 
                                double offset) {
   const double total = polyline_length(poly);
   if (total < 0.5 * spacing) return;
-  double next = 0.5 * spacing, acc = 0.0;
-  for (std::size_t i = 0; i + 1 < poly.size(); ++i) {
-    const Eigen::Vector2d a = poly[i], b = poly[i + 1];
-    const double len = (b - a).norm();
-    while (next <= acc + len) {
-      const Eigen::Vector2d p = a + (b - a) * ((next - acc) / std::max(len, 1e-9));
-      const double to_road = toward_route(p);
-      pole_at(ObjectClass::LampPole,
-              p - offset * Eigen::Vector2d(std::cos(to_road), std::sin(to_road)), "implied");
-      next += spacing;
-    }
-    acc += len;
-  }
+  every_along(poly, 0.5 * spacing, spacing, 0.0, [&](const Eigen::Vector2d& p) {
+    const double to_road = toward_route(p);
+    pole_at(ObjectClass::LampPole,
+            p - offset * Eigen::Vector2d(std::cos(to_road), std::sin(to_road)), "implied");
+  });
 }
 
 }  // namespace polmap::sim

@@ -12,6 +12,42 @@
 
 namespace polmap::sim {
 
+/// Isotropic point scattering centre of `object` at xy (other fields default).
+inline PointScatterer point_scatterer(const Eigen::Vector2d& xy, const ScatteringVector& omega,
+                                      double rcs_dbsm, std::uint32_t object) {
+  PointScatterer p;
+  p.pos_m = xy;
+  p.omega = omega;
+  p.rcs_dbsm = static_cast<float>(rcs_dbsm);
+  p.object = object;
+  return p;
+}
+
+/// Sub-scatterer chain prototype of extended `object` (other fields default).
+inline LineScatterer line_scatterer(ExtendedModel model, double rcs_per_m_dbsm,
+                                    float grazing_exponent, std::uint32_t object) {
+  LineScatterer l;
+  l.model = model;
+  l.rcs_per_m_dbsm = static_cast<float>(rcs_per_m_dbsm);
+  l.grazing_exponent = grazing_exponent;
+  l.object = object;
+  return l;
+}
+
+/// Traffic lanes of a road with one oncoming lane (at oncoming_lane_m, oncoming_per_km
+/// vehicles) and no same-direction lane; traffic up to the configured speed, the ego at
+/// 15 m/s by default.
+inline RoadLayout oncoming_lane_road(const SimConfig& cfg, double oncoming_lane_m,
+                                     double oncoming_per_km) {
+  return {.oncoming_lane_m = oncoming_lane_m,
+          .has_same_dir_lane = false,
+          .same_dir_lane_m = 0.0,
+          .oncoming_per_km = oncoming_per_km,
+          .same_dir_per_km = 0.0,
+          .traffic_max_speed_mps = cfg.traffic.max_speed_mps,
+          .default_max_speed_mps = 15.0};
+}
+
 class WorldBuilder {
  public:
   WorldBuilder(World& w, Rng& rng, std::uint64_t seed) : w_(w), rng_(rng), seed_(seed) {}
@@ -66,6 +102,14 @@ class WorldBuilder {
   void car_like(ObjectClass cls, const Eigen::Vector2d& c, double yaw, double length, double width,
                 double rcs_min, double rcs_max, int centres, double presence);
   ScatteringVector mixed_omega();
+  /// A uniformly drawn fixed phase offset of a scattering centre.
+  float random_phase();
+  /// Opaque diffuse surface (facades, walls) with a specular lobe around its normal.
+  void surface_lines(const std::vector<Eigen::Vector2d>& poly, double rcs_per_m_dbsm,
+                     std::uint32_t object);
+  /// Odd-bounce corner objects at both ends of poly; with_phase: a random phase each.
+  void end_corners(const std::vector<Eigen::Vector2d>& poly, const std::string& source,
+                   bool with_phase);
 
   World& w_;
   Rng& rng_;

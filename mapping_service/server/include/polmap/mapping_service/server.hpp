@@ -25,9 +25,14 @@
 /// tiles holding landmarks plus a one-tile margin), 404 outside the coverage, for
 /// zooms other than 16 and unknown/unpublished versions, 400 for a malformed z/x/y.
 ///
-/// Writes (key) need `Authorization: Bearer KEY` with a key of ServerConfig::api_keys
-/// (compared in constant time); errors are JSON {"error": "...", "field": "..."}.
-/// Every response carries CORS headers; OPTIONS answers preflights.
+/// Access (docs/security.md): tiles, TileJSON, MVT landmark layers, map versions and
+/// /health are public. Everything else needs `Authorization: Bearer KEY` with a key of
+/// ServerConfig::api_keys (compared in constant time) whose role allows it: a vehicle
+/// key uploads drives (of its own vehicle, if the key names one); a viewer key reads
+/// drives, trajectories (the MVT trajectories layer) and /metrics; an operator key does
+/// everything, including builds, deletes and exports. 401 without a valid key, 403 when
+/// its role does not allow the request. Errors are JSON {"error": "...", "field": "..."}.
+/// CORS headers only for ServerConfig::cors_allow_origin.
 ///
 /// Threading: listen() blocks the calling thread and serves requests on a pool
 /// of `threads` workers; map builds run one at a time on a background thread.
@@ -45,10 +50,37 @@ namespace polmap::mapping {
 
 class MapStore;
 
+/// What a key may do.
+enum class KeyRole {
+  Vehicle,   ///< upload drives (of `vehicle_id` only, when set) and report runs
+  Viewer,    ///< read drives, trajectories and metrics
+  Operator,  ///< everything: builds, deletes, exports, and what the others may do
+};
+
+/// One API key. Built from a bare string it is an operator key (the meaning keys had
+/// before roles existed).
+struct ApiKey {
+  ApiKey() = default;
+  ApiKey(std::string k) : key(std::move(k)) {}  // NOLINT: implicit on purpose (see above)
+  ApiKey(const char* k) : key(k) {}             // NOLINT
+  ApiKey(std::string k, KeyRole r, std::string vehicle = {})
+      : key(std::move(k)), role(r), vehicle_id(std::move(vehicle)) {}
+  std::string key;
+  KeyRole role = KeyRole::Operator;
+  /// Vehicle keys: the only manifest vehicle_id this key may upload (empty: any).
+  std::string vehicle_id;
+};
+
+[[nodiscard]] std::string_view to_string(KeyRole role);
+
 /// Server settings. Defaults are what `polmap serve` uses.
 struct ServerConfig {
-  /// Bearer keys accepted for writes. Empty: every write is refused (401).
-  std::vector<std::string> api_keys;
+  /// Accepted keys. Empty: everything but the public reads is refused (401).
+  std::vector<ApiKey> api_keys;
+  /// When set, the keys are (re)read from this file whenever it changes (checked at most
+  /// once a second), replacing api_keys: keys are added and revoked without a restart. A
+  /// file that no longer parses keeps the previous keys (and is logged).
+  std::filesystem::path api_key_file;
   /// Largest accepted upload body (413 beyond). 512 MiB: an hour of driving at
   /// the gridmap's 0.1 m cells is ~100–300 MiB of DEFLATE GeoTIFF.
   std::uint64_t max_upload_bytes = 512ull << 20;
@@ -94,10 +126,12 @@ struct ServerConfig {
   std::function<void(std::string_view line)> log_sink;
 };
 
-/// Reads an API key file: one key per line; blank lines and lines starting with
-/// '#' are ignored; surrounding whitespace is trimmed. Throws IoError if the file
-/// cannot be read, ValidationError if it holds no key.
-[[nodiscard]] std::vector<std::string> read_api_key_file(const std::filesystem::path& path);
+/// Reads an API key file: one key per line, `ROLE KEY [VEHICLE_ID]` with ROLE one of
+/// vehicle, viewer, operator, or a bare `KEY` (an operator key); blank lines and lines
+/// starting with '#' are ignored; surrounding whitespace is trimmed. Throws IoError if
+/// the file cannot be read, ValidationError (naming the line) if a line is malformed or
+/// the file holds no key.
+[[nodiscard]] std::vector<ApiKey> read_api_key_file(const std::filesystem::path& path);
 
 class Server {
  public:

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 #include <ogr_spatialref.h>
 #include <ogrsf_frmts.h>
+#include <sqlite3.h>
 
 #include <cmath>
 #include <filesystem>
@@ -375,6 +376,37 @@ TEST_F(PackageValidationTest, CountsDisagreeWithManifest) {
   edit_manifest([](json& j) { j["counts"]["points"] = 24; });
   expect_error<PackageValidationError>("candidates.gpkg", "points",
                                        "25 features, manifest.json counts say 24", 422);
+}
+
+TEST_F(PackageValidationTest, ALyingFeatureCountIsNotBelieved) {
+  // The uploader adds 5 points and keeps gpkg_ogr_contents (and the manifest) at 25:
+  // counting by reading finds 30.
+  {
+    GDALDatasetUniquePtr ds(
+        GDALDataset::Open((dir_ / "candidates.gpkg").c_str(), GDAL_OF_VECTOR | GDAL_OF_UPDATE));
+    ASSERT_TRUE(ds);
+    OGRLayer* l = ds->GetLayerByName("points");
+    std::unique_ptr<OGRFeature> f(l->GetFeature(1));
+    for (int k = 0; k < 5; ++k) {
+      f->SetFID(OGRNullFID);
+      ASSERT_EQ(l->CreateFeature(f.get()), OGRERR_NONE);
+    }
+  }
+  sqlite3* db = nullptr;
+  ASSERT_EQ(sqlite3_open((dir_ / "candidates.gpkg").c_str(), &db), SQLITE_OK);
+  ASSERT_EQ(sqlite3_exec(db,
+                         "UPDATE gpkg_ogr_contents SET feature_count = 25 WHERE table_name = "
+                         "'points'",
+                         nullptr, nullptr, nullptr),
+            SQLITE_OK);
+  sqlite3_close(db);
+  {  // GDAL itself now believes the lie
+    GDALDatasetUniquePtr ds(GDALDataset::Open((dir_ / "candidates.gpkg").c_str(), GDAL_OF_VECTOR));
+    ASSERT_EQ(ds->GetLayerByName("points")->GetFeatureCount(TRUE), 25);
+  }
+  refresh_manifest();
+  expect_error<PackageValidationError>("candidates.gpkg", "points",
+                                       "30 features, manifest.json counts say 25", 422);
 }
 
 TEST_F(PackageValidationTest, MissingLayer) {

@@ -23,6 +23,7 @@ struct ServeOptions {
   int current_max_age_s = 60;
   std::string public_url;
   std::string cors_origin;
+  double retention_days = 0.0;
   std::string upload_dir;
   bool quiet = false;
 };
@@ -59,6 +60,7 @@ void run(const ServeOptions& o) {
   cfg.current_tile_max_age_s = o.current_max_age_s;
   cfg.public_url = o.public_url;
   cfg.cors_allow_origin = o.cors_origin;
+  cfg.drive_retention_days = o.retention_days;
   cfg.upload_dir = o.upload_dir;
   cfg.log_requests = !o.quiet;
 
@@ -101,6 +103,9 @@ void setup(CLI::App& app) {
   cmd->add_option("--cors-origin", opts->cors_origin,
                   "Access-Control-Allow-Origin for browsers on other origins ('*' or one "
                   "origin; default: none)");
+  cmd->add_option("--retention-days", opts->retention_days,
+                  "Delete drives ingested longer ago than this (0: keep forever)")
+      ->check(CLI::NonNegativeNumber);
   cmd->add_flag("--quiet", opts->quiet, "No per-request log lines");
   cmd->callback([opts] { run(*opts); });
 }

@@ -128,6 +128,7 @@ Server::Impl::Impl(MapStore& s, ServerConfig config)
                                "ETag, Location, Content-Encoding, X-Polmap-Map-Version"}});
   }
   sweep_upload_dir();
+  (void)apply_retention();
   register_routes();
   build_thread = std::thread([this] { build_loop(); });
   if (cfg.fail_stale_builds_on_start) {

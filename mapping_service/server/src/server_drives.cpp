@@ -5,6 +5,7 @@
 #include <cerrno>
 #include <cstdlib>
 #include <cstring>
+#include <ctime>
 
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/schema/errors.hpp"
@@ -80,6 +81,31 @@ nlohmann::json drive_to_json(const DriveRecord& d, bool with_manifest) {
                    {"href", "/v1/drives/" + d.drive_id}};
   if (with_manifest) j["manifest"] = d.manifest;
   return j;
+}
+
+std::size_t Server::Impl::apply_retention() {
+  if (cfg.drive_retention_days <= 0.0) return 0;
+  const auto cutoff = std::chrono::system_clock::now() -
+                      std::chrono::duration_cast<std::chrono::system_clock::duration>(
+                          std::chrono::duration<double>(cfg.drive_retention_days * 86400.0));
+  const std::time_t t = std::chrono::system_clock::to_time_t(cutoff);
+  std::tm tm{};
+  gmtime_r(&t, &tm);
+  char iso[32];
+  std::strftime(iso, sizeof iso, "%Y-%m-%dT%H:%M:%SZ", &tm);  // the store's ingested_at format
+  std::size_t n = 0;
+  try {
+    for (const DriveRecord& d : store.list_drives()) {
+      if (d.ingested_at < iso && store.delete_drive(d.drive_id)) ++n;
+    }
+  } catch (const std::exception& e) {
+    log("error", std::string("retention: ") + e.what());
+  }
+  if (n > 0) {
+    drives_generation.fetch_add(1);
+    log("info", "retention: deleted " + std::to_string(n) + " drives ingested before " + iso);
+  }
+  return n;
 }
 
 void Server::Impl::register_drive_routes() {
@@ -228,6 +254,21 @@ void Server::Impl::register_drive_routes() {
     const std::string id = req.matches[1];
     if (auto d = store.get_drive(id)) return reply_json(res, 200, drive_to_json(*d, true));
     reply_error(res, 404, "drive '" + id + "' does not exist", "drive_id");
+  });
+
+  // Erasure on request: every drive of one vehicle (its data subject's right to erasure).
+  http.Delete(R"(/v1/vehicles/([^/]+)/drives)", [this](const httplib::Request& req,
+                                                       httplib::Response& res) {
+    set_route("vehicle_erase");
+    if (!require(req, res, Access::Operate)) return;
+    const std::string vehicle = req.matches[1];
+    nlohmann::json ids = nlohmann::json::array();
+    for (const DriveRecord& d : store.list_drives()) {
+      if (d.vehicle_id == vehicle && store.delete_drive(d.drive_id)) ids.push_back(d.drive_id);
+    }
+    if (!ids.empty()) drives_generation.fetch_add(1);
+    log("info", "vehicle " + vehicle + ": " + std::to_string(ids.size()) + " drives erased");
+    reply_json(res, 200, {{"vehicle_id", vehicle}, {"deleted", ids.size()}, {"drive_ids", ids}});
   });
 
   http.Delete(R"(/v1/drives/([^/]+))", [this](const httplib::Request& req, httplib::Response& res) {

@@ -60,6 +60,8 @@ struct Server::Impl {
 
   /// Removes leftovers of a killed process from the upload directory (start-up).
   void sweep_upload_dir();
+  /// Deletes drives older than cfg.drive_retention_days; returns how many.
+  std::size_t apply_retention();
 
   // ---- logging
   /// One line to the log sink; the message is escaped (escape_for_log).

@@ -64,7 +64,13 @@ void Server::Impl::build_loop() {
     BuildJob job;
     {
       std::unique_lock lock(build_mutex);
-      build_cv.wait(lock, [this] { return build_shutdown || !build_queue.empty(); });
+      // Wakes every 10 minutes without work, for the retention period.
+      if (!build_cv.wait_for(lock, std::chrono::minutes(10),
+                             [this] { return build_shutdown || !build_queue.empty(); })) {
+        lock.unlock();
+        (void)apply_retention();
+        continue;
+      }
       if (build_queue.empty()) return;  // shutdown with nothing left
       job = std::move(build_queue.front());
       build_queue.pop_front();

@@ -383,6 +383,43 @@ TEST_F(ServerTest, KeyRolesLimitWhatAKeyMayDo) {
   EXPECT_EQ(cl.Delete("/v1/drives/scene_drive_0", as(kKey))->status, 204);
 }
 
+TEST_F(ServerTest, AVehiclesDrivesAreErasedOnRequestAndAfterTheRetentionPeriod) {
+  auto c = client();
+  ASSERT_EQ(
+      c.Post("/v1/drives", auth(), scene_tar("scene_drive_0", 11), "application/x-tar")->status,
+      201);
+  ASSERT_EQ(
+      c.Post("/v1/drives", auth(), scene_tar("scene_drive_1", 12), "application/x-tar")->status,
+      201);
+  EXPECT_EQ(c.Delete("/v1/vehicles/veh_01/drives")->status, 401);
+  auto r = c.Delete("/v1/vehicles/nobody/drives", auth());
+  ASSERT_EQ(r->status, 200);
+  EXPECT_EQ(body_json(r)["deleted"], 0);
+  r = c.Delete("/v1/vehicles/veh_01/drives", auth());
+  ASSERT_EQ(r->status, 200) << r->body;
+  EXPECT_EQ(body_json(r)["deleted"], 2);
+  EXPECT_TRUE(store_->list_drives().empty());
+  EXPECT_EQ(drive_store_entries(), 0U);  // the package files are gone too
+
+  // Retention: a drive older than the period is deleted when the server starts.
+  ASSERT_EQ(
+      c.Post("/v1/drives", auth(), scene_tar("scene_drive_0", 11), "application/x-tar")->status,
+      201);
+  std::this_thread::sleep_for(std::chrono::milliseconds(2100));  // ingested_at has 1 s steps
+  server_->stop();
+  if (thread_.joinable()) thread_.join();
+  ServerConfig keep;
+  keep.drive_retention_days = 30.0;
+  keep.log_sink = [](std::string_view) {};
+  { Server s(*store_, keep); }
+  EXPECT_EQ(store_->list_drives().size(), 1U);  // younger than 30 days
+  ServerConfig expire;
+  expire.drive_retention_days = 1.0 / 86400.0;  // one second
+  expire.log_sink = [](std::string_view) {};
+  { Server s(*store_, expire); }
+  EXPECT_TRUE(store_->list_drives().empty());
+}
+
 TEST_F(ServerTest, InternalErrorsAreLoggedNotShownAndLogsAreEscaped) {
   store_options_.fault_hook = [](std::string_view stage) {
     if (stage == "rows_inserted") throw std::runtime_error("disk detail /srv/secret/path");

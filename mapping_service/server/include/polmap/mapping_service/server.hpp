@@ -18,6 +18,7 @@
 ///   GET    /v1/tilejson.json[?version=]     TileJSON 3.0 of the MVT layers
 ///   GET    /v1/gridmap/{z}/{x}/{y}.png[?version=]  fleet gridmap amplitude raster tile
 ///   GET    /v1/export?format=gpkg|geojson|shp[&bbox=..][&version=]  GIS export download
+///   DELETE /v1/vehicles/{vehicle_id}/drives  (operator) erase every drive of a vehicle
 ///
 /// Localization tiles: 200 with the payload (strong ETag, If-None-Match -> 304;
 /// immutable caching for ?version=N, 60 s + must-revalidate for the current version),
@@ -88,6 +89,9 @@ struct ServerConfig {
   std::uint64_t max_json_bytes = 1ull << 20;
   /// Directory for in-flight uploads (removed after each request); empty = system temp dir.
   std::filesystem::path upload_dir;
+  /// Drives ingested longer ago than this are deleted (at start, then every 10 minutes);
+  /// 0 keeps them forever. Drive data is personal data: keep it only as long as needed.
+  double drive_retention_days = 0.0;
   /// At start, our upload and export leftovers in upload_dir that nobody touched for this
   /// long are removed (what a killed process left behind).
   double upload_leftover_age_s = 600.0;

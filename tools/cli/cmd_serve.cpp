@@ -24,6 +24,7 @@ struct ServeOptions {
   std::string public_url;
   std::string cors_origin;
   double retention_days = 0.0;
+  int max_concurrent_uploads = 4;
   std::string upload_dir;
   bool quiet = false;
 };
@@ -61,6 +62,7 @@ void run(const ServeOptions& o) {
   cfg.public_url = o.public_url;
   cfg.cors_allow_origin = o.cors_origin;
   cfg.drive_retention_days = o.retention_days;
+  cfg.max_concurrent_uploads = o.max_concurrent_uploads;
   cfg.upload_dir = o.upload_dir;
   cfg.log_requests = !o.quiet;
 
@@ -103,6 +105,9 @@ void setup(CLI::App& app) {
   cmd->add_option("--cors-origin", opts->cors_origin,
                   "Access-Control-Allow-Origin for browsers on other origins ('*' or one "
                   "origin; default: none)");
+  cmd->add_option("--max-concurrent-uploads", opts->max_concurrent_uploads,
+                  "Uploads received and validated at once (one more gets 503, Retry-After)")
+      ->check(CLI::PositiveNumber);
   cmd->add_option("--retention-days", opts->retention_days,
                   "Delete drives ingested longer ago than this (0: keep forever)")
       ->check(CLI::NonNegativeNumber);

@@ -144,6 +144,19 @@ void Server::Impl::register_drive_routes() {
       }
     }
 
+    // At most max_concurrent_uploads at once; the slot is held until this request ends.
+    struct Slot {
+      std::atomic<int>& n;
+      ~Slot() { --n; }
+    } slot{uploads_in_flight};
+    if (++uploads_in_flight > cfg.max_concurrent_uploads) {
+      res.set_header("Retry-After", "5");
+      reply_error(res, 503,
+                  "the server is receiving " + std::to_string(cfg.max_concurrent_uploads) +
+                      " uploads already; retry later",
+                  "body");
+      return reject_unread("busy");
+    }
     const std::filesystem::path dir =
         cfg.upload_dir.empty() ? std::filesystem::temp_directory_path() : cfg.upload_dir;
     TempUpload upload(dir);

@@ -58,6 +58,8 @@ struct Server::Impl {
   mutable std::condition_variable state_cv;
   bool listening = false;
 
+  /// Uploads in flight (body being received or validated).
+  std::atomic<int> uploads_in_flight{0};
   /// Removes leftovers of a killed process from the upload directory (start-up).
   void sweep_upload_dir();
   /// Deletes drives older than cfg.drive_retention_days; returns how many.

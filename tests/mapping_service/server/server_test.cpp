@@ -420,6 +420,39 @@ TEST_F(ServerTest, AVehiclesDrivesAreErasedOnRequestAndAfterTheRetentionPeriod) 
   EXPECT_TRUE(store_->list_drives().empty());
 }
 
+TEST_F(ServerTest, ConcurrentUploadsAreCappedBeforeTheirBodyIsRead) {
+  ServerConfig cfg;
+  cfg.max_concurrent_uploads = 1;
+  restart(cfg);
+  // One upload that has sent its headers and a first byte and then waits (a slow vehicle).
+  const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+  sockaddr_in addr{};
+  addr.sin_family = AF_INET;
+  addr.sin_port = htons(static_cast<uint16_t>(port_));
+  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  ASSERT_EQ(::connect(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr), 0);
+  const std::string head = "POST /v1/drives HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer " +
+                           std::string(kKey) +
+                           "\r\nContent-Type: application/x-tar\r\nContent-Length: 100000\r\n\r\nx";
+  ASSERT_EQ(::send(fd, head.data(), head.size(), MSG_NOSIGNAL), static_cast<ssize_t>(head.size()));
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  auto c = client();
+  auto r = c.Post("/v1/drives", auth(), scene_tar("scene_drive_0", 11), "application/x-tar");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 503) << r->body;
+  EXPECT_EQ(r->get_header_value("Retry-After"), "5");
+  ::close(fd);  // the slow upload goes away: its slot is free again
+  bool inserted = false;
+  for (int i = 0; i < 50 && !inserted; ++i) {
+    auto c2 = client();
+    r = c2.Post("/v1/drives", auth(), scene_tar("scene_drive_0", 11), "application/x-tar");
+    inserted = r && r->status == 201;
+    if (!inserted) std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  EXPECT_TRUE(inserted);
+  EXPECT_EQ(upload_leftovers(), 0u);
+}
+
 TEST_F(ServerTest, InternalErrorsAreLoggedNotShownAndLogsAreEscaped) {
   store_options_.fault_hook = [](std::string_view stage) {
     if (stage == "rows_inserted") throw std::runtime_error("disk detail /srv/secret/path");

@@ -85,6 +85,9 @@ struct ServerConfig {
   /// Largest accepted upload body (413 beyond). 512 MiB: an hour of driving at
   /// the gridmap's 0.1 m cells is ~100–300 MiB of DEFLATE GeoTIFF.
   std::uint64_t max_upload_bytes = 512ull << 20;
+  /// Uploads received and validated at the same time; one more is answered 503 with
+  /// Retry-After before its body is read (each holds a worker, disk and CPU).
+  int max_concurrent_uploads = 4;
   /// Largest accepted JSON request body (POST /v1/maps).
   std::uint64_t max_json_bytes = 1ull << 20;
   /// Directory for in-flight uploads (removed after each request); empty = system temp dir.

@@ -34,6 +34,11 @@ int main(int argc, char** argv) {
   } catch (const CLI::ParseError& e) {
     if (e.get_exit_code() != 0) std::fputs("polmap: error: ", stderr);
     return app.exit(e);
+  } catch (const polmap::ContractViolation& e) {
+    // A bug of ours, not bad input: its own exit code, so scripts can tell them apart.
+    std::fprintf(stderr, "polmap: internal error (contract violated, please report): %s\n",
+                 e.what());
+    return 3;
   } catch (const polmap::Error& e) {
     std::fprintf(stderr, "polmap: error: %s\n", e.what());
     return 1;

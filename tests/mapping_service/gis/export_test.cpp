@@ -9,6 +9,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <memory>
 #include <nlohmann/json.hpp>
 
 #include "mapping_service/package_fixture.hpp"
@@ -276,7 +277,9 @@ TEST_F(ExportTest, ExportMapFromStoreAllFormatsAndBbox) {
   auto ds = open_vector((root_ / "a.gpkg").string());
   ASSERT_TRUE(ds);
   EXPECT_EQ(ds->GetLayerByName("points")->GetFeatureCount(), 7);
-  EXPECT_EQ(ds->GetLayerByName("points")->GetFeature(1)->GetFieldAsInteger64("version"), v);
+  const std::unique_ptr<OGRFeature> first(ds->GetLayerByName("points")->GetFeature(1));
+  ASSERT_TRUE(first);
+  EXPECT_EQ(first->GetFieldAsInteger64("version"), v);
 
   // A box around the first three points (3 m steps east/south of the origin).
   const tiles::LocalFrame frame({35.2240, 138.8045, 0.0});

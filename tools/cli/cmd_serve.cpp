@@ -10,6 +10,7 @@
 #include "polmap/mapping_service/server.hpp"
 #include "polmap/mapping_service/sqlite_store.hpp"
 #include "polmap/schema/errors.hpp"
+#include "polmap/util/text.hpp"
 
 namespace polmap::cli {
 namespace {
@@ -70,6 +71,17 @@ void run(const ServeOptions& o) {
   // one thread waits for them and stops the server.
   const sigset_t signals = eval::block_stop_signals();
   mapping::SqliteMapStore store(o.db);
+  const auto& migration = store.archive_migration();
+  if (migration.migrated > 0) {
+    std::fprintf(stderr, "polmap serve: %zu archive-stored packages replaced by their members\n",
+                 migration.migrated);
+  }
+  for (const auto& q : migration.quarantined) {
+    std::fprintf(stderr,
+                 "polmap serve: a stored package no longer validates; drive removed, archive "
+                 "kept in quarantine/: %s\n",
+                 util::escape_for_log(q, 1024).c_str());
+  }
   mapping::Server server(store, cfg);
   eval::listen_until_signal(server, signals, host, port, [](int sig) {
     std::fprintf(stderr, "polmap serve: %s received, stopping\n",

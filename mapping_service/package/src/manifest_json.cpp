@@ -26,9 +26,9 @@ PackageFormatError::PackageFormatError(std::string file, std::string field, std:
       error_{std::move(file), std::move(field), std::move(message), 400} {}
 
 PackageValidationError::PackageValidationError(std::string file, std::string field,
-                                               std::string message)
+                                               std::string message, int http_status)
     : ValidationError(format_error_message(file, field, message)),
-      error_{std::move(file), std::move(field), std::move(message), 422} {}
+      error_{std::move(file), std::move(field), std::move(message), http_status} {}
 
 std::string sha256_hex(std::string_view bytes) { return util::sha256_hex(bytes); }
 

@@ -27,6 +27,16 @@ void write_candidates_gpkg(const std::string& path, const tiles::LocalFrame& fra
                            const std::vector<LineCandidate>& lines,
                            const std::vector<TrajectorySample>& trajectory);
 
+// ---------------------------------------------------------------- validation budget
+/// Validation gave up at its deadline (PackageValidationConfig::max_validation_s): 413.
+[[noreturn]] inline void budget_exceeded(const std::string& file, double budget_s) {
+  throw PackageValidationError(file, "",
+                               "validation exceeded its time budget of " +
+                                   std::to_string(static_cast<long long>(budget_s)) +
+                                   " s (the package is too large or too complex to check)",
+                               413);
+}
+
 // ---------------------------------------------------------------- manifest
 nlohmann::json manifest_to_json(const DriveManifest& m);
 /// Strict parse; throws PackageFormatError / PackageValidationError naming manifest.json.

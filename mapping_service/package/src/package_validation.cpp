@@ -12,6 +12,7 @@
 #include <optional>
 
 #include "candidates_schema.hpp"
+#include "gpkg_screen.hpp"
 #include "package_internal.hpp"
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/mapping_service/ustar.hpp"
@@ -168,7 +169,7 @@ GDALDatasetUniquePtr open_raster(const std::string& path, const std::string& fil
 }
 
 GridmapScan validate_gridmap(const std::string& path, const DriveManifest& m,
-                             const PackageValidationConfig& cfg) {
+                             const PackageValidationConfig& cfg, const util::Deadline& deadline) {
   auto ds = open_raster(path, kTif);
   const GridmapInfo& g = m.gridmap;
   if (ds->GetRasterXSize() != g.width) {
@@ -277,6 +278,7 @@ GridmapScan validate_gridmap(const std::string& path, const DriveManifest& m,
   const double cs_tolerance = 1.0 + 1e-3 + 8.0 * std::ldexp(1.0, -g.mantissa_bits);
   for (int by = 0; by < nby; ++by) {
     for (int bx = 0; bx < nbx; ++bx) {
+      if (deadline.expired()) detail::budget_exceeded(kTif, deadline.budget_s());
       for (int b = 0; b < nb; ++b) {
         if (ds->GetRasterBand(b + 1)->ReadBlock(bx, by, block.band(b)) != CE_None) {
           throw PackageFormatError(kTif, names[b],
@@ -441,11 +443,13 @@ std::optional<GnssSolution> parse_solution(const std::string& s) {
 
 /// Counts the layer's features by reading them, stopping past `limit`: the count in
 /// gpkg_ogr_contents (what GetFeatureCount returns) is the uploader's claim, not a fact.
-void check_count(const char* layer, OGRLayer* l, std::uint64_t expected, std::uint64_t limit) {
+void check_count(const char* layer, OGRLayer* l, std::uint64_t expected, std::uint64_t limit,
+                 const util::Deadline& deadline) {
   std::uint64_t n = 0;
   l->ResetReading();
   while (OGRFeature* f = l->GetNextFeature()) {
     OGRFeature::DestroyFeature(f);
+    if (n % 4096 == 0 && deadline.expired()) detail::budget_exceeded(kGpkg, deadline.budget_s());
     if (++n > limit) {
       invalid(kGpkg, layer,
               "more than " + std::to_string(limit) + " features (the plausible maximum)");
@@ -459,7 +463,7 @@ void check_count(const char* layer, OGRLayer* l, std::uint64_t expected, std::ui
 
 void read_candidates(const std::string& path, const DriveManifest& m,
                      const PackageValidationConfig& cfg, const GridmapScan& scan,
-                     DrivePackage& out) {
+                     const util::Deadline& deadline, DrivePackage& out) {
   detail::GdalErrorCapture capture;
   const char* drivers[] = {"GPKG", nullptr};
   GDALDatasetUniquePtr ds(GDALDataset::FromHandle(
@@ -484,9 +488,9 @@ void read_candidates(const std::string& path, const DriveManifest& m,
   OGRLayer* lt = require_layer(*ds, detail::kTrajectoryLayer);
   std::uint64_t max_points = cfg.max_points;
   if (cfg.check_gridmap_values) max_points = std::min(max_points, scan.observed_cells);
-  check_count("points", lp, m.counts.points, max_points);
-  check_count("lines", ll, m.counts.lines, cfg.max_lines);
-  check_count("trajectory", lt, m.counts.trajectory_samples, cfg.max_trajectory_samples);
+  check_count("points", lp, m.counts.points, max_points, deadline);
+  check_count("lines", ll, m.counts.lines, cfg.max_lines, deadline);
+  check_count("trajectory", lt, m.counts.trajectory_samples, cfg.max_trajectory_samples, deadline);
   if (m.counts.trajectory_samples < 2) {
     invalid(kGpkg, "trajectory", "fewer than 2 samples");
   }
@@ -494,6 +498,7 @@ void read_candidates(const std::string& path, const DriveManifest& m,
   std::uint64_t i = 0;
   lp->ResetReading();
   for (auto& feat : *lp) {
+    if ((i & 4095) == 0 && deadline.expired()) detail::budget_exceeded(kGpkg, deadline.budget_s());
     const FeatureReader r("points", *feat, i++);
     PointCandidate p;
     p.position_m = {r.coordinate("x_m", lim), r.coordinate("y_m", lim)};
@@ -527,6 +532,7 @@ void read_candidates(const std::string& path, const DriveManifest& m,
   i = 0;
   ll->ResetReading();
   for (auto& feat : *ll) {
+    if ((i & 4095) == 0 && deadline.expired()) detail::budget_exceeded(kGpkg, deadline.budget_s());
     const FeatureReader r("lines", *feat, i++);
     LineCandidate l;
     l.start_m = {r.coordinate("x0_m", lim), r.coordinate("y0_m", lim)};
@@ -548,6 +554,7 @@ void read_candidates(const std::string& path, const DriveManifest& m,
   i = 0;
   lt->ResetReading();
   for (auto& feat : *lt) {
+    if ((i & 4095) == 0 && deadline.expired()) detail::budget_exceeded(kGpkg, deadline.budget_s());
     const FeatureReader r("trajectory", *feat, i++);
     TrajectorySample s;
     s.time_s = r.real("time_s");
@@ -599,6 +606,7 @@ void read_candidates(const std::string& path, const DriveManifest& m,
 /// (members manifest, gridmap, candidates) while each file is read once.
 DrivePackage validate(const PackageSource& src, const PackageValidationConfig& cfg,
                       detail::Sha256* archive_hash) {
+  const util::Deadline deadline = util::Deadline::after_s(cfg.max_validation_s);
   if (!src.has(kManifestFileName)) invalid(kManifestFileName, "", "missing");
   std::string storage;
   json j;
@@ -649,8 +657,12 @@ DrivePackage validate(const PackageSource& src, const PackageValidationConfig& c
   storage.clear();
   storage.shrink_to_fit();
   if (archive_hash != nullptr) archive_hash->update(std::string(kUstarEndBytes, '\0'));
-  const GridmapScan scan = validate_gridmap(src.gdal_path(kTif), m, cfg);
-  read_candidates(src.gdal_path(kGpkg), m, cfg, scan, pkg);
+  const GridmapScan scan = validate_gridmap(src.gdal_path(kTif), m, cfg, deadline);
+  // SQLite screens the GeoPackage before GDAL may open it.
+  detail::screen_candidates_gpkg(src.bytes(kGpkg, storage), deadline);
+  storage.clear();
+  storage.shrink_to_fit();
+  read_candidates(src.gdal_path(kGpkg), m, cfg, scan, deadline, pkg);
   return pkg;
 }
 

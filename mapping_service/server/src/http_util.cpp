@@ -116,27 +116,6 @@ std::string iso8601_now() {
   return buf;
 }
 
-std::string escape_for_log(std::string_view s, std::size_t max_bytes) {
-  static constexpr char kHex[] = "0123456789abcdef";
-  std::string out;
-  out.reserve(std::min(s.size(), max_bytes) + 8);
-  for (const char ch : s) {
-    if (out.size() >= max_bytes) {
-      out += "...";
-      break;
-    }
-    const auto c = static_cast<unsigned char>(ch);
-    if (c >= 0x20 && c < 0x7f && c != '\\') {
-      out.push_back(ch);
-    } else {
-      out += "\\x";
-      out.push_back(kHex[c >> 4U]);
-      out.push_back(kHex[c & 15U]);
-    }
-  }
-  return out;
-}
-
 std::string_view metric_method(std::string_view method) {
   for (std::string_view m : {"GET", "HEAD", "POST", "PUT", "DELETE", "OPTIONS", "PATCH"}) {
     if (method == m) return m;

@@ -17,6 +17,7 @@
 
 #include "polmap/tiles/tile_key.hpp"
 #include "polmap/util/sha256.hpp"
+#include "polmap/util/text.hpp"
 
 namespace polmap::mapping::http {
 
@@ -39,9 +40,7 @@ std::string iso8601_now();
 
 using util::secrets_equal;  // constant-time comparison of keys
 
-/// `s` made safe for a one-line log: printable ASCII kept, backslash and every other byte
-/// (control characters, CR/LF, non-ASCII) as \xHH; cut at max_bytes with "...".
-std::string escape_for_log(std::string_view s, std::size_t max_bytes = 4096);
+using util::escape_for_log;  // request paths, drive ids: never raw into a log line
 
 /// The method as a metrics label: a standard HTTP method, or "other" (a client must not
 /// be able to create label values, each of which is kept forever).

@@ -250,10 +250,17 @@ SqliteMapStore::SqliteMapStore(const fs::path& db_path, SqliteStoreOptions optio
   // Only the process that owns the store sweeps: a second process opening it (an export,
   // a CLI read) must never fail the owner's running build or delete its staging files.
   impl_->owner = std::make_unique<util::FileLock>(db_path.string() + ".lock");
-  if (impl_->owner->try_acquire()) impl_->sweep_orphans();
+  if (impl_->owner->try_acquire()) {
+    impl_->migrate_archived_packages();  // before the sweep: it must see the archives
+    impl_->sweep_orphans();
+  }
 }
 
 bool SqliteMapStore::owns_store() const { return impl_->owner && impl_->owner->held(); }
+
+const ArchiveMigrationReport& SqliteMapStore::archive_migration() const {
+  return impl_->archive_report;
+}
 
 SqliteMapStore::~SqliteMapStore() = default;
 

@@ -6,6 +6,7 @@
 #include <unordered_map>
 #include <unordered_set>
 
+#include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/schema/json.hpp"
 #include "polmap/tiles/local_frame.hpp"
 #include "polmap/util/file.hpp"
@@ -100,15 +101,14 @@ PutDriveResult SqliteMapStore::put_drive(const DrivePackage& package,
   util::ScopedTempDir placed(fs::path{});
   const fs::path& tmp = staging.path();
   const fs::path final_dir = I.drives_dir / content_hash;
-  std::string rel_path = content_hash;
+  const std::string rel_path = content_hash;
   {
     fs::create_directories(tmp);
     if (fs::is_directory(package_location)) {
       fs::copy(package_location, tmp, fs::copy_options::recursive);
     } else {
-      const std::string fname = package_location.filename().string();
-      fs::copy_file(package_location, tmp / fname);
-      rel_path += "/" + fname;
+      // An archive: its members, as our ustar reader sees them (the validator's reader).
+      unpack_drive_package(util::read_file_bytes(package_location), tmp);
     }
     util::sync_tree(tmp);  // the files are durable before any row names them
     const std::int64_t bytes = dir_bytes(tmp);
@@ -282,6 +282,79 @@ std::vector<DriveRecord> SqliteMapStore::drives_in(const GeoBox& box) const {
     std::sort(out.begin(), out.end(), [](const auto& a, const auto& b) { return a.row < b.row; });
     return out;
   });
+}
+
+void SqliteMapStore::Impl::migrate_archived_packages() {
+  struct Archived {
+    std::int64_t row;
+    std::string drive_id, hash, rel_path;
+  };
+  const auto archived = read([](Connection& c) {
+    std::vector<Archived> out;
+    auto s = c.stmt(
+        "SELECT id, drive_id, content_hash, package_path FROM drives "
+        "WHERE package_path != content_hash");
+    while (s.step()) out.push_back({s.i64(0), s.text(1), s.text(2), s.text(3)});
+    return out;
+  });
+  for (const auto& a : archived) {
+    const fs::path final_dir = drives_dir / a.hash;
+    const fs::path archive = drives_dir / a.rel_path;
+    const bool clash = archive.filename() == kManifestFileName ||
+                       archive.filename() == "gridmap.tif" ||
+                       archive.filename() == "candidates.gpkg";
+    std::error_code ec;
+    util::ScopedTempDir staging(drives_dir / (".tmp-migrate-" + a.hash));
+    fs::remove_all(staging.path(), ec);  // a crashed earlier attempt
+    std::string why;
+    if (!util::is_lower_hex(a.hash) || archive.parent_path() != final_dir || clash) {
+      why = "package path '" + a.rel_path + "' is not <hash>/<archive>";
+    } else if (fs::is_regular_file(archive, ec)) {
+      try {
+        unpack_drive_package(util::read_file_bytes(archive), staging.path());
+        (void)read_and_validate_package(staging.path());
+      } catch (const Error& e) {
+        why = e.what();
+      }
+    } else if (fs::is_regular_file(final_dir / kManifestFileName, ec)) {
+      // A crash after the members were placed: they are the package now.
+      try {
+        (void)read_and_validate_package(final_dir);
+      } catch (const Error& e) {
+        why = e.what();
+      }
+    } else {
+      why = "archive " + archive.string() + " is missing";
+    }
+    if (why.empty()) {
+      // Members go next to the archive (atomic renames on one file system; a crash in
+      // between is redone on the next open), then the row is repointed, then the archive
+      // goes. Until the commit the row names the archive, which stays intact.
+      if (fs::exists(staging.path(), ec)) {
+        util::sync_tree(staging.path());
+        for (const auto& e : fs::directory_iterator(staging.path())) {
+          fs::rename(e.path(), final_dir / e.path().filename());
+        }
+        util::sync_directory(final_dir);
+      }
+      write([&](Connection& c) {
+        c.stmt("UPDATE drives SET package_path = ?1 WHERE id = ?2")
+            .bind(1, a.hash)
+            .bind(2, a.row)
+            .run();
+      });
+      fs::remove(archive, ec);
+      ++archive_report.migrated;
+      continue;
+    }
+    // No longer valid: out of the store, the archive kept for inspection.
+    const fs::path quarantine = drives_dir / "quarantine";
+    fs::create_directories(quarantine, ec);
+    if (fs::is_regular_file(archive, ec)) fs::rename(archive, quarantine / (a.hash + ".tar"), ec);
+    write([&](Connection& c) { c.stmt("DELETE FROM drives WHERE id = ?1").bind(1, a.row).run(); });
+    fs::remove_all(final_dir, ec);
+    archive_report.quarantined.push_back(a.drive_id + ": " + why);
+  }
 }
 
 bool SqliteMapStore::delete_drive(std::string_view drive_id) {

@@ -195,6 +195,11 @@ struct SqliteMapStore::Impl {
     }
   }
 
+  /// Unpacks archive-stored packages of older versions (owner only; see
+  /// ArchiveMigrationReport). Defined with the drives.
+  void migrate_archived_packages();
+  ArchiveMigrationReport archive_report;
+
   void hook(std::string_view stage) const {
     if (opt.fault_hook) opt.fault_hook(stage);
   }

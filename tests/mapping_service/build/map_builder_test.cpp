@@ -11,6 +11,7 @@
 
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/mapping_service/sqlite_store.hpp"
+#include "polmap/mapping_service/ustar.hpp"
 #include "polmap/tiles/local_frame.hpp"
 #include "test_dir.hpp"
 
@@ -84,8 +85,12 @@ DrivePackage observe(const World& w, const std::string& id, unsigned seed, Eigen
 }
 
 void put(SqliteMapStore& store, const fs::path& dir, const DrivePackage& pkg) {
+  // A package-shaped archive with placeholder members (the store does not validate).
   const fs::path tar = dir / (pkg.manifest.drive_id + ".tar");
-  std::ofstream(tar) << "fake package " << pkg.manifest.drive_id;
+  std::ofstream(tar, std::ios::binary)
+      << write_ustar({{kManifestFileName, "fake package " + pkg.manifest.drive_id},
+                      {kGridmapFileName, ""},
+                      {kCandidatesFileName, ""}});
   (void)store.put_drive(pkg, tar, content_etag("fake package " + pkg.manifest.drive_id));
 }
 

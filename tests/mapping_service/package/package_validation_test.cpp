@@ -424,5 +424,120 @@ TEST_F(PackageValidationTest, MissingLayer) {
   expect_error<PackageValidationError>("candidates.gpkg", "lines", "layer missing", 422);
 }
 
+// ------------------------------------------------------------ GeoPackage pre-screen
+// SQLite screens candidates.gpkg before GDAL opens it: its schema must be, statement for
+// statement, what GDAL's writer creates for our layers; nothing else may run or be read.
+
+class GpkgScreenTest : public PackageValidationTest {
+ protected:
+  /// Runs SQL on the package's candidates.gpkg as an attacker with sqlite3 would, then
+  /// re-hashes the manifest so that only the GeoPackage content is wrong.
+  void edit_gpkg_sql(const std::string& sql) {
+    sqlite3* db = nullptr;
+    ASSERT_EQ(sqlite3_open((dir_ / "candidates.gpkg").c_str(), &db), SQLITE_OK);
+    // GDAL's R-tree triggers call SpatiaLite-style functions plain sqlite3 lacks.
+    sqlite3_db_config(db, SQLITE_DBCONFIG_ENABLE_TRIGGER, 0, nullptr);
+    char* err = nullptr;
+    const int rc = sqlite3_exec(db, sql.c_str(), nullptr, nullptr, &err);
+    EXPECT_EQ(rc, SQLITE_OK) << sql << ": " << (err != nullptr ? err : "");
+    sqlite3_free(err);
+    sqlite3_close(db);
+    refresh_manifest();
+  }
+};
+
+TEST_F(GpkgScreenTest, AViewIsRejected) {
+  edit_gpkg_sql("CREATE VIEW points_view AS SELECT * FROM points");
+  expect_error<PackageValidationError>("candidates.gpkg", "schema", "unexpected view 'points_view'",
+                                       422);
+}
+
+TEST_F(GpkgScreenTest, AnExtraTriggerIsRejected) {
+  edit_gpkg_sql("CREATE TRIGGER wipe AFTER INSERT ON points BEGIN DELETE FROM lines; END");
+  expect_error<PackageValidationError>("candidates.gpkg", "schema", "unexpected trigger 'wipe'",
+                                       422);
+}
+
+TEST_F(GpkgScreenTest, AnExtraTableIsRejected) {
+  edit_gpkg_sql("CREATE TABLE notes(x TEXT); INSERT INTO notes VALUES ('hello')");
+  expect_error<PackageValidationError>("candidates.gpkg", "schema", "unexpected table 'notes'",
+                                       422);
+}
+
+TEST_F(GpkgScreenTest, AnAlteredLayerTableIsRejected) {
+  edit_gpkg_sql("ALTER TABLE points ADD COLUMN extra REAL");
+  expect_error<PackageValidationError>(
+      "candidates.gpkg", "schema", "table 'points' differs from what GDAL's writer creates", 422);
+}
+
+TEST_F(GpkgScreenTest, AGdalTriggerWithAnotherBodyIsRejected) {
+  // Same name as GDAL's feature-count trigger, different statement.
+  edit_gpkg_sql(
+      "DROP TRIGGER trigger_insert_feature_count_points; "
+      "CREATE TRIGGER trigger_insert_feature_count_points AFTER INSERT ON points BEGIN "
+      "DELETE FROM trajectory; END");
+  expect_error<PackageValidationError>(
+      "candidates.gpkg", "schema", "trigger 'trigger_insert_feature_count_points' differs", 422);
+}
+
+TEST_F(GpkgScreenTest, MetadataRowsMustBeTheWritersOwn) {
+  edit_gpkg_sql(
+      "INSERT INTO gpkg_extensions VALUES ('points', 'geom', 'gdal_evil', 'x', 'read-write')");
+  expect_error<PackageValidationError>("candidates.gpkg", "gpkg_extensions", "rows differ", 422);
+}
+
+TEST_F(GpkgScreenTest, AContentsEntryForAnotherTableIsRejected) {
+  // A gpkg_contents row would make GDAL expose (and read) any table as a layer.
+  edit_gpkg_sql(
+      "INSERT INTO gpkg_contents(table_name, data_type, identifier, srs_id) "
+      "VALUES ('sqlite_sequence', 'attributes', 'seq', 0)");
+  expect_error<PackageValidationError>("candidates.gpkg", "gpkg_contents", "rows differ", 422);
+}
+
+TEST_F(GpkgScreenTest, AValueOfTheWrongStorageClassIsRejected) {
+  // GDAL would read the text as 0.0 without complaint.
+  edit_gpkg_sql("UPDATE points SET strength = 'abc' WHERE fid = 3");
+  expect_error<PackageValidationError>("candidates.gpkg", "points.strength",
+                                       "feature fid 3 holds a text value", 422);
+}
+
+TEST_F(GpkgScreenTest, AWalModeDatabaseIsRejected) {
+  edit_gpkg_sql("PRAGMA journal_mode = WAL");
+  expect_error<PackageValidationError>("candidates.gpkg", "journal_mode", "WAL mode", 422);
+}
+
+TEST_F(GpkgScreenTest, NotASqliteDatabase) {
+  spit(dir_ / "candidates.gpkg", std::string(4096, 'x'));
+  refresh_manifest();
+  expect_error<PackageFormatError>("candidates.gpkg", "", "not a SQLite 3 database", 400);
+}
+
+TEST_F(GpkgScreenTest, CorruptPagesAreRejectedAsUnreadable) {
+  std::string bytes = slurp(dir_ / "candidates.gpkg");
+  ASSERT_GT(bytes.size(), 40960U);
+  // Scribble over the b-tree pages after the schema page (page size 4096).
+  for (std::size_t i = 8192; i < bytes.size() - 4096; i += 4096) {
+    for (std::size_t k = 0; k < 64; ++k) bytes[i + k] = static_cast<char>(0xA5 ^ k);
+  }
+  spit(dir_ / "candidates.gpkg", bytes);
+  refresh_manifest();
+  const auto r = try_read_and_validate_package(dir_);
+  ASSERT_FALSE(r.has_value());
+  EXPECT_EQ(r.error().file, "candidates.gpkg") << r.error().what();
+  EXPECT_EQ(r.error().http_status, 400) << r.error().what();
+}
+
+TEST_F(GpkgScreenTest, ValidationStopsAtItsTimeBudget) {
+  PackageValidationConfig cfg;
+  cfg.max_validation_s = 1e-9;  // expired before the first gridmap block is read
+  const auto r = try_read_and_validate_package(dir_, cfg);
+  ASSERT_FALSE(r.has_value());
+  EXPECT_EQ(r.error().http_status, 413) << r.error().what();
+  EXPECT_NE(r.error().message.find("time budget"), std::string::npos) << r.error().what();
+  // Without a budget the same package passes.
+  cfg.max_validation_s = 0.0;
+  EXPECT_TRUE(try_read_and_validate_package(dir_, cfg).has_value());
+}
+
 }  // namespace
 }  // namespace polmap::mapping

@@ -12,6 +12,9 @@
 #include <set>
 #include <thread>
 
+#include "mapping_service/package_fixture.hpp"
+#include "polmap/mapping_service/drive_package_io.hpp"
+#include "polmap/mapping_service/ustar.hpp"
 #include "polmap/tiles/local_frame.hpp"
 #include "test_dir.hpp"
 
@@ -67,11 +70,14 @@ DrivePackage make_package(const std::string& drive_id, int n_points, int n_lines
   return p;
 }
 
-/// Writes a fake package archive and returns (path, content hash).
+/// Writes a package-shaped ustar archive (the three members; `content` as manifest.json,
+/// the store does not validate) and returns (path, content hash).
 std::pair<fs::path, std::string> write_archive(const fs::path& dir, const std::string& name,
                                                const std::string& content) {
   const fs::path p = dir / (name + ".tar");
-  std::ofstream(p, std::ios::binary) << content;
+  std::ofstream(p, std::ios::binary) << write_ustar({{kManifestFileName, content},
+                                                     {kGridmapFileName, "tif " + name},
+                                                     {kCandidatesFileName, "gpkg " + name}});
   return {p, content_etag(content)};
 }
 
@@ -201,8 +207,11 @@ TEST(SqliteStore, PutDriveRoundTripsRowsCandidatesAndFiles) {
   EXPECT_EQ(r.drive.num_lines, 20);
   EXPECT_EQ(r.drive.manifest.at("drive_id"), "drive_a");
   EXPECT_EQ(r.drive.manifest.at("pol_level"), "ll-lr");
-  ASSERT_TRUE(fs::is_regular_file(r.drive.package_path));
-  EXPECT_EQ(r.drive.package_path.parent_path(), store.drive_store_dir() / hash);
+  // An archive is stored as its members (what our ustar reader sees), never as an archive.
+  EXPECT_EQ(r.drive.package_path, store.drive_store_dir() / hash);
+  EXPECT_EQ(entries(r.drive.package_path), 3U);
+  std::ifstream manifest(r.drive.package_path / kManifestFileName);
+  EXPECT_EQ(std::string(std::istreambuf_iterator<char>(manifest), {}), "package bytes A");
   EXPECT_EQ(r.drive.ingested_at.size(), 20U);
 
   const auto c = store.candidates_in(std::nullopt);
@@ -537,6 +546,104 @@ TEST(SqliteStore, ConcurrentPutsOfTheSameContentInsertOnce) {
   EXPECT_EQ(inserted, 1);
   EXPECT_EQ(store.candidates_in(std::nullopt).points.size(), 20U);
   EXPECT_EQ(entries(store.drive_store_dir()), 1U);
+}
+
+// Stores of older versions kept the upload archive itself and GDAL read it through
+// /vsitar/ (whose reading of headers differs from the validator's): the owner's open
+// replaces each archive by its members and re-validates; what no longer validates leaves.
+class ArchivedPackageMigration : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    drive_ = polmap::mapping::testing::make_synthetic_drive();
+    write_drive_package(drive_.pkg, drive_.raster, tmp_.path() / "pkg");
+    db_ = tmp_.path() / "map.db";
+  }
+  /// Stores the package, then rewrites the store as an older version left it: the
+  /// archive `tar_bytes` in <hash>/drive.tar, the row naming it.
+  std::string put_as_archive(const std::string& tar_bytes) {
+    SqliteMapStore store(db_);
+    const auto pkg = read_and_validate_package(tmp_.path() / "pkg");
+    const auto r = store.put_drive(pkg, tmp_.path() / "pkg", pkg.content_sha256);
+    fs::remove_all(r.drive.package_path);
+    fs::create_directories(r.drive.package_path);
+    std::ofstream(r.drive.package_path / "drive.tar", std::ios::binary) << tar_bytes;
+    sqlite3* h = nullptr;
+    EXPECT_EQ(sqlite3_open(db_.c_str(), &h), SQLITE_OK);
+    EXPECT_EQ(sqlite3_exec(h, "UPDATE drives SET package_path = content_hash || '/drive.tar'",
+                           nullptr, nullptr, nullptr),
+              SQLITE_OK);
+    sqlite3_close(h);
+    return r.drive.content_hash;
+  }
+  TempDir tmp_;
+  polmap::mapping::testing::SyntheticDrive drive_;
+  fs::path db_;
+};
+
+TEST_F(ArchivedPackageMigration, ArchivesBecomeTheirValidatedMembers) {
+  const std::string hash = put_as_archive(pack_drive_package(tmp_.path() / "pkg"));
+  SqliteMapStore store(db_);
+  EXPECT_EQ(store.archive_migration().migrated, 1U);
+  EXPECT_TRUE(store.archive_migration().quarantined.empty());
+  const auto d = store.get_drive(drive_.pkg.manifest.drive_id);
+  ASSERT_TRUE(d.has_value());
+  EXPECT_EQ(d->package_path, store.drive_store_dir() / hash);
+  EXPECT_FALSE(fs::exists(d->package_path / "drive.tar"));
+  EXPECT_EQ(entries(d->package_path), 3U);
+  const auto pkg = read_and_validate_package(d->package_path);
+  EXPECT_EQ(pkg.points.size(), drive_.pkg.points.size());
+  EXPECT_EQ(store.candidates_in(std::nullopt).points.size(), drive_.pkg.points.size());
+}
+
+TEST_F(ArchivedPackageMigration, AnArchiveThatNoLongerValidatesIsQuarantined) {
+  // Validated once by older rules; today's GeoPackage screen rejects a view.
+  const fs::path bad = tmp_.path() / "bad";
+  fs::copy(tmp_.path() / "pkg", bad);
+  sqlite3* h = nullptr;
+  ASSERT_EQ(sqlite3_open((bad / kCandidatesFileName).c_str(), &h), SQLITE_OK);
+  ASSERT_EQ(sqlite3_exec(h, "CREATE VIEW v AS SELECT 1", nullptr, nullptr, nullptr), SQLITE_OK);
+  sqlite3_close(h);
+  {  // re-hash, so that only the GeoPackage's content is wrong
+    std::ifstream in(bad / kManifestFileName);
+    auto j = nlohmann::json::parse(in);
+    std::ifstream g(bad / kCandidatesFileName, std::ios::binary);
+    const std::string gpkg(std::istreambuf_iterator<char>(g), {});
+    for (auto& f : j["files"]) {
+      if (f["name"] == kCandidatesFileName) {
+        f["size_bytes"] = gpkg.size();
+        f["sha256"] = sha256_hex(gpkg);
+      }
+    }
+    std::ofstream(bad / kManifestFileName, std::ios::trunc) << j.dump(2);
+  }
+  std::vector<TarMember> members;
+  for (const char* name : {kManifestFileName, kGridmapFileName, kCandidatesFileName}) {
+    std::ifstream in(bad / name, std::ios::binary);
+    members.push_back({name, std::string(std::istreambuf_iterator<char>(in), {})});
+  }
+  const std::string hash = put_as_archive(write_ustar(members));
+  SqliteMapStore store(db_);
+  EXPECT_EQ(store.archive_migration().migrated, 0U);
+  ASSERT_EQ(store.archive_migration().quarantined.size(), 1U);
+  EXPECT_NE(store.archive_migration().quarantined[0].find("unexpected view 'v'"), std::string::npos)
+      << store.archive_migration().quarantined[0];
+  EXPECT_FALSE(store.get_drive(drive_.pkg.manifest.drive_id).has_value());
+  EXPECT_TRUE(store.candidates_in(std::nullopt).points.empty());
+  EXPECT_TRUE(fs::is_regular_file(store.drive_store_dir() / "quarantine" / (hash + ".tar")));
+  EXPECT_FALSE(fs::exists(store.drive_store_dir() / hash));
+}
+
+TEST_F(ArchivedPackageMigration, OnlyTheOwnerMigratesAndOnlyOnce) {
+  (void)put_as_archive(pack_drive_package(tmp_.path() / "pkg"));
+  {
+    SqliteMapStore owner(db_);
+    SqliteMapStore second(db_);  // another process's open: no migration, no sweep
+    EXPECT_EQ(owner.archive_migration().migrated, 1U);
+    EXPECT_EQ(second.archive_migration().migrated, 0U);
+  }
+  SqliteMapStore again(db_);
+  EXPECT_EQ(again.archive_migration().migrated, 0U);
+  EXPECT_TRUE(again.get_drive(drive_.pkg.manifest.drive_id).has_value());
 }
 
 }  // namespace

@@ -64,14 +64,20 @@ struct PackageValidationConfig {
   /// Scan every gridmap block: N integral and >= 0, layers finite, zero where N = 0,
   /// non-negative diagonal. Off only for quick header-level checks.
   bool check_gridmap_values = true;
+  /// Wall-clock budget of one validation (s); past it validation stops with 413, so no
+  /// package can hold a request thread for minutes (decompression bombs, huge rasters).
+  /// 0 = unlimited (trusted local packages).
+  double max_validation_s = 60.0;
 };
 
 /// A failed read/validation as a value (for the HTTP server).
 struct PackageError {
-  std::string file;       ///< package member, "archive" for the ustar container, or the path
-  std::string field;      ///< offending field/band/layer (may be empty)
-  std::string message;    ///< what is wrong
-  int http_status = 422;  ///< 400: unparsable container/format, 422: schema/semantic violation
+  std::string file;     ///< package member, "archive" for the ustar container, or the path
+  std::string field;    ///< offending field/band/layer (may be empty)
+  std::string message;  ///< what is wrong
+  /// 400: unparsable container/format, 422: schema/semantic violation, 413: not checkable
+  /// within PackageValidationConfig::max_validation_s.
+  int http_status = 422;
   /// "FILE: field 'FIELD': MESSAGE" (or "FILE: MESSAGE" without a field).
   [[nodiscard]] std::string what() const;
 };
@@ -86,10 +92,12 @@ class PackageFormatError : public FormatError {
   PackageError error_;
 };
 
-/// Thrown for package files that parse but violate the schema (HTTP 422).
+/// Thrown for package files that parse but violate the schema (HTTP 422), or that could
+/// not be checked within the validation budget (413).
 class PackageValidationError : public ValidationError {
  public:
-  PackageValidationError(std::string file, std::string field, std::string message);
+  PackageValidationError(std::string file, std::string field, std::string message,
+                         int http_status = 422);
   [[nodiscard]] const PackageError& error() const { return error_; }
 
  private:

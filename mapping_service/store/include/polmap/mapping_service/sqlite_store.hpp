@@ -19,6 +19,8 @@
 /// Schema migrations run on open, in one transaction, recorded in
 /// `schema_migrations`; reopening an up-to-date database changes nothing.
 ///
+/// Packages are stored as their member files only (an archive given to put_drive is
+/// unpacked by our ustar reader first), so GDAL never reads an archive of the store.
 /// Crash safety of put_drive: files are copied into `<db>.drives/.tmp-*`,
 /// rows inserted in a transaction, the directory renamed to its final name,
 /// then the transaction commits; any failure rolls back and removes the files.
@@ -51,6 +53,16 @@ struct SqliteStoreOptions {
   std::function<void(std::string_view stage)> fault_hook;
 };
 
+/// What opening the store did to packages stored as upload archives by older versions
+/// (`<drives>/<hash>/<name>.tar`, once read through GDAL's /vsitar/): each is unpacked by
+/// our ustar reader into member files and re-validated by today's rules; one that no
+/// longer validates is removed from the store, its archive kept in
+/// `<drives>/quarantine/<hash>.tar` for inspection.
+struct ArchiveMigrationReport {
+  std::size_t migrated = 0;              ///< archives replaced by their member files
+  std::vector<std::string> quarantined;  ///< "DRIVE_ID: reason", one per removed drive
+};
+
 /// One migration of the store schema (schema/store.sql holds them all).
 struct StoreMigration {
   int version;
@@ -80,6 +92,8 @@ class SqliteMapStore final : public MapStore {
   [[nodiscard]] const std::filesystem::path& drive_store_dir() const;
   /// True if this object holds the owner lock (see the constructor).
   [[nodiscard]] bool owns_store() const;
+  /// What the owner's open did to archive-stored packages (empty for other openers).
+  [[nodiscard]] const ArchiveMigrationReport& archive_migration() const;
   /// Schema version of the open database (highest applied migration).
   [[nodiscard]] int schema_version() const;
   /// Value of a PRAGMA on a pooled connection (tests: "journal_mode", "foreign_keys").

@@ -165,6 +165,15 @@ void Server::Impl::register_map_routes() {
       return reply_error(res, 422, e.message, e.field);
     }
     if (stopping) return reply_error(res, 503, "the server is stopping");
+    {
+      std::lock_guard lock(build_mutex);
+      if (build_queue.size() >= static_cast<std::size_t>(std::max(cfg.max_queued_builds, 0))) {
+        res.set_header("Retry-After", "60");
+        return reply_error(
+            res, 503,
+            std::to_string(build_queue.size()) + " map builds are already queued; retry later");
+      }
+    }
     const std::int64_t version = submit_build(request);
     log("info", "map build " + std::to_string(version) + " queued: " + request.dump());
     res.set_header("Location", "/v1/maps/" + std::to_string(version));

@@ -728,6 +728,22 @@ TEST_F(ServerTest, MapBuildRequestValidation) {
   EXPECT_NE(body_json(r)["error"].get<std::string>().find("no map version"), std::string::npos);
 }
 
+TEST_F(ServerTest, TheBuildQueueIsBounded) {
+  ServerConfig cfg;
+  cfg.max_queued_builds = 0;  // nothing may wait: every request is one too many
+  restart(cfg);
+  auto c = client();
+  const auto r = c.Post("/v1/maps", auth(), "{}", "application/json");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 503);
+  EXPECT_EQ(r->get_header_value("Retry-After"), "60");
+  EXPECT_TRUE(store_->list_map_versions().empty());  // refused before a version row exists
+  cfg.max_queued_builds = 1;
+  restart(cfg);
+  auto c2 = client();
+  EXPECT_EQ(c2.Post("/v1/maps", auth(), "{}", "application/json")->status, 202);
+}
+
 TEST_F(ServerTest, VectorTilesTileJsonAndGridmap) {
   const std::int64_t version = upload_and_build();
   auto c = client();

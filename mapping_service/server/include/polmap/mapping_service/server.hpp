@@ -88,6 +88,9 @@ struct ServerConfig {
   /// Uploads received and validated at the same time; one more is answered 503 with
   /// Retry-After before its body is read (each holds a worker, disk and CPU).
   int max_concurrent_uploads = 4;
+  /// Map builds waiting behind the running one; one more is answered 503 with Retry-After
+  /// (each queued build holds a map version row and will read every drive).
+  int max_queued_builds = 4;
   /// Largest accepted JSON request body (POST /v1/maps).
   std::uint64_t max_json_bytes = 1ull << 20;
   /// Directory for in-flight uploads (removed after each request); empty = system temp dir.

@@ -107,8 +107,7 @@ int main(int argc, char** argv) {
          sample_every_s = 10;
   app.add_option("--url", url)->required();
   app.add_option("--key", key, "operator key")->required();
-  app.add_option("--packages", packages, "directory of drive package archives (*.tar)")
-      ->required();
+  app.add_option("--packages", packages, "directory of drive package archives (*.tar)")->required();
   app.add_option("--pid", pid, "server process to sample")->required();
   app.add_option("--duration-s", duration_s)->capture_default_str();
   app.add_option("--upload-every-s", upload_every_s)->capture_default_str();
@@ -219,7 +218,8 @@ int main(int argc, char** argv) {
       if (!res) c = client();
       const auto until = t0 + std::chrono::duration_cast<Clock::duration>(
                                   std::chrono::duration<double>(upload_every_s * (k + 1)));
-      while (!done && Clock::now() < until) std::this_thread::sleep_for(std::chrono::milliseconds(200));
+      while (!done && Clock::now() < until)
+        std::this_thread::sleep_for(std::chrono::milliseconds(200));
     }
   });
   threads.emplace_back([&] {  // map builds, polled to the end
@@ -227,7 +227,8 @@ int main(int argc, char** argv) {
     for (std::size_t k = 1; !done; ++k) {
       const auto until = t0 + std::chrono::duration_cast<Clock::duration>(
                                   std::chrono::duration<double>(build_every_s * k));
-      while (!done && Clock::now() < until) std::this_thread::sleep_for(std::chrono::milliseconds(200));
+      while (!done && Clock::now() < until)
+        std::this_thread::sleep_for(std::chrono::milliseconds(200));
       if (done) break;
       const auto s = Clock::now();
       auto res = c->Post("/v1/maps", auth, "{}", "application/json");
@@ -299,7 +300,8 @@ int main(int argc, char** argv) {
     max_files = std::max(max_files, s.file_fds);
     max_sockets = std::max(max_sockets, s.socket_fds);
   }
-  const bool complete = at_half != nullptr && stats.samples.back().t_s >= duration_s - 2 * sample_every_s;
+  const bool complete =
+      at_half != nullptr && stats.samples.back().t_s >= duration_s - 2 * sample_every_s;
   const double growth =
       at_half != nullptr ? (static_cast<double>(max_rss_late) / at_half->rss_kib - 1.0) : 0.0;
   j["duration_s"] = duration_s;
@@ -317,11 +319,13 @@ int main(int argc, char** argv) {
   j["tile_ms"]["building"] = {{"n", stats.tile_ms_building.size()},
                               {"p50", percentile(stats.tile_ms_building, 0.5)},
                               {"p99", percentile(stats.tile_ms_building, 0.99)}};
-  j["builds"] = {{"n", stats.build_s.size()}, {"p50_s", percentile(stats.build_s, 0.5)},
+  j["builds"] = {{"n", stats.build_s.size()},
+                 {"p50_s", percentile(stats.build_s, 0.5)},
                  {"max_s", percentile(stats.build_s, 1.0)}};
-  for (const auto& s : stats.samples) j["samples"].push_back({s.t_s, s.rss_kib, s.file_fds, s.socket_fds});
-  const bool ok = complete && fivexx == 0 && transport == 0 && growth < 0.05 &&
-                  min_files == max_files;
+  for (const auto& s : stats.samples)
+    j["samples"].push_back({s.t_s, s.rss_kib, s.file_fds, s.socket_fds});
+  const bool ok =
+      complete && fivexx == 0 && transport == 0 && growth < 0.05 && min_files == max_files;
   j["pass"] = ok;
   if (!report.empty()) std::ofstream(report) << j.dump(2) << "\n";
   std::printf(

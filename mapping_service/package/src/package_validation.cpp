@@ -608,6 +608,11 @@ DrivePackage validate(const PackageSource& src, const PackageValidationConfig& c
                       detail::Sha256* archive_hash) {
   const util::Deadline deadline = util::Deadline::after_s(cfg.max_validation_s);
   if (!src.has(kManifestFileName)) invalid(kManifestFileName, "", "missing");
+  if (src.size(kManifestFileName) > cfg.max_manifest_bytes) {
+    invalid(
+        kManifestFileName, "",
+        "larger than " + std::to_string(cfg.max_manifest_bytes) + " bytes (the plausible maximum)");
+  }
   std::string storage;
   json j;
   {

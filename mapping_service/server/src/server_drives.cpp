@@ -145,11 +145,8 @@ void Server::Impl::register_drive_routes() {
     }
 
     // At most max_concurrent_uploads at once; the slot is held until this request ends.
-    struct Slot {
-      std::atomic<int>& n;
-      ~Slot() { --n; }
-    } slot{uploads_in_flight};
-    if (++uploads_in_flight > cfg.max_concurrent_uploads) {
+    const ConcurrencySlot slot(uploads_in_flight, cfg.max_concurrent_uploads);
+    if (!slot.acquired()) {
       res.set_header("Retry-After", "5");
       reply_error(res, 503,
                   "the server is receiving " + std::to_string(cfg.max_concurrent_uploads) +

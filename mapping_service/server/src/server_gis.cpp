@@ -66,6 +66,13 @@ void Server::Impl::register_gis_routes() {
     bool is_explicit = false;
     const auto idx = resolve_version(req, res, is_explicit);
     if (!idx) return;
+    const ConcurrencySlot slot(exports_in_flight, cfg.max_concurrent_exports);
+    if (!slot.acquired()) {
+      res.set_header("Retry-After", "30");
+      return reply_error(res, 503,
+                         std::to_string(cfg.max_concurrent_exports) +
+                             " exports are being written already; retry later");
+    }
 
     // Export into a private temp dir; the response streams the file and the releaser
     // removes the directory when the response is done (or the client went away).

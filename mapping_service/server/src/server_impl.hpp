@@ -41,6 +41,21 @@ struct VersionIndex {
   nlohmann::json parameters;
 };
 
+/// One of `limit` slots of a counter, held for the slot's lifetime: heavy requests
+/// (uploads, exports) beyond the limit are refused with 503 instead of queueing up.
+class ConcurrencySlot {
+ public:
+  ConcurrencySlot(std::atomic<int>& counter, int limit) : n_(counter), ok_(++counter <= limit) {}
+  ~ConcurrencySlot() { --n_; }
+  ConcurrencySlot(const ConcurrencySlot&) = delete;
+  ConcurrencySlot& operator=(const ConcurrencySlot&) = delete;
+  [[nodiscard]] bool acquired() const { return ok_; }
+
+ private:
+  std::atomic<int>& n_;
+  bool ok_;
+};
+
 struct Server::Impl {
   Impl(MapStore& store, ServerConfig config);
   ~Impl();
@@ -60,6 +75,8 @@ struct Server::Impl {
 
   /// Uploads in flight (body being received or validated).
   std::atomic<int> uploads_in_flight{0};
+  /// Exports being written (streaming a finished export does not count).
+  std::atomic<int> exports_in_flight{0};
   /// Removes leftovers of a killed process from the upload directory (start-up).
   void sweep_upload_dir();
   /// Deletes drives older than cfg.drive_retention_days; returns how many.

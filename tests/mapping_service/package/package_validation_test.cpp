@@ -157,6 +157,11 @@ TEST_F(PackageValidationTest, BadDriveId) {
   expect_error<PackageValidationError>("manifest.json", "drive_id", "[A-Za-z0-9._-]", 422);
 }
 
+TEST_F(PackageValidationTest, AnOversizedManifestIsRefusedBeforeParsing) {
+  edit_manifest([](json& j) { j["notes"] = std::string(2u << 20, 'x'); });
+  expect_error<PackageValidationError>("manifest.json", "", "larger than 1048576 bytes", 422);
+}
+
 TEST_F(PackageValidationTest, ManifestNotJson) {
   spit(dir_ / "manifest.json", "{\"drive_id\": ");
   expect_error<PackageFormatError>("manifest.json", "", "not valid JSON", 400);

@@ -744,6 +744,18 @@ TEST_F(ServerTest, TheBuildQueueIsBounded) {
   EXPECT_EQ(c2.Post("/v1/maps", auth(), "{}", "application/json")->status, 202);
 }
 
+TEST_F(ServerTest, ConcurrentExportsAreBounded) {
+  ServerConfig cfg;
+  cfg.max_concurrent_exports = 0;  // every export is one too many (one: ExportStreamsGisFiles)
+  restart(cfg);
+  (void)upload_and_build();
+  auto c = client();
+  const auto r = c.Get("/v1/export?format=geojson", auth());
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 503) << r->body;
+  EXPECT_EQ(r->get_header_value("Retry-After"), "30");
+}
+
 TEST_F(ServerTest, VectorTilesTileJsonAndGridmap) {
   const std::int64_t version = upload_and_build();
   auto c = client();

@@ -68,6 +68,8 @@ struct PackageValidationConfig {
   /// package can hold a request thread for minutes (decompression bombs, huge rasters).
   /// 0 = unlimited (trusted local packages).
   double max_validation_s = 60.0;
+  /// manifest.json larger than this is refused before it is parsed (ours are a few kB).
+  std::uint64_t max_manifest_bytes = 1u << 20;
 };
 
 /// A failed read/validation as a value (for the HTTP server).

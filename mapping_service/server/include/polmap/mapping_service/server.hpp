@@ -91,6 +91,9 @@ struct ServerConfig {
   /// Map builds waiting behind the running one; one more is answered 503 with Retry-After
   /// (each queued build holds a map version row and will read every drive).
   int max_queued_builds = 4;
+  /// Exports (GET /v1/export) written at the same time; one more is answered 503 with
+  /// Retry-After (each reads a whole map version and writes a file).
+  int max_concurrent_exports = 1;
   /// Largest accepted JSON request body (POST /v1/maps).
   std::uint64_t max_json_bytes = 1ull << 20;
   /// Directory for in-flight uploads (removed after each request); empty = system temp dir.

@@ -52,7 +52,15 @@ namespace detail {
 
 void ensure_gdal() {
   static std::once_flag once;
-  std::call_once(once, [] { GDALAllRegister(); });
+  std::call_once(once, [] {
+    GDALAllRegister();
+    // GDAL's raster block cache defaults to 5 % of physical memory (1.2 GB on a 24 GiB
+    // machine), which a long-running server fills with gridmap blocks of map builds.
+    // GDAL_CACHEMAX in the environment still wins.
+    if (CPLGetConfigOption("GDAL_CACHEMAX", nullptr) == nullptr) {
+      GDALSetCacheMax64(kDefaultGdalCacheBytes);
+    }
+  });
 }
 
 GdalErrorCapture::GdalErrorCapture() {

@@ -36,7 +36,11 @@ void SqliteMapStore::put_landmarks(std::int64_t version,
     const std::string ins =
         "INSERT INTO landmarks(version, key, kind, lat_deg, lon_deg, polyline_json, scattering, "
         "support_drives, spread_m) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)";
-    const std::string sup = "INSERT INTO landmark_support(landmark, candidate) VALUES (?1, ?2)";
+    // A drive deleted while the build ran (an erasure request, retention) takes its
+    // candidates with it: their links are skipped, as a later delete would remove them.
+    const std::string sup =
+        "INSERT INTO landmark_support(landmark, candidate) SELECT ?1, ?2 "
+        "WHERE EXISTS (SELECT 1 FROM candidates WHERE id = ?2)";
     auto support = [&](std::int64_t id, const std::vector<std::int64_t>& cands) {
       std::vector<std::int64_t> u(cands);
       std::sort(u.begin(), u.end());

@@ -8,6 +8,7 @@
 #include <fstream>
 
 #include "mapping_service/package_fixture.hpp"
+#include "polmap/mapping_service/detail/gdal.hpp"
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/mapping_service/ustar.hpp"
 #include "polmap/tiles/local_frame.hpp"
@@ -40,6 +41,14 @@ class DrivePackageTest : public ::testing::Test {
 std::string slurp(const fs::path& p) {
   std::ifstream in(p, std::ios::binary);
   return {std::istreambuf_iterator<char>(in), {}};
+}
+
+TEST(GdalSetup, TheBlockCacheIsBoundedUnlessConfigured) {
+  // GDAL's default (5 % of RAM) let a long-running server grow by a gigabyte of cached
+  // gridmap blocks (found by the soak). Each test runs in its own process under ctest.
+  ::unsetenv("GDAL_CACHEMAX");
+  detail::ensure_gdal();
+  EXPECT_EQ(GDALGetCacheMax64(), detail::kDefaultGdalCacheBytes);
 }
 
 TEST_F(DrivePackageTest, WrittenPackageReadsBackIdentical) {

@@ -530,6 +530,27 @@ TEST(SqliteStore, LandmarkBoxQueryAndDriveDeleteKeepsPublishedLandmarks) {
   EXPECT_TRUE(after.points[0].support.empty());
 }
 
+TEST(SqliteStore, ADriveDeletedDuringABuildDoesNotFailIt) {
+  // The build read the candidates of "a" and "b"; "a" is erased before its landmarks are
+  // stored (found by the soak: the build failed on a foreign key).
+  TempDir tmp;
+  SqliteMapStore store(tmp.path() / "map.db");
+  (void)put_with_archive(store, tmp.path(), make_package("a", 3, 0, 1), "a", "A");
+  (void)put_with_archive(store, tmp.path(), make_package("b", 3, 0, 2), "b", "B");
+  const auto cands = store.candidates_in(std::nullopt);
+  ASSERT_EQ(cands.points.size(), 6U);
+  const auto v = store.begin_map_version({});
+  EXPECT_TRUE(store.delete_drive("a"));
+  std::vector<StoredPointLandmark> pts;
+  pts.push_back(point_lm(0.0, 1, {cands.points[0].id, cands.points[3].id}));
+  store.put_landmarks(v, pts, {});
+  store.publish_map_version(v, {});
+  const auto lm = store.landmarks_in(v, std::nullopt);
+  ASSERT_EQ(lm.points.size(), 1U);
+  // Only the link to the surviving drive's candidate remains.
+  EXPECT_EQ(lm.points[0].support, std::vector<std::int64_t>{cands.points[3].id});
+}
+
 TEST(SqliteStore, ConcurrentPutsOfTheSameContentInsertOnce) {
   TempDir tmp;
   SqliteMapStore store(tmp.path() / "map.db");

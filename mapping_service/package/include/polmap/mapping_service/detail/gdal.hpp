@@ -2,11 +2,16 @@
 /// @file gdal.hpp
 /// GDAL adapter helpers shared by the package and GIS targets (not part of the public
 /// API: detail/ headers may change without notice).
+#include <cstdint>
 #include <string>
 
 namespace polmap::mapping::detail {
 
-/// GDALAllRegister() once per process.
+/// GDAL's raster block cache when GDAL_CACHEMAX is not set (see ensure_gdal).
+inline constexpr std::int64_t kDefaultGdalCacheBytes = 64ll << 20;
+
+/// GDALAllRegister() once per process; bounds GDAL's block cache to
+/// kDefaultGdalCacheBytes unless GDAL_CACHEMAX is set.
 void ensure_gdal();
 
 /// While alive, GDAL errors of this thread are captured (not printed); last_message()

@@ -1,5 +1,8 @@
 // Map version endpoints: POST /v1/maps (build in the background), GET /v1/maps[/{version}].
 #include <cmath>
+#if defined(__GLIBC__)
+#include <malloc.h>
+#endif
 
 #include "polmap/schema/errors.hpp"
 #include "server_build.hpp"
@@ -109,6 +112,11 @@ void Server::Impl::run_build(const BuildJob& job) {
       log("error", std::string("cannot mark the build failed: ") + e2.what());
     }
   }
+#if defined(__GLIBC__)
+  // A build allocates hundreds of MB on this thread and frees them; glibc keeps freed
+  // pages in its arenas (the soak saw 49 MB in use, 760 MB resident). Give them back.
+  malloc_trim(0);
+#endif
 }
 
 void Server::Impl::register_map_routes() {

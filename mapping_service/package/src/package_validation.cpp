@@ -6,6 +6,7 @@
 
 #include <atomic>
 #include <cmath>
+#include <cstdlib>
 #include <fstream>
 #include <functional>
 #include <map>
@@ -152,6 +153,18 @@ std::string fmt(double v) {
 
 // ------------------------------------------------------------------------ GeoTIFF
 
+/// True if no band stores block (bx, by): a sparse GeoTIFF block reads as zeros, which is
+/// a valid unobserved block, so it needs no reading (a 1 MB file can declare 36 GB of
+/// them; reading each would take minutes).
+bool block_unwritten(GDALDataset& ds, int bx, int by) {
+  const std::string item = "BLOCK_OFFSET_" + std::to_string(bx) + "_" + std::to_string(by);
+  for (int b = 1; b <= ds.GetRasterCount(); ++b) {
+    const char* offset = ds.GetRasterBand(b)->GetMetadataItem(item.c_str(), "TIFF");
+    if (offset != nullptr && std::strtoull(offset, nullptr, 10) != 0) return false;
+  }
+  return true;
+}
+
 struct GridmapScan {
   std::uint64_t observed_cells = 0;
 };
@@ -279,6 +292,7 @@ GridmapScan validate_gridmap(const std::string& path, const DriveManifest& m,
   for (int by = 0; by < nby; ++by) {
     for (int bx = 0; bx < nbx; ++bx) {
       if (deadline.expired()) detail::budget_exceeded(kTif, deadline.budget_s());
+      if (block_unwritten(*ds, bx, by)) continue;
       for (int b = 0; b < nb; ++b) {
         if (ds->GetRasterBand(b + 1)->ReadBlock(bx, by, block.band(b)) != CE_None) {
           throw PackageFormatError(kTif, names[b],
@@ -622,6 +636,8 @@ DrivePackage validate(const PackageSource& src, const PackageValidationConfig& c
     } catch (const json::parse_error& e) {
       throw PackageFormatError(kManifestFileName, "",
                                "not valid JSON (byte " + std::to_string(e.byte) + ")");
+    } catch (const json::exception& e) {  // e.g. out_of_range: a number overflow like 1e400
+      throw PackageFormatError(kManifestFileName, "", std::string("not valid JSON: ") + e.what());
     }
     if (archive_hash != nullptr) {
       archive_hash->update(ustar_header(kManifestFileName, manifest_bytes.size()));
@@ -777,6 +793,7 @@ void block_to_raster(detail::GridmapBlockBuffer& block, int q, int cols, int row
 /// Reads all bands of block (bx, by); returns false if the N band is all zero.
 bool read_block(GDALDataset& ds, int bx, int by, detail::GridmapBlockBuffer& block,
                 const std::string& file) {
+  if (block_unwritten(ds, bx, by)) return false;
   detail::GdalErrorCapture capture;
   if (ds.GetRasterBand(1)->ReadBlock(bx, by, block.band(0)) != CE_None) {
     throw PackageFormatError(file, "N", "cannot read block: " + capture.last_message());

@@ -162,6 +162,16 @@ TEST_F(PackageValidationTest, AnOversizedManifestIsRefusedBeforeParsing) {
   expect_error<PackageValidationError>("manifest.json", "", "larger than 1048576 bytes", 422);
 }
 
+TEST_F(PackageValidationTest, ANumberOverflowInTheManifestIsAFormatError) {
+  std::string text = slurp(dir_ / "manifest.json");
+  const auto at = text.find("\"distance_m\"");
+  ASSERT_NE(at, std::string::npos);
+  const auto colon = text.find(':', at), end = text.find_first_of(",}", colon);
+  text.replace(colon + 1, end - colon - 1, " 1e400");
+  spit(dir_ / "manifest.json", text);
+  expect_error<PackageFormatError>("manifest.json", "", "not valid JSON", 400);
+}
+
 TEST_F(PackageValidationTest, ManifestNotJson) {
   spit(dir_ / "manifest.json", "{\"drive_id\": ");
   expect_error<PackageFormatError>("manifest.json", "", "not valid JSON", 400);

@@ -1,6 +1,8 @@
-// `polmap serve --db FILE --listen HOST:PORT --api-key-file FILE [...]`: the mapping
-// service's HTTP server on an embedded SQLite store. Stops gracefully on SIGINT/SIGTERM
-// (requests in flight finish, a running map build is cancelled and marked failed).
+// `polmap serve --db FILE --listen HOST:PORT --api-key-file FILE [--tls-cert F --tls-key F]
+// [...]`: the mapping service's HTTP(S) server on an embedded SQLite store. For public
+// exposure it runs behind the nginx front of deploy/nginx/ (docs/deployment.md). Stops
+// gracefully on SIGINT/SIGTERM (requests in flight finish, a running map build is cancelled
+// and marked failed).
 #include <CLI/CLI.hpp>
 #include <cstdio>
 #include <cstdlib>
@@ -31,6 +33,8 @@ struct ServeOptions {
   double retention_days = 0.0;
   int max_concurrent_uploads = 4;
   std::string upload_dir;
+  std::string tls_cert;
+  std::string tls_key;
   bool quiet = false;
 };
 
@@ -69,6 +73,8 @@ void run(const ServeOptions& o) {
   cfg.drive_retention_days = o.retention_days;
   cfg.max_concurrent_uploads = o.max_concurrent_uploads;
   cfg.upload_dir = o.upload_dir;
+  cfg.tls_cert_file = o.tls_cert;
+  cfg.tls_key_file = o.tls_key;
   cfg.log_requests = !o.quiet;
 
   // Block the stop signals in every thread (the server's threads inherit this mask);
@@ -133,6 +139,13 @@ void setup(CLI::App& app) {
   cmd->add_option("--retention-days", opts->retention_days,
                   "Delete drives ingested longer ago than this (0: keep forever)")
       ->check(CLI::NonNegativeNumber);
+  auto* cert = cmd->add_option("--tls-cert", opts->tls_cert,
+                               "Serve HTTPS with this PEM certificate chain (needs --tls-key; "
+                               "docs/deployment.md)");
+  auto* key =
+      cmd->add_option("--tls-key", opts->tls_key, "Unencrypted PEM private key of --tls-cert");
+  cert->needs(key);
+  key->needs(cert);
   cmd->add_flag("--quiet", opts->quiet, "No per-request log lines");
   cmd->callback([opts] { run(*opts); });
 }

@@ -279,6 +279,10 @@ struct TileFetcher::Impl {
       client->set_read_timeout(0, us(cfg.read_timeout_s));
       client->set_write_timeout(0, us(cfg.read_timeout_s));
       client->set_keep_alive(true);
+      if (cfg.server_url.starts_with("https://")) {
+        client->enable_server_certificate_verification(true);
+        if (!cfg.ca_file.empty()) client->set_ca_cert_path(cfg.ca_file.string());
+      }
     }
     httplib::Headers headers;
     if (!etag.empty()) headers.emplace("If-None-Match", etag);

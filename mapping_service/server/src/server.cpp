@@ -98,7 +98,11 @@ nlohmann::json version_to_json(const MapVersionInfo& v) {
 // ---- Impl -----------------------------------------------------------------------------------
 
 Server::Impl::Impl(MapStore& s, ServerConfig config)
-    : store(s), cfg(std::move(config)), cache(cfg.tile_cache_bytes) {
+    : store(s),
+      cfg(std::move(config)),
+      http_owner(make_http_server(cfg)),
+      http(*http_owner),
+      cache(cfg.tile_cache_bytes) {
   if (!cfg.log_sink) {
     cfg.log_sink = [](std::string_view line) {
       std::string l(line);
@@ -618,8 +622,10 @@ void Server::listen(const std::string& host, int port) {
     s.listening = true;
   }
   s.state_cv.notify_all();
-  s.log("info", "listening on http://" + host + ":" + std::to_string(bound) + " (" +
-                    std::to_string(s.cfg.threads) + " threads)");
+  s.log(
+      "info",
+      std::string(s.cfg.tls_cert_file.empty() ? "listening on http://" : "listening on https://") +
+          host + ":" + std::to_string(bound) + " (" + std::to_string(s.cfg.threads) + " threads)");
   if (!s.stopping) s.http.listen_after_bind();
   // Requests in flight have finished (the pool joined). Now the builds.
   std::deque<Impl::BuildJob> dropped;

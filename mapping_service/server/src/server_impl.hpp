@@ -62,7 +62,9 @@ struct Server::Impl {
 
   MapStore& store;
   ServerConfig cfg;
-  httplib::Server http;
+  /// httplib::SSLServer when cfg names a TLS certificate, else httplib::Server.
+  std::unique_ptr<httplib::Server> http_owner;
+  httplib::Server& http;
   http::Metrics metrics;
   http::BlobCache cache;
 
@@ -171,6 +173,10 @@ struct Server::Impl {
                                  const std::string& etag, const std::string& cache_control);
   void register_gis_routes();
 };
+
+/// The cpp-httplib server for `cfg`: plain, or TLS with cfg's certificate and key (checked
+/// here; throws IoError / ValidationError naming the file). server_tls.cpp.
+std::unique_ptr<httplib::Server> make_http_server(const ServerConfig& cfg);
 
 /// JSON of a drive record (manifest only when with_manifest).
 nlohmann::json drive_to_json(const DriveRecord& d, bool with_manifest);

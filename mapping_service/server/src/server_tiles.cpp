@@ -234,7 +234,10 @@ void Server::Impl::get_tilejson(const httplib::Request& req, httplib::Response& 
     if (!idx) return;
   }
   std::string base = cfg.public_url;
-  if (base.empty()) base = "http://" + req.get_header_value("Host");
+  if (base.empty()) {
+    base = cfg.tls_cert_file.empty() ? "http://" : "https://";
+    base += req.get_header_value("Host");
+  }
   while (!base.empty() && base.back() == '/') base.pop_back();
   const std::string query = is_explicit ? "?version=" + std::to_string(idx->version) : "";
   std::optional<tiles::GeoBox> bounds = idx ? idx->bounds : std::nullopt;

@@ -47,9 +47,14 @@ namespace polmap::loc {
 
 /// Settings of the fetcher; defaults suit a vehicle on a cellular link.
 struct TileFetcherConfig {
-  /// Base URL of the mapping service, e.g. "http://127.0.0.1:8080". Empty:
-  /// offline mode (disk cache only).
+  /// Base URL of the mapping service, e.g. "http://127.0.0.1:8080" or
+  /// "https://maps.example.com". Empty: offline mode (disk cache only).
   std::string server_url;
+  /// https:// only: PEM file of the CA certificates the server's certificate must chain
+  /// to (e.g. a private CA, or a self-signed server certificate itself). Empty: the
+  /// system's CA store. The certificate and its host name are always verified; a server
+  /// that fails the check counts as unreachable (transport error), nothing is fetched.
+  std::filesystem::path ca_file;
   /// Disk cache directory (created if missing). Empty: memory only.
   std::filesystem::path cache_dir;
   /// Copies older than this are revalidated (If-None-Match) when used; 60 s

@@ -117,7 +117,8 @@ struct ServerConfig {
   /// In-memory cache of tile payloads (localization, MVT, PNG) in bytes.
   std::size_t tile_cache_bytes = 64ull << 20;
   /// Base URL written into TileJSON (e.g. "https://maps.example.com"); empty =
-  /// "http://" + the request's Host header.
+  /// "http://" (with TLS "https://") + the request's Host header. Behind a reverse proxy
+  /// set it to the proxy's public URL.
   std::string public_url;
   /// Access-Control-Allow-Origin value: empty (default) sends no CORS headers, so
   /// browsers on other origins cannot read responses; "*" any origin; or one origin.
@@ -127,6 +128,13 @@ struct ServerConfig {
   /// 8 KiB; the nginx front of docs/ bounds them before they reach us).
   std::size_t max_header_count = 64;
   std::size_t max_header_bytes = 32u << 10;
+  /// TLS of the embedded server (docs/deployment.md): a PEM certificate chain (the
+  /// server's certificate first, then intermediates) and its unencrypted PEM private key.
+  /// Both empty (default): plain HTTP. Both set: HTTPS only, TLS 1.2 or newer. The
+  /// Server constructor throws IoError when a file cannot be read, ValidationError when
+  /// only one is set, a file does not parse or the key does not belong to the certificate.
+  std::filesystem::path tls_cert_file;
+  std::filesystem::path tls_key_file;
   /// MVT zoom range served and announced in TileJSON.
   int mvt_min_zoom = 12;
   int mvt_max_zoom = 22;
@@ -148,7 +156,8 @@ struct ServerConfig {
 
 class Server {
  public:
-  /// The store must outlive the server.
+  /// The store must outlive the server. Throws IoError / ValidationError for a TLS
+  /// certificate or key that cannot be used (ServerConfig::tls_cert_file).
   Server(MapStore& store, ServerConfig config);
   ~Server();
   Server(const Server&) = delete;

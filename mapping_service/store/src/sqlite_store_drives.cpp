@@ -1,5 +1,6 @@
 // SqliteMapStore: drives (idempotent ingest, trajectories, deletion) and candidates.
 #include <algorithm>
+#include <cerrno>
 #include <cmath>
 #include <random>
 #include <set>
@@ -40,6 +41,13 @@ nlohmann::json decimated_trajectory_json(const std::vector<TrajectorySample>& tr
     last = &t;
   }
   return samples;
+}
+
+/// True if a file system error means "no space" (ENOSPC, EDQUOT).
+bool no_space(const std::error_code& ec) {
+  return ec == std::errc::no_space_on_device ||
+         ((ec.category() == std::generic_category() || ec.category() == std::system_category()) &&
+          ec.value() == EDQUOT);
 }
 
 }  // namespace
@@ -102,7 +110,7 @@ PutDriveResult SqliteMapStore::put_drive(const DrivePackage& package,
   const fs::path& tmp = staging.path();
   const fs::path final_dir = I.drives_dir / content_hash;
   const std::string rel_path = content_hash;
-  {
+  try {
     fs::create_directories(tmp);
     if (fs::is_directory(package_location)) {
       fs::copy(package_location, tmp, fs::copy_options::recursive);
@@ -216,6 +224,11 @@ PutDriveResult SqliteMapStore::put_drive(const DrivePackage& package,
     });
     if (result) return {PutDriveResult::Status::AlreadyPresent, *result};  // raced, same bytes
     placed.release();  // committed: the package directory is the store's now
+  } catch (const fs::filesystem_error& e) {
+    // The guards remove what was copied or renamed; the transaction has rolled back.
+    if (no_space(e.code()))
+      throw StorageFullError(std::string("the drive store is full: ") + e.what());
+    throw;
   }
   auto rec = get_drive(m.drive_id);
   if (!rec) throw IoError("put_drive: drive '" + m.drive_id + "' vanished after insert");

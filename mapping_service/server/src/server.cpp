@@ -498,6 +498,10 @@ void Server::Impl::register_routes() {
       [this](const httplib::Request& req, httplib::Response& res, std::exception_ptr ep) {
         try {
           std::rethrow_exception(ep);
+        } catch (const StorageFullError& e) {
+          // Nothing of the write was kept (the store rolls back); reads keep working.
+          log("warn", "storage full in " + req.method + " " + req.path + ": " + e.what());
+          reply_error(res, 507, kStorageFullMessage);
         } catch (const NotFoundError& e) {
           reply_error(res, 404, e.what());
         } catch (const ConflictError& e) {

@@ -150,11 +150,14 @@ void Server::Impl::register_drive_routes() {
                                  const httplib::ContentReader& reader) {
     set_route("drives_upload");
     // Rejections before the body is read: drain a small body so the keep-alive
-    // connection stays usable, otherwise close the connection after replying.
+    // connection stays usable, otherwise close the connection after replying. Only a
+    // declared length is drained: a chunked body (it wins over a Content-Length) has none
+    // and could go on for ever.
     auto reject_unread = [&](const char* outcome) {
       metrics.upload(outcome, 0);
       const auto len = std::strtoull(req.get_header_value("Content-Length").c_str(), nullptr, 10);
-      if (req.has_header("Content-Length") && len <= (1u << 20)) {
+      if (!req.has_header("Transfer-Encoding") && req.has_header("Content-Length") &&
+          len <= (1u << 20)) {
         reader([](const char*, std::size_t) { return true; });
       } else {
         res.set_header("Connection", "close");

@@ -166,7 +166,7 @@ void Server::Impl::register_map_routes() {
     if (!req.body.empty()) {
       try {
         body = nlohmann::json::parse(req.body);
-      } catch (const nlohmann::json::parse_error& e) {
+      } catch (const nlohmann::json::exception& e) {  // parse_error, or out_of_range (1e400)
         return reply_error(res, 400, std::string("body is not JSON: ") + e.what(), "body");
       }
       if (!body.is_object()) return reply_error(res, 400, "body must be a JSON object", "body");

@@ -62,6 +62,17 @@ bool refuse(int fd) {
   return false;
 }
 
+/// Bytes of an n-byte write at `offset` of a refused file that still fit: the disk had a
+/// few blocks left, so the first write into a file stores part of its bytes (a short
+/// count, as on a real full file system); every later write fails with ENOSPC.
+std::size_t room(long long offset, std::size_t n) {
+  if (offset != 0 || n < 2) return 0;
+  return std::min<std::size_t>(n / 2, std::size_t{64} << 10);
+}
+
+/// The file offset of `fd` (-1 when it has none, e.g. a pipe).
+long long offset_of(int fd) { return static_cast<long long>(::lseek(fd, 0, SEEK_CUR)); }
+
 void arm(const std::vector<std::filesystem::path>& paths) {
   if (paths.empty() || paths.size() > kMaxPaths) {
     throw std::invalid_argument("enospc::arm: 1 to 8 paths");
@@ -93,74 +104,93 @@ std::uint64_t refused_writes() { return g_refused.load(); }
 }  // namespace polmap::test::enospc
 
 using polmap::test::enospc::next;
+using polmap::test::enospc::offset_of;
 using polmap::test::enospc::refuse;
+using polmap::test::enospc::room;
 
 // The interposers. Declarations of sendfile and fallocate are our own (their headers
 // declare them with exception specifications this definition need not repeat).
 extern "C" {
 
 ssize_t write(int fd, const void* buf, size_t n) {
+  static const auto real = next<ssize_t (*)(int, const void*, size_t)>("write");
   if (n > 0 && refuse(fd)) {
+    if (const std::size_t part = room(offset_of(fd), n); part > 0) return real(fd, buf, part);
     errno = ENOSPC;
     return -1;
   }
-  static const auto real = next<ssize_t (*)(int, const void*, size_t)>("write");
   return real(fd, buf, n);
 }
 
 ssize_t pwrite(int fd, const void* buf, size_t n, off_t off) {
+  static const auto real = next<ssize_t (*)(int, const void*, size_t, off_t)>("pwrite");
   if (n > 0 && refuse(fd)) {
+    if (const std::size_t part = room(off, n); part > 0) return real(fd, buf, part, off);
     errno = ENOSPC;
     return -1;
   }
-  static const auto real = next<ssize_t (*)(int, const void*, size_t, off_t)>("pwrite");
   return real(fd, buf, n, off);
 }
 
 ssize_t pwrite64(int fd, const void* buf, size_t n, off64_t off) {
+  static const auto real = next<ssize_t (*)(int, const void*, size_t, off64_t)>("pwrite64");
   if (n > 0 && refuse(fd)) {
+    if (const std::size_t part = room(off, n); part > 0) return real(fd, buf, part, off);
     errno = ENOSPC;
     return -1;
   }
-  static const auto real = next<ssize_t (*)(int, const void*, size_t, off64_t)>("pwrite64");
   return real(fd, buf, n, off);
 }
 
 ssize_t writev(int fd, const struct iovec* iov, int count) {
+  static const auto real = next<ssize_t (*)(int, const struct iovec*, int)>("writev");
   if (count > 0 && refuse(fd)) {
+    if (const std::size_t part = room(offset_of(fd), iov[0].iov_len); part > 0) {
+      const struct iovec first { iov[0].iov_base, part };
+      return real(fd, &first, 1);
+    }
     errno = ENOSPC;
     return -1;
   }
-  static const auto real = next<ssize_t (*)(int, const struct iovec*, int)>("writev");
   return real(fd, iov, count);
 }
 
 ssize_t sendfile(int out_fd, int in_fd, off_t* offset, size_t count) {
+  static const auto real = next<ssize_t (*)(int, int, off_t*, size_t)>("sendfile");
   if (count > 0 && refuse(out_fd)) {
+    if (const std::size_t part = room(offset_of(out_fd), count); part > 0) {
+      return real(out_fd, in_fd, offset, part);
+    }
     errno = ENOSPC;
     return -1;
   }
-  static const auto real = next<ssize_t (*)(int, int, off_t*, size_t)>("sendfile");
   return real(out_fd, in_fd, offset, count);
 }
 
 ssize_t sendfile64(int out_fd, int in_fd, off64_t* offset, size_t count) {
+  static const auto real = next<ssize_t (*)(int, int, off64_t*, size_t)>("sendfile64");
   if (count > 0 && refuse(out_fd)) {
+    if (const std::size_t part = room(offset_of(out_fd), count); part > 0) {
+      return real(out_fd, in_fd, offset, part);
+    }
     errno = ENOSPC;
     return -1;
   }
-  static const auto real = next<ssize_t (*)(int, int, off64_t*, size_t)>("sendfile64");
   return real(out_fd, in_fd, offset, count);
 }
 
 ssize_t copy_file_range(int in_fd, off64_t* in_off, int out_fd, off64_t* out_off, size_t len,
                         unsigned int flags) {
+  static const auto real =
+      next<ssize_t (*)(int, off64_t*, int, off64_t*, size_t, unsigned int)>("copy_file_range");
   if (len > 0 && refuse(out_fd)) {
+    const long long at = out_off != nullptr ? static_cast<long long>(*out_off) : offset_of(out_fd);
+    if (const std::size_t part = room(at, len); part > 0) {
+      return real(in_fd, in_off, out_fd, out_off, part, flags);
+    }
     errno = ENOSPC;
     return -1;
   }
-  static const auto real =
-      next<ssize_t (*)(int, off64_t*, int, off64_t*, size_t, unsigned int)>("copy_file_range");
   return real(in_fd, in_off, out_fd, out_off, len, flags);
 }
 
@@ -197,11 +227,13 @@ int posix_fallocate64(int fd, off64_t off, off64_t len) {
 }
 
 size_t fwrite(const void* ptr, size_t size, size_t n, FILE* stream) {
+  static const auto real = next<size_t (*)(const void*, size_t, size_t, FILE*)>("fwrite");
   if (size > 0 && n > 0 && refuse(fileno(stream))) {
+    const std::size_t part = room(static_cast<long long>(ftello(stream)), size * n) / size;
+    if (part > 0) return real(ptr, size, part, stream);
     errno = ENOSPC;
     return 0;
   }
-  static const auto real = next<size_t (*)(const void*, size_t, size_t, FILE*)>("fwrite");
   return real(ptr, size, n, stream);
 }
 

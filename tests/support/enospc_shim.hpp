@@ -1,13 +1,16 @@
 #pragma once
 /// @file enospc_shim.hpp
-/// A full disk for tests, without root and without a small file system: while armed, every
-/// write of this process to a file at or below one of the armed paths fails with ENOSPC.
+/// A full disk for tests, without root and without a small file system: while armed, the
+/// writes of this process to a file at or below one of the armed paths fail as on a full
+/// file system with a few blocks left: the first write into a file (at offset 0) stores part
+/// of its bytes and returns a short count, every other write fails with ENOSPC.
 ///
 /// The shim's definitions of write(2), pwrite(2), writev(2), sendfile(2), copy_file_range(2),
 /// fallocate(2), posix_fallocate(3) and the stdio writers (fwrite, fputs, fputc) are linked
 /// into the test executable. An executable's symbols come first in the dynamic linker's
 /// lookup, so libsqlite3, libgdal and libstdc++ call them too: SQLite reports SQLITE_FULL,
-/// GDAL a short write, std::filesystem::copy ENOSPC, exactly as on a full file system.
+/// GDAL a short write, std::filesystem::copy_file EIO (libstdc++'s word for a sendfile that
+/// stopped short), as they do on a full tmpfs.
 /// Unarmed, each call goes straight to the C library's (dlsym RTLD_NEXT); armed, the fd's
 /// path is looked up in /proc/self/fd. Reads, opens and directory operations are never
 /// refused: a full file system still lets a process create empty files and read.

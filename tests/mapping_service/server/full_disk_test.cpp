@@ -6,7 +6,9 @@
 // Writes answer 507 and keep nothing; reads keep working; once space returns the same
 // upload is stored and builds publish.
 #include <cpl_vsi.h>
+#include <fcntl.h>
 #include <sqlite3.h>
+#include <unistd.h>
 
 #include <fstream>
 #include <nlohmann/json.hpp>
@@ -53,15 +55,27 @@ TEST(EnospcShim, SqliteGdalAndTheStandardLibraryAllSeeAFullDisk) {
     EXPECT_FALSE(out) << "std::ofstream (libstdc++ write)";
     std::error_code ec;
     fs::copy_file(dir.path() / "source.bin", full / "copy.bin", ec);
-    EXPECT_EQ(ec, std::errc::no_space_on_device) << "std::filesystem::copy_file (sendfile)";
+    // sendfile stores part, then ENOSPC; libstdc++ calls that EIO (as on a full tmpfs).
+    EXPECT_EQ(ec, std::errc::io_error) << "std::filesystem::copy_file (sendfile): " << ec.message();
+    EXPECT_LT(fs::file_size(full / "copy.bin"), 100000u);
     EXPECT_EQ(
         sqlite3_exec(db, "INSERT INTO t VALUES (randomblob(100000))", nullptr, nullptr, nullptr),
         SQLITE_FULL)
         << "SQLite (pwrite64)";
     VSILFILE* f = VSIFOpenL((full / "g.bin").c_str(), "wb");
     ASSERT_NE(f, nullptr);
-    EXPECT_EQ(VSIFWriteL("abc", 1, 3, f), 0u) << "GDAL VSI (fwrite)";
+    EXPECT_EQ(VSIFWriteL("abcd", 1, 4, f), 2u) << "GDAL VSI (fwrite): a short write";
+    EXPECT_EQ(VSIFWriteL("efgh", 1, 4, f), 0u) << "GDAL VSI (fwrite): then nothing";
     VSIFCloseL(f);
+    // The raw calls: part of the first write, then ENOSPC.
+    const int fd = ::open((full / "raw.bin").c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    ASSERT_GE(fd, 0);
+    EXPECT_EQ(::write(fd, "0123456789", 10), 5);
+    errno = 0;
+    EXPECT_EQ(::write(fd, "0123456789", 10), -1);
+    EXPECT_EQ(errno, ENOSPC);
+    EXPECT_EQ(::pwrite(fd, "0123456789", 10, 5), -1);
+    ::close(fd);
     // Outside the armed path everything writes.
     std::ofstream elsewhere(dir.path() / "b.txt");
     elsewhere << "fine" << std::flush;

@@ -34,7 +34,7 @@ constexpr double kAnswerBoundS = 10.0;
 /// uploads, one build). Measured: 12..15 MiB. The test process uses one malloc arena (below),
 /// so the figure is the server's memory; with glibc's default of one arena per thread the
 /// worker threads keep 130..150 MiB of freed memory after the rows of large strings, which
-/// more passes do not grow (MALLOC_ARENA_MAX=1 does the same for `polmap serve`). Sanitizer
+/// more passes do not grow (`polmap serve` limits itself to four arenas). Sanitizer
 /// builds keep freed memory in quarantine (256 MiB).
 #if defined(__SANITIZE_ADDRESS__)
 constexpr std::size_t kRssBoundBytes = std::size_t{48 + 256} << 20;
@@ -292,10 +292,6 @@ struct Row {
   std::string request;    ///< raw HTTP bytes, sent on a new connection
   int expected = 0;       ///< the documented status
   std::string reply_has;  ///< a part of the reply that shows why (empty: any)
-  /// Set for a gap known at the time of writing (names the module that must change): such
-  /// rows run in DISABLED_CorpusAwaitingFixes, expecting the correct status; once main has
-  /// the change, drop this and the row joins the corpus.
-  const char* awaiting = nullptr;
 };
 
 /// The valid package every package row is a mutation of (not uploaded itself).
@@ -320,9 +316,8 @@ std::vector<Row> package_rows() {
   };
   auto typed = [](char type) { return [type](char* h) { h[kTypeOff] = type; }; };
   std::vector<Row> rows;
-  auto add = [&](std::string name, const std::string& body, int status, std::string has,
-                 const char* awaiting = nullptr) {
-    rows.push_back({std::move(name), upload_request(body), status, std::move(has), awaiting});
+  auto add = [&](std::string name, const std::string& body, int status, std::string has) {
+    rows.push_back({std::move(name), upload_request(body), status, std::move(has)});
   };
 
   // The ustar container: one parser, and it refuses what another reader could read
@@ -473,9 +468,8 @@ std::vector<Row> package_rows() {
       "expected 256x256 tiles");
   {
     // 30000 x 30000 cells of 10 bands (36 GB as Float32) in a 1.1 MB file. Valid but for
-    // the candidates, which lie where no cell is observed: 422 after the scan. The
-    // validator reads every block, written or not, within its 60 s budget (measured: 20 s
-    // for this one; 50000 x 50000 took 92 s on a loaded machine before the budget).
+    // the candidates, which lie where no cell is observed: 422. Unwritten blocks are zeros
+    // and not read (reading them took 17-20 s for this one, 92 s for 50000 x 50000).
     static constexpr int kSide = 30000;
     add("GeoTIFF decompression bomb (sparse 30000 x 30000 of zeros)",
         with_member(tar, "gridmap.tif", sparse_tiff(tar, kSide, kSide),
@@ -483,9 +477,7 @@ std::vector<Row> package_rows() {
                       j["gridmap"]["width"] = kSide;
                       j["gridmap"]["height"] = kSide;
                     }),
-        422, "points",
-        "package validator: skip unwritten (sparse) blocks; the 60 s budget lets this 1.1 MB "
-        "file hold a worker for 20-60 s");
+        422, "points");
   }
 
   // Manifests with huge numbers, deep nesting, long strings.
@@ -497,9 +489,7 @@ std::vector<Row> package_rows() {
                     [](json& j) { j["counts"]["points"] = std::uint64_t{18446744073709551615u}; }),
       422, "integer out of range");
   add("manifest: 1e400", with_manifest_text(tar, manifest_with_raw(tar, "distance_m", "1e400")),
-      400, "manifest.json",
-      "package validator: a JSON number overflow is a format error (400); nlohmann's "
-      "out_of_range escapes try_validate_package_bytes (500)");
+      400, "number overflow");
   add("manifest: cell size 1e308", with_manifest(tar, [](json& j) { j["cell_size_m"] = 1e308; }),
       422, "cell_size_m");
   add("manifest: a million nested arrays (2 MB)",
@@ -746,12 +736,9 @@ class MaliciousCorpusTest : public ServerFixture {
 };
 
 TEST_F(MaliciousCorpusTest, EveryRowGetsItsDocumentedStatusAndChangesNothing) {
-  std::vector<Row> rows;
-  for (Row& r : package_rows()) {
-    if (r.awaiting == nullptr) rows.push_back(std::move(r));
-  }
+  std::vector<Row> rows = package_rows();
   for (Row& r : request_rows(tile_)) rows.push_back(std::move(r));
-  ASSERT_GE(rows.size(), 70u);
+  ASSERT_GE(rows.size(), 80u);
 
   // Twice: the first pass also warms up what the server keeps for good (a PROJ context and
   // SQLite connection per worker thread, GDAL's drivers, each worker's malloc arena); the
@@ -784,25 +771,6 @@ TEST_F(MaliciousCorpusTest, EveryRowGetsItsDocumentedStatusAndChangesNothing) {
   // Still serving the map.
   auto c = client();
   EXPECT_EQ(c.Get("/v1/tiles/" + tiles::to_string(tile_))->status, 200);
-}
-
-// Rows that need a change outside the server (Row::awaiting names it). They expect the
-// correct status already and fail until that change is on main; then their `awaiting` goes
-// and they join the corpus above. Run them with --gtest_also_run_disabled_tests.
-TEST_F(MaliciousCorpusTest, DISABLED_CorpusAwaitingFixes) {
-  std::vector<Row> rows;
-  for (Row& r : package_rows()) {
-    if (r.awaiting != nullptr) rows.push_back(std::move(r));
-  }
-  ASSERT_FALSE(rows.empty());
-  for (const Row& row : rows) {
-    SCOPED_TRACE(std::string(row.name) + " (awaiting: " + row.awaiting + ")");
-    (void)run({row});
-    // Keep the rows independent: whatever an accepted row stored goes again.
-    for (const DriveRecord& d : store_->list_drives()) {
-      if (d.drive_id == "corpus_base") store_->delete_drive(d.drive_id);
-    }
-  }
 }
 
 using ZigZagTest = ServerFixture;

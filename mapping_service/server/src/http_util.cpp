@@ -32,15 +32,33 @@ bool iequals(std::string_view a, std::string_view b) {
 
 }  // namespace
 
+namespace {
+
+/// At most kMaxErrorText bytes of `s` (cut at a UTF-8 character boundary, "..." added): an
+/// error message may quote the request (a 10 MB drive id), the reply does not echo it all.
+constexpr std::size_t kMaxErrorText = 1024;
+std::string capped(std::string_view s) {
+  if (s.size() <= kMaxErrorText) return std::string(s);
+  std::size_t n = kMaxErrorText;
+  while (n > 0 && (static_cast<unsigned char>(s[n]) & 0xC0U) == 0x80U) --n;
+  return std::string(s.substr(0, n)) + "...";
+}
+
+}  // namespace
+
 std::string json_error(std::string_view message, std::string_view field,
                        const nlohmann::json& extra) {
   nlohmann::json j = nlohmann::json::object();
-  j["error"] = message;
-  if (!field.empty()) j["field"] = field;
+  j["error"] = capped(message);
+  if (!field.empty()) j["field"] = capped(field);
   if (extra.is_object()) {
-    for (const auto& [k, v] : extra.items()) j[k] = v;
+    for (const auto& [k, v] : extra.items()) {
+      j[k] = v.is_string() ? nlohmann::json(capped(v.get<std::string>())) : v;
+    }
   }
-  return j.dump();
+  // Invalid UTF-8 (it cannot come from a parsed JSON request, but a message may quote other
+  // bytes) is replaced, never thrown about while an error is being answered.
+  return j.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
 }
 
 bool if_none_match_matches(std::string_view header, std::string_view etag_quoted) {

@@ -464,6 +464,32 @@ void Server::Impl::register_routes() {
     return admit(req, res) ? httplib::Server::HandlerResponse::Unhandled
                            : httplib::Server::HandlerResponse::Handled;
   });
+  // "Expect: 100-continue": the client waits for our go before it sends the body. Only
+  // requests that pass admission and carry a key that may make them get it; the others are
+  // answered at once (401, 403, 413, ...), and their body never comes.
+  http.set_expect_100_continue_handler([this](const httplib::Request& req, httplib::Response& res) {
+    t_start = Clock::now();
+    t_route = nullptr;
+    if (!admit(req, res)) return res.status;
+    const bool upload = req.method == "POST" && req.path == "/v1/drives";
+    if (req.method == "GET" || req.method == "HEAD" || req.method == "OPTIONS") return 100;
+    if (!require(req, res, upload ? Access::Upload : Access::AnyKey)) {
+      set_route(upload ? "drives_upload" : "refused");
+      res.set_header("Connection", "close");
+      return res.status;
+    }
+    const auto len = http::parse_int(req.get_header_value("Content-Length"));
+    if (upload && len && *len > 0 && static_cast<std::uint64_t>(*len) > cfg.max_upload_bytes) {
+      set_route("drives_upload");
+      reply_error(res, 413,
+                  "package of " + std::to_string(*len) + " bytes exceeds the upload limit of " +
+                      std::to_string(cfg.max_upload_bytes) + " bytes",
+                  "Content-Length", {{"limit_bytes", cfg.max_upload_bytes}});
+      res.set_header("Connection", "close");
+      return 413;
+    }
+    return 100;
+  });
   http.set_logger([this](const httplib::Request& req, const httplib::Response& res) {
     const double seconds = t_start == Clock::time_point{}
                                ? 0.0
@@ -498,6 +524,10 @@ void Server::Impl::register_routes() {
       [this](const httplib::Request& req, httplib::Response& res, std::exception_ptr ep) {
         try {
           std::rethrow_exception(ep);
+        } catch (const StorageFullError& e) {
+          // Nothing of the write was kept (the store rolls back); reads keep working.
+          log("warn", "storage full in " + req.method + " " + req.path + ": " + e.what());
+          reply_error(res, 507, kStorageFullMessage);
         } catch (const NotFoundError& e) {
           reply_error(res, 404, e.what());
         } catch (const ConflictError& e) {

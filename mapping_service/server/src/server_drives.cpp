@@ -8,6 +8,7 @@
 #include <ctime>
 
 #include "polmap/mapping_service/drive_package_io.hpp"
+#include "polmap/mapping_service/ustar.hpp"
 #include "polmap/schema/errors.hpp"
 #include "polmap/util/file.hpp"
 #include "polmap/util/sha256.hpp"
@@ -57,6 +58,42 @@ class TempUpload {
   int fd_ = -1;
   std::filesystem::path path_;
 };
+
+/// Throws StorageFullError for ENOSPC/EDQUOT (HTTP 507), IoError otherwise.
+[[noreturn]] void throw_file_error(int err, const std::string& what) {
+  const std::string msg = what + ": " + std::strerror(err);
+  if (err == ENOSPC || err == EDQUOT) throw StorageFullError(msg);
+  throw IoError(msg);
+}
+
+/// The members of a validated archive as files in a new directory below `parent`, read by
+/// the same ustar reader that validated them. Unlike unpack_drive_package this keeps the
+/// error number, so a full upload directory is told from other failures (507, not 500).
+util::ScopedTempDir write_members(std::string_view tar_bytes, const std::filesystem::path& parent) {
+  std::string templ = (parent / "polmap-upload-members-XXXXXX").string();
+  if (::mkdtemp(templ.data()) == nullptr) throw_file_error(errno, "cannot create " + templ);
+  util::ScopedTempDir dir{std::filesystem::path(templ)};
+  for (const TarMemberView& m : read_ustar_views(tar_bytes)) {
+    const std::filesystem::path path = dir.path() / m.name;
+    const int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
+    if (fd < 0) throw_file_error(errno, "cannot create " + path.string());
+    const char* data = m.data.data();
+    std::size_t left = m.data.size();
+    while (left > 0) {
+      const ssize_t w = ::write(fd, data, left);
+      if (w < 0 && errno == EINTR) continue;
+      if (w <= 0) {
+        const int err = w < 0 ? errno : ENOSPC;
+        ::close(fd);
+        throw_file_error(err, "cannot write " + path.string());
+      }
+      data += w;
+      left -= static_cast<std::size_t>(w);
+    }
+    if (::close(fd) != 0) throw_file_error(errno, "cannot write " + path.string());
+  }
+  return dir;
+}
 
 bool acceptable_upload_type(const std::string& content_type) {
   const std::string t = content_type.substr(0, content_type.find(';'));
@@ -113,11 +150,14 @@ void Server::Impl::register_drive_routes() {
                                  const httplib::ContentReader& reader) {
     set_route("drives_upload");
     // Rejections before the body is read: drain a small body so the keep-alive
-    // connection stays usable, otherwise close the connection after replying.
+    // connection stays usable, otherwise close the connection after replying. Only a
+    // declared length is drained: a chunked body (it wins over a Content-Length) has none
+    // and could go on for ever.
     auto reject_unread = [&](const char* outcome) {
       metrics.upload(outcome, 0);
       const auto len = std::strtoull(req.get_header_value("Content-Length").c_str(), nullptr, 10);
-      if (req.has_header("Content-Length") && len <= (1u << 20)) {
+      if (!req.has_header("Transfer-Encoding") && req.has_header("Content-Length") &&
+          len <= (1u << 20)) {
         reader([](const char*, std::size_t) { return true; });
       } else {
         res.set_header("Connection", "close");
@@ -159,18 +199,19 @@ void Server::Impl::register_drive_routes() {
     TempUpload upload(dir);
     util::Sha256 sha;
     std::uint64_t received = 0;
-    bool too_large = false, write_failed = false;
+    bool too_large = false;
+    int write_errno = 0;  // of the failed write to the upload file (0: none failed)
     const bool complete = reader([&](const char* data, std::size_t n) {
       received += n;
       if (received > cfg.max_upload_bytes) {
         too_large = true;
         return false;
       }
+      // After a failed write the rest is read and dropped (at most the upload limit), so
+      // the client, still sending, gets the answer instead of a reset connection.
+      if (write_errno != 0) return true;
       sha.update(std::string_view(data, n));
-      if (!upload.write(data, n)) {
-        write_failed = true;
-        return false;
-      }
+      if (!upload.write(data, n)) write_errno = errno != 0 ? errno : EIO;
       return true;
     });
     if (too_large) {
@@ -181,17 +222,24 @@ void Server::Impl::register_drive_routes() {
           "package exceeds the upload limit of " + std::to_string(cfg.max_upload_bytes) + " bytes",
           "body", {{"limit_bytes", cfg.max_upload_bytes}});
     }
-    if (write_failed || !upload.close()) {
-      metrics.upload("server_error", received);
-      log("error", "upload: cannot write " + upload.path().string() + ": " + std::strerror(errno));
-      return reply_error(res, 507, "the server cannot store the upload (disk full?)");
-    }
     if (!complete) {
       // The client went away or sent a malformed/short chunked body: nothing is kept.
       metrics.upload("interrupted", received);
       res.set_header("Connection", "close");
       return reply_error(res, 400,
                          "upload interrupted after " + std::to_string(received) + " bytes", "body");
+    }
+    if (write_errno == 0 && !upload.close()) write_errno = errno != 0 ? errno : EIO;
+    if (write_errno != 0) {
+      const std::string what =
+          "cannot write " + upload.path().string() + ": " + std::strerror(write_errno);
+      if (write_errno == ENOSPC || write_errno == EDQUOT) {
+        metrics.upload("storage_full", received);
+        log("warn", "upload: storage full: " + what);
+        return reply_error(res, 507, kStorageFullMessage);
+      }
+      metrics.upload("server_error", received);
+      throw IoError("upload: " + what);  // 500, detail in the log
     }
     if (received == 0) {
       metrics.upload("bad_request", 0);
@@ -226,12 +274,16 @@ void Server::Impl::register_drive_routes() {
     }
     PutDriveResult put;
     try {
-      const util::ScopedTempDir members = util::ScopedTempDir::create(dir, "polmap-upload-members");
-      unpack_drive_package(bytes, members.path());
+      const util::ScopedTempDir members = write_members(bytes, dir);
       put = store.put_drive(*pkg, members.path(), hash);
     } catch (const ConflictError& e) {
       metrics.upload("conflict", received);
       return reply_error(res, 409, e.what(), "drive_id");
+    } catch (const StorageFullError& e) {
+      // Nothing is kept: the members directory is removed, the store rolled back.
+      metrics.upload("storage_full", received);
+      log("warn", "upload: storage full: " + std::string(e.what()));
+      return reply_error(res, 507, kStorageFullMessage);
     }
     nlohmann::json j = drive_to_json(put.drive, false);
     res.set_header("Location", "/v1/drives/" + put.drive.drive_id);

@@ -2,6 +2,7 @@
 // conversion of stored fleet gridmap tiles into PNG.
 #include <unistd.h>
 
+#include <cerrno>
 #include <cstdlib>
 #include <cstring>
 #include <fstream>
@@ -43,6 +44,34 @@ std::string gridmap_overzoom_png(std::string_view ancestor_png, const tiles::Til
   return {reinterpret_cast<const char*>(png.data()), png.size()};
 }
 
+namespace {
+
+/// After a failed export: true if its scratch directory cannot take a 64 KiB write now,
+/// i.e. the disk is full (GDAL's errors do not say why a write failed).
+bool scratch_is_full(const std::filesystem::path& dir) {
+  std::string templ = (dir / "polmap-export-probe-XXXXXX").string();
+  const int fd = ::mkstemp(templ.data());
+  if (fd < 0) return errno == ENOSPC || errno == EDQUOT;
+  const std::string block(64u << 10, '\0');
+  std::size_t done = 0;
+  int err = 0;
+  while (done < block.size() && err == 0) {  // a full disk may take part, then refuse
+    const ssize_t w = ::write(fd, block.data() + done, block.size() - done);
+    if (w > 0) {
+      done += static_cast<std::size_t>(w);
+    } else if (w < 0 && errno != EINTR) {
+      err = errno;
+    } else if (w == 0) {
+      err = ENOSPC;
+    }
+  }
+  ::close(fd);
+  ::unlink(templ.c_str());
+  return err == ENOSPC || err == EDQUOT;
+}
+
+}  // namespace
+
 void Server::Impl::register_gis_routes() {
   http.Get("/v1/export", [this](const httplib::Request& req, httplib::Response& res) {
     if (!require(req, res, Access::Operate)) return;
@@ -76,12 +105,29 @@ void Server::Impl::register_gis_routes() {
 
     // Export into a private temp dir; the response streams the file and the releaser
     // removes the directory when the response is done (or the client went away).
-    util::ScopedTempDir export_dir = util::ScopedTempDir::create(cfg.upload_dir, "polmap-export");
-    const std::filesystem::path dir = export_dir.path();
+    const std::filesystem::path scratch =
+        cfg.upload_dir.empty() ? std::filesystem::temp_directory_path() : cfg.upload_dir;
     const std::string name =
         "polmap-map-v" + std::to_string(idx->version) + std::string(export_file_extension(*format));
-    const std::filesystem::path file = dir / name;
-    const ExportSummary summary = export_map(store, idx->version, *format, bbox, file);
+    util::ScopedTempDir export_dir{std::filesystem::path()};
+    ExportSummary summary;
+    try {
+      export_dir = util::ScopedTempDir::create(scratch, "polmap-export");
+      summary = export_map(store, idx->version, *format, bbox, export_dir.path() / name);
+    } catch (const IoError& e) {
+      export_dir.remove();
+      if (!scratch_is_full(scratch)) throw;
+      log("warn", "export: storage full: " + std::string(e.what()));
+      return reply_error(res, 507, kStorageFullMessage);
+    }
+    // Some GDAL writers (GeoJSON) do not notice a failed write: a file written while the
+    // disk is full may be cut short. Not sent.
+    if (scratch_is_full(scratch)) {
+      export_dir.remove();
+      log("warn", "export: storage full: " + name + " was written while the disk was full");
+      return reply_error(res, 507, kStorageFullMessage);
+    }
+    const std::filesystem::path file = export_dir.path() / name;
     log("info", "export " + name + ": " + std::to_string(summary.points) + " points, " +
                     std::to_string(summary.lines) + " lines, " +
                     std::to_string(summary.gridmap_tiles) + " gridmap tiles");

@@ -25,6 +25,9 @@ namespace polmap::mapping {
 
 /// Media types used by the server.
 inline constexpr const char* kJson = "application/json";
+/// The 507 reply of a write that found no space (the detail goes to the log).
+inline constexpr const char* kStorageFullMessage =
+    "the server's storage is full: nothing was stored; retry once space is freed";
 
 /// Per-request context kept in thread-locals: cpp-httplib runs routing, the
 /// handler, response writing and the logger on the same worker thread.
@@ -149,9 +152,15 @@ struct Server::Impl {
   std::int64_t submit_build(const nlohmann::json& request);
   void build_loop();
   void run_build(const BuildJob& job);
+  /// Marks failed the versions whose failed build could not be marked failed then (the
+  /// store was full); those that still cannot be stay listed for the next try.
+  void retry_failing_builds();
   mutable std::mutex build_mutex;
   mutable std::condition_variable build_cv;
   std::deque<BuildJob> build_queue;
+  /// Failed builds still in status Building, with their error (build_mutex); retried
+  /// every second and before the next build.
+  std::map<std::int64_t, std::string> builds_to_fail;
   bool build_running = false;
   bool build_shutdown = false;
   std::thread build_thread;

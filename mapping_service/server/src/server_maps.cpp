@@ -63,15 +63,23 @@ std::int64_t Server::Impl::submit_build(const nlohmann::json& request) {
 }
 
 void Server::Impl::build_loop() {
+  auto last_retention = std::chrono::steady_clock::now();
   for (;;) {
     BuildJob job;
     {
       std::unique_lock lock(build_mutex);
-      // Wakes every 10 minutes without work, for the retention period.
-      if (!build_cv.wait_for(lock, std::chrono::minutes(10),
+      // Wakes every 10 minutes without work, for the retention period; every second while
+      // a failed build waits to be marked failed.
+      const auto wait =
+          builds_to_fail.empty() ? std::chrono::seconds(600) : std::chrono::seconds(1);
+      if (!build_cv.wait_for(lock, wait,
                              [this] { return build_shutdown || !build_queue.empty(); })) {
         lock.unlock();
-        (void)apply_retention();
+        retry_failing_builds();
+        if (std::chrono::steady_clock::now() - last_retention >= std::chrono::minutes(10)) {
+          last_retention = std::chrono::steady_clock::now();
+          (void)apply_retention();
+        }
         continue;
       }
       if (build_queue.empty()) return;  // shutdown with nothing left
@@ -79,6 +87,7 @@ void Server::Impl::build_loop() {
       build_queue.pop_front();
       build_running = true;
     }
+    retry_failing_builds();
     run_build(job);
     {
       std::lock_guard lock(build_mutex);
@@ -109,7 +118,32 @@ void Server::Impl::run_build(const BuildJob& job) {
         store.fail_map_version(job.version, e.what());
       }
     } catch (const std::exception& e2) {
-      log("error", std::string("cannot mark the build failed: ") + e2.what());
+      // Typically the same full disk that failed the build: try again later, so the
+      // version does not stay "building" once space returns.
+      log("error", "cannot mark map build " + std::to_string(job.version) +
+                       " failed (retried every second): " + e2.what());
+      std::lock_guard lock(build_mutex);
+      builds_to_fail[job.version] = e.what();
+    }
+  }
+}
+
+void Server::Impl::retry_failing_builds() {
+  std::map<std::int64_t, std::string> pending;
+  {
+    std::lock_guard lock(build_mutex);
+    pending = builds_to_fail;
+  }
+  for (const auto& [version, error] : pending) {
+    try {
+      const auto info = store.get_map_version(version);
+      if (info && info->status == MapVersionStatus::Building) {
+        store.fail_map_version(version, error);
+        log("info", "map build " + std::to_string(version) + " marked failed");
+      }
+      std::lock_guard lock(build_mutex);
+      builds_to_fail.erase(version);
+    } catch (const std::exception&) {  // still no space: the next second
     }
   }
 #if defined(__GLIBC__)
@@ -132,7 +166,7 @@ void Server::Impl::register_map_routes() {
     if (!req.body.empty()) {
       try {
         body = nlohmann::json::parse(req.body);
-      } catch (const nlohmann::json::parse_error& e) {
+      } catch (const nlohmann::json::exception& e) {  // parse_error, or out_of_range (1e400)
         return reply_error(res, 400, std::string("body is not JSON: ") + e.what(), "body");
       }
       if (!body.is_object()) return reply_error(res, 400, "body must be a JSON object", "body");

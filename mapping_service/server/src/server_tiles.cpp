@@ -1,5 +1,6 @@
 // Tile endpoints: localization tiles, MVT, TileJSON, fleet gridmap PNG tiles.
 
+#include <algorithm>
 #include <cmath>
 
 #include "polmap/mapping_service/drive_package_io.hpp"
@@ -35,6 +36,25 @@ tiles::GeoBox buffered_bounds(const tiles::TileKey& key, double fraction) {
   return b;
 }
 
+/// Douglas-Peucker in pieces of at most kSimplifyPiece vertices. Each piece keeps its end
+/// vertices, so every dropped vertex is still within tol_m of the kept line; the worst
+/// case, a zig-zag whose farthest vertex is always next to the split, costs
+/// O(n * kSimplifyPiece) instead of O(n^2) (100000 hostile samples: 11 s before).
+constexpr std::size_t kSimplifyPiece = 1024;
+std::vector<GeoPoint> simplify_in_pieces(const std::vector<GeoPoint>& line, double tol_m) {
+  if (line.size() <= kSimplifyPiece) return tiles::simplify_polyline(line, tol_m);
+  std::vector<GeoPoint> out;
+  for (std::size_t a = 0; a + 1 < line.size(); a += kSimplifyPiece - 1) {
+    const std::size_t b = std::min(line.size(), a + kSimplifyPiece);
+    const std::vector<GeoPoint> piece(line.begin() + static_cast<std::ptrdiff_t>(a),
+                                      line.begin() + static_cast<std::ptrdiff_t>(b));
+    const std::vector<GeoPoint> kept = tiles::simplify_polyline(piece, tol_m);
+    // The first vertex of a piece is the last of the one before.
+    out.insert(out.end(), kept.begin() + (out.empty() ? 0 : 1), kept.end());
+  }
+  return out;
+}
+
 }  // namespace
 
 std::shared_ptr<const std::vector<GeoPoint>> Server::Impl::drive_trajectory(
@@ -53,7 +73,7 @@ std::shared_ptr<const std::vector<GeoPoint>> Server::Impl::drive_trajectory(
     }
   } catch (const NotFoundError&) {  // deleted meanwhile: nothing to draw
   }
-  auto out = std::make_shared<std::vector<GeoPoint>>(tiles::simplify_polyline(raw, 0.25));
+  auto out = std::make_shared<std::vector<GeoPoint>>(simplify_in_pieces(raw, 0.25));
   std::lock_guard lock(trajectory_mutex);
   return trajectories.try_emplace(drive.content_hash, std::move(out)).first->second;
 }

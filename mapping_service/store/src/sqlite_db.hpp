@@ -3,18 +3,33 @@
 // cache, borrowed statements, and a transaction guard. Internal to polmap_store.
 #include <sqlite3.h>
 
+#include <cerrno>
 #include <cstdint>
 #include <filesystem>
 #include <string>
 #include <string_view>
 #include <unordered_map>
 
+#include "polmap/mapping_service/store.hpp"
 #include "polmap/schema/errors.hpp"
 
 namespace polmap::mapping::sqlite {
 
-[[noreturn]] inline void throw_db(sqlite3* db, const std::string& what) {
-  throw IoError("sqlite: " + what + ": " + (db ? sqlite3_errmsg(db) : "out of memory"));
+/// True if the connection's last error means "no space": SQLITE_FULL (a write got ENOSPC,
+/// or max_page_count was reached) or an I/O error whose system errno is ENOSPC or EDQUOT.
+inline bool storage_full(sqlite3* db, int rc) {
+  if (db == nullptr) return false;
+  if ((rc & 0xff) == SQLITE_FULL || (sqlite3_extended_errcode(db) & 0xff) == SQLITE_FULL) {
+    return true;
+  }
+  const int e = sqlite3_system_errno(db);
+  return (rc & 0xff) == SQLITE_IOERR && (e == ENOSPC || e == EDQUOT);
+}
+
+[[noreturn]] inline void throw_db(sqlite3* db, const std::string& what, int rc = SQLITE_ERROR) {
+  const std::string msg = "sqlite: " + what + ": " + (db ? sqlite3_errmsg(db) : "out of memory");
+  if (storage_full(db, rc)) throw StorageFullError("the store is full: " + msg);
+  throw IoError(msg);
 }
 
 /// A prepared statement borrowed from a connection's cache; reset on destruction.
@@ -56,7 +71,7 @@ class Stmt {
     const int rc = sqlite3_step(s_);
     if (rc == SQLITE_ROW) return true;
     if (rc == SQLITE_DONE) return false;
-    throw_db(db_, std::string("step '") + sqlite3_sql(s_) + "'");
+    throw_db(db_, std::string("step '") + sqlite3_sql(s_) + "'", rc);
   }
   void run() {
     while (step()) {
@@ -112,10 +127,13 @@ class Connection {
   void exec(std::string_view sql) {
     char* err = nullptr;
     const std::string s(sql);
-    if (sqlite3_exec(db_, s.c_str(), nullptr, nullptr, &err) != SQLITE_OK) {
-      std::string msg = err ? err : "unknown error";
+    const int rc = sqlite3_exec(db_, s.c_str(), nullptr, nullptr, &err);
+    if (rc != SQLITE_OK) {
+      std::string msg =
+          "sqlite: " + std::string(err ? err : "unknown error") + " (in: " + s.substr(0, 80) + ")";
       sqlite3_free(err);
-      throw IoError("sqlite: " + msg + " (in: " + s.substr(0, 80) + ")");
+      if (storage_full(db_, rc)) throw StorageFullError("the store is full: " + msg);
+      throw IoError(msg);
     }
   }
   Stmt stmt(const std::string& sql) {

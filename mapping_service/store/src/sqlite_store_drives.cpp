@@ -1,6 +1,11 @@
 // SqliteMapStore: drives (idempotent ingest, trajectories, deletion) and candidates.
+#include <fcntl.h>
+#include <unistd.h>
+
 #include <algorithm>
+#include <cerrno>
 #include <cmath>
+#include <cstring>
 #include <random>
 #include <set>
 #include <unordered_map>
@@ -40,6 +45,68 @@ nlohmann::json decimated_trajectory_json(const std::vector<TrajectorySample>& tr
     last = &t;
   }
   return samples;
+}
+
+/// True if a file system error means "no space" (ENOSPC, EDQUOT).
+bool no_space(const std::error_code& ec) {
+  return ec == std::errc::no_space_on_device ||
+         ((ec.category() == std::generic_category() || ec.category() == std::system_category()) &&
+          ec.value() == EDQUOT);
+}
+
+[[noreturn]] void throw_copy_error(int err, const fs::path& from, const fs::path& to) {
+  const std::string msg =
+      "cannot copy " + from.string() + " to " + to.string() + ": " + std::strerror(err);
+  if (err == ENOSPC || err == EDQUOT) throw StorageFullError("the drive store is full: " + msg);
+  throw IoError("put_drive: " + msg);
+}
+
+/// Copies one file with read(2)/write(2). Not std::filesystem::copy_file: libstdc++ reports
+/// a sendfile that stops short on a full disk as EIO, and a full disk must be told (507).
+void copy_file_checked(const fs::path& from, const fs::path& to) {
+  const int in = ::open(from.c_str(), O_RDONLY | O_CLOEXEC);
+  if (in < 0) throw_copy_error(errno, from, to);
+  const int out = ::open(to.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
+  if (out < 0) {
+    const int err = errno;
+    ::close(in);
+    throw_copy_error(err, from, to);
+  }
+  std::vector<char> buf(1u << 20);
+  int err = 0;
+  for (;;) {
+    const ssize_t r = ::read(in, buf.data(), buf.size());
+    if (r < 0 && errno == EINTR) continue;
+    if (r <= 0) {
+      if (r < 0) err = errno;
+      break;
+    }
+    for (ssize_t done = 0; done < r && err == 0;) {
+      const ssize_t w = ::write(out, buf.data() + done, static_cast<std::size_t>(r - done));
+      if (w < 0 && errno == EINTR) continue;
+      if (w <= 0) {
+        err = w < 0 ? errno : ENOSPC;
+      } else {
+        done += w;
+      }
+    }
+    if (err != 0) break;
+  }
+  ::close(in);
+  if (::close(out) != 0 && err == 0) err = errno;
+  if (err != 0) throw_copy_error(err, from, to);
+}
+
+/// Copies the regular files below `from` into `to` (existing), keeping relative paths.
+void copy_tree_checked(const fs::path& from, const fs::path& to) {
+  for (const auto& e : fs::recursive_directory_iterator(from)) {
+    const fs::path target = to / fs::relative(e.path(), from);
+    if (e.is_directory()) {
+      fs::create_directories(target);
+    } else if (e.is_regular_file()) {
+      copy_file_checked(e.path(), target);
+    }
+  }
 }
 
 }  // namespace
@@ -102,10 +169,10 @@ PutDriveResult SqliteMapStore::put_drive(const DrivePackage& package,
   const fs::path& tmp = staging.path();
   const fs::path final_dir = I.drives_dir / content_hash;
   const std::string rel_path = content_hash;
-  {
+  try {
     fs::create_directories(tmp);
     if (fs::is_directory(package_location)) {
-      fs::copy(package_location, tmp, fs::copy_options::recursive);
+      copy_tree_checked(package_location, tmp);
     } else {
       // An archive: its members, as our ustar reader sees them (the validator's reader).
       unpack_drive_package(util::read_file_bytes(package_location), tmp);
@@ -216,6 +283,11 @@ PutDriveResult SqliteMapStore::put_drive(const DrivePackage& package,
     });
     if (result) return {PutDriveResult::Status::AlreadyPresent, *result};  // raced, same bytes
     placed.release();  // committed: the package directory is the store's now
+  } catch (const fs::filesystem_error& e) {
+    // The guards remove what was copied or renamed; the transaction has rolled back.
+    if (no_space(e.code()))
+      throw StorageFullError(std::string("the drive store is full: ") + e.what());
+    throw;
   }
   auto rec = get_drive(m.drive_id);
   if (!rec) throw IoError("put_drive: drive '" + m.drive_id + "' vanished after insert");

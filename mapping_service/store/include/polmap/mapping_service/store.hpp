@@ -24,7 +24,8 @@
 ///
 /// Errors: NotFoundError (unknown drive/version, or a version not published),
 /// ConflictError (drive_id already present with different content),
-/// ValidationError (bad arguments), IoError (database or file system).
+/// ValidationError (bad arguments), StorageFullError (no space left for a write),
+/// IoError (other database or file system failures).
 #include <cstdint>
 #include <filesystem>
 #include <nlohmann/json.hpp>
@@ -47,6 +48,14 @@ namespace polmap::mapping {
 class ConflictError : public ValidationError {
  public:
   using ValidationError::ValidationError;
+};
+
+/// A write found no space (HTTP 507): the database or the drive store's file system is
+/// full (SQLITE_FULL, ENOSPC, EDQUOT). The write is rolled back as any failed write is;
+/// reads keep working, and the same write succeeds once space returns.
+class StorageFullError : public IoError {
+ public:
+  using IoError::IoError;
 };
 
 /// A geodetic box in degrees (WGS84). Antimeridian-crossing boxes

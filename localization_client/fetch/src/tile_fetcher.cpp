@@ -12,6 +12,7 @@
 #include <sstream>
 #include <thread>
 
+#include "polmap/localization_client/tile_cache_file.hpp"
 #include "polmap/schema/errors.hpp"
 
 namespace polmap::loc {
@@ -22,8 +23,6 @@ using SteadyClock = std::chrono::steady_clock;
 double unix_now_s() {
   return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
 }
-
-constexpr std::string_view kCacheTag = "PMTC1";
 
 /// One cached answer of the server for a tile.
 struct Entry {
@@ -57,53 +56,43 @@ tiles::LocalizationTile empty_tile(const tiles::TileKey& key, std::uint64_t vers
   return t;
 }
 
-/// Parses a cache file; nullopt when it is not a complete, valid one.
-std::optional<Entry> read_cache_file(const std::filesystem::path& path, const tiles::TileKey& key) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return std::nullopt;
-  std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  const std::size_t end = bytes.find("\n\n");
-  if (end == std::string::npos) return std::nullopt;
-  std::istringstream head(bytes.substr(0, end));
-  std::string line;
-  if (!std::getline(head, line) || line != kCacheTag) return std::nullopt;
-  Entry e;
-  bool has_status = false;
-  while (std::getline(head, line)) {
-    const std::size_t sp = line.find(' ');
-    const std::string k = line.substr(0, sp);
-    const std::string v = sp == std::string::npos ? "" : line.substr(sp + 1);
-    if (k == "status") {
-      e.http_status = std::atoi(v.c_str());
-      has_status = true;
-    } else if (k == "etag") {
-      e.etag = v;
-    } else if (k == "version") {
-      e.header_version = std::strtoull(v.c_str(), nullptr, 10);
-    } else if (k == "fetched") {
-      e.fetched_unix_s = std::strtod(v.c_str(), nullptr);
-    }
-  }
-  if (!has_status) return std::nullopt;
-  const std::string_view payload = std::string_view(bytes).substr(end + 2);
-  if (e.http_status == 200) {
-    try {
-      e.tile = tiles::decode_localization_tile(payload, path.string());
-    } catch (const Error&) {
-      return std::nullopt;
-    }
-    if (!(e.tile.key == key)) return std::nullopt;
-    e.payload = std::string(payload);
-  } else if (e.http_status == 204 || e.http_status == 404) {
-    e.tile = empty_tile(key, e.header_version);
-  } else {
+/// Reads a cache file (tile_cache_file.hpp); nullopt when it is missing, larger than any
+/// valid one, or not a complete, valid file for `key`. Never reads more than the limit.
+std::optional<Entry> read_cache_file(const std::filesystem::path& path, const tiles::TileKey& key,
+                                     std::size_t max_tile_bytes) {
+  std::error_code ec;
+  const std::uintmax_t size = std::filesystem::file_size(path, ec);
+  if (ec || (size > kMaxTileCacheHeaderBytes && size - kMaxTileCacheHeaderBytes > max_tile_bytes)) {
     return std::nullopt;
   }
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return std::nullopt;
+  std::string bytes(static_cast<std::size_t>(size), '\0');
+  in.read(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+  bytes.resize(static_cast<std::size_t>(in.gcount()));  // shorter if it shrank meanwhile
+  TileCacheDecodeResult r = decode_tile_cache_file(bytes, key, max_tile_bytes);
+  if (!r.ok()) return std::nullopt;
+  Entry e;
+  e.tile = std::move(r.tile);
+  e.payload = std::move(r.record.payload);
+  e.http_status = r.record.http_status;
+  e.etag = std::move(r.record.etag);
+  e.header_version = r.record.header_version;
+  e.fetched_unix_s = r.record.fetched_unix_s;
   return e;
 }
 
-/// Atomic write: temporary file in the same directory, then rename.
-bool write_cache_file(const std::filesystem::path& path, const Entry& e, std::string_view payload) {
+/// Atomic write: temporary file in the same directory, then rename. False (nothing
+/// written) when the entry cannot be stored or the file system fails.
+bool write_cache_file(const std::filesystem::path& path, const tiles::TileKey& key,
+                      const Entry& e) {
+  std::string bytes;
+  try {
+    bytes = encode_tile_cache_file(
+        {e.http_status, e.etag, e.header_version, e.fetched_unix_s, e.payload}, key);
+  } catch (const ValidationError&) {
+    return false;
+  }
   std::error_code ec;
   std::filesystem::create_directories(path.parent_path(), ec);
   if (ec) return false;
@@ -113,9 +102,7 @@ bool write_cache_file(const std::filesystem::path& path, const Entry& e, std::st
   {
     std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
     if (!out) return false;
-    out << kCacheTag << "\nstatus " << e.http_status << "\netag " << e.etag << "\nversion "
-        << e.header_version << "\nfetched " << std::to_string(e.fetched_unix_s) << "\n\n";
-    out.write(payload.data(), static_cast<std::streamsize>(payload.size()));
+    out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
     out.flush();
     if (!out) {
       std::filesystem::remove(tmp, ec);
@@ -247,7 +234,7 @@ struct TileFetcher::Impl {
     // 1. Disk cache.
     if (!entries.contains(key) && !cfg.cache_dir.empty()) {
       lock.unlock();
-      auto e = read_cache_file(cache_path(cfg.cache_dir, key), key);
+      auto e = read_cache_file(cache_path(cfg.cache_dir, key), key, cfg.max_tile_bytes);
       lock.lock();
       if (e && !entries.contains(key)) {
         e->last_used = ++use_tick;
@@ -373,7 +360,7 @@ struct TileFetcher::Impl {
           const Entry copy = it->second;
           lock.unlock();
           // Rewritten to refresh the fetch time in the header.
-          write_cache_file(cache_path(cfg.cache_dir, key), copy, copy.payload);
+          write_cache_file(cache_path(cfg.cache_dir, key), key, copy);
           lock.lock();
         }
         changed.notify_all();
@@ -404,7 +391,7 @@ struct TileFetcher::Impl {
     changed.notify_all();
     if (!cfg.cache_dir.empty()) {
       lock.unlock();
-      write_cache_file(cache_path(cfg.cache_dir, key), e, e.payload);
+      write_cache_file(cache_path(cfg.cache_dir, key), key, e);
       lock.lock();
     }
   }

@@ -1,7 +1,7 @@
 // The tile fetcher against a tiny tile server in the test (real loopback HTTP):
 // cache hit, 304 revalidation, 204/404, retries after 5xx, offline operation from
 // the disk cache when the server stops, pickup of a new map version, and tile()
-// never blocking while the server is slow.
+// never blocking while the server is slow, cache files that do not decode ignored.
 #include "polmap/localization_client/tile_fetcher.hpp"
 
 #include <gtest/gtest.h>
@@ -9,12 +9,14 @@
 #include <atomic>
 #include <chrono>
 #include <filesystem>
+#include <fstream>
 #include <map>
 #include <mutex>
 #include <random>
 #include <set>
 #include <thread>
 
+#include "polmap/localization_client/tile_cache_file.hpp"
 #include "test_dir.hpp"
 // After Eigen: <resolv.h> (pulled in by httplib) defines a macro _res that
 // collides with Eigen's parameter names.
@@ -265,6 +267,41 @@ TEST_F(TileFetcherTest, ServesFromDiskCacheWhenTheServerIsGone) {
   const std::vector<TileKey> missing{k2};
   EXPECT_FALSE(offline.wait_for(missing, 0.5));
   EXPECT_FALSE(offline.tile(k2).has_value());
+}
+
+TEST_F(TileFetcherTest, IgnoresCacheFilesThatDoNotDecode) {
+  // Offline (no server): only the disk cache can answer.
+  auto cfg = config("");
+  const auto write = [&](const TileKey& key, const std::string& bytes) {
+    const auto path =
+        dir_ / std::to_string(key.z) / std::to_string(key.x) / (std::to_string(key.y) + ".pmtc");
+    std::filesystem::create_directories(path.parent_path());
+    std::ofstream(path, std::ios::binary) << bytes;
+  };
+  const auto record = [](const TileKey& key, int extra_points) {
+    TileCacheRecord r;
+    r.etag = "\"e\"";
+    r.header_version = 3;
+    r.fetched_unix_s = 1.0;
+    r.payload = tiles::encode_localization_tile(make_tile(key, 3, 4 + extra_points));
+    return r;
+  };
+  const TileKey k_torn{16, 34003, 22000}, k_other{16, 34004, 22000}, k_big{16, 34005, 22000};
+  write(k1, encode_tile_cache_file(record(k1, 0), k1));
+  const std::string torn = encode_tile_cache_file(record(k_torn, 0), k_torn);
+  write(k_torn, torn.substr(0, torn.size() - 1));
+  write(k_other, encode_tile_cache_file(record(k1, 0), k1));  // k1's file under k_other
+  write(k_big, encode_tile_cache_file(record(k_big, 2000), k_big));
+  cfg.max_tile_bytes = record(k1, 0).payload.size() + 8;  // k1 fits, k_big does not
+  ASSERT_GT(record(k_big, 2000).payload.size(), cfg.max_tile_bytes);
+  TileFetcher fetcher(cfg);
+  const std::vector<TileKey> keys{k1};
+  ASSERT_TRUE(fetcher.wait_for(keys, 5.0));
+  EXPECT_EQ(fetcher.tile(k1)->points.size(), 4U);
+  const std::vector<TileKey> bad{k_torn, k_other, k_big};
+  EXPECT_FALSE(fetcher.wait_for(bad, 0.5));
+  for (const auto& k : bad) EXPECT_FALSE(fetcher.tile(k).has_value()) << tiles::to_string(k);
+  EXPECT_EQ(fetcher.stats().disk_loads, 1U);
 }
 
 TEST_F(TileFetcherTest, PicksUpANewMapVersionWithoutRestart) {

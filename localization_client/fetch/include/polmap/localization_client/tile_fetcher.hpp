@@ -28,9 +28,11 @@
 ///    Cache-Control max-age of current tiles is 60 s).
 ///  - Disk cache: <cache_dir>/<z>/<x>/<y>.pmtc, one file per tile holding a
 ///    small text header (format tag, HTTP status, ETag, map version from the
-///    header, fetch time) followed by the tile payload. Written to a temporary
-///    file in the same directory and renamed, so a crash never leaves a torn
-///    file; unreadable files are ignored (refetched).
+///    header, fetch time, key, payload size) followed by the tile payload
+///    (format: tile_cache_file.hpp). Written to a temporary file in the same
+///    directory and renamed, so a crash never leaves a torn file; files that do
+///    not decode (torn, corrupt, for another key, over max_tile_bytes) are
+///    ignored (refetched).
 #include <chrono>
 #include <cstdint>
 #include <filesystem>

@@ -585,6 +585,12 @@ void read_candidates(const std::string& path, const DriveManifest& m,
     if (s.std_east_m < 0 || s.std_north_m < 0 || s.std_yaw_rad < 0) {
       invalid(kGpkg, "trajectory.std_east_m", r.where() + ": negative standard deviation");
     }
+    // Finite as a double but not as the float it is kept in (found by fuzz_package).
+    if (!std::isfinite(s.std_east_m) || !std::isfinite(s.std_north_m) ||
+        !std::isfinite(s.std_yaw_rad)) {
+      invalid(kGpkg, "trajectory.std_east_m",
+              r.where() + ": standard deviation beyond the float range");
+    }
     const auto sol = parse_solution(r.string("solution"));
     if (!sol) {
       invalid(kGpkg, "trajectory.solution",

@@ -516,6 +516,13 @@ TEST_F(GpkgScreenTest, AValueOfTheWrongStorageClassIsRejected) {
                                        "feature fid 3 holds a text value", 422);
 }
 
+TEST_F(GpkgScreenTest, AStandardDeviationBeyondFloatRangeIsRejected) {
+  // Finite as the stored double, +inf as the float the trajectory keeps (fuzz_package).
+  edit_gpkg_sql("UPDATE trajectory SET std_east_m = 1e300 WHERE fid = 1");
+  expect_error<PackageValidationError>("candidates.gpkg", "trajectory.std_east_m",
+                                       "beyond the float range", 422);
+}
+
 TEST_F(GpkgScreenTest, AWalModeDatabaseIsRejected) {
   edit_gpkg_sql("PRAGMA journal_mode = WAL");
   expect_error<PackageValidationError>("candidates.gpkg", "journal_mode", "WAL mode", 422);

@@ -197,6 +197,9 @@ struct CovarianceGridmap::Impl {
   /// the raster (which is zero elsewhere); cells with N = 0 are left untouched.
   virtual void blit(int tx, int ty, CovarianceRaster& r) const = 0;
   virtual std::uint32_t hits(int ix, int iy) const = 0;
+  /// CovarianceGridmap::read_row for the cells of one tile (ix0..ix1 inside tile tx).
+  virtual void read_tile_row(int tx, int iy, int ix0, int ix1, std::uint32_t* count,
+                             std::uint32_t* hits, std::complex<float>* layers) const = 0;
   /// Writes trace(C) of one tile (kT² floats, 0 where N = 0); false if the tile does not exist.
   virtual bool materialize_trace(int tx, int ty, float* trace, double min_persistence) const = 0;
   virtual std::uint32_t count(int ix, int iy) const = 0;
@@ -386,6 +389,48 @@ class ImplT final : public CovarianceGridmap::Impl {
         }
         r.hits[idx] = static_cast<std::uint32_t>(std::lround(std::max<T>(cell[hit_], T(0))));
       }
+    }
+  }
+
+  void read_tile_row(int tx, int iy, int ix0, int ix1, std::uint32_t* count, std::uint32_t* hits,
+                     std::complex<float>* layers) const override {
+    const int n_cells = ix1 - ix0;
+    std::fill(layers, layers + static_cast<std::size_t>(n_cells) * L_,
+              std::complex<float>(0.0F, 0.0F));
+    std::fill(hits, hits + n_cells, 0U);
+    auto it = tiles_.find(tile_key(tx, iy >> 6));
+    if (it == tiles_.end()) {
+      std::fill(count, count + n_cells, 0U);
+      return;
+    }
+    const Tile<T>& t = *it->second;
+    const int row = iy & (kT - 1);
+    const int local0 = row * kT;
+    for (int ix = ix0; ix < ix1; ++ix) count[ix - ix0] = t.count(local0 + (ix & (kT - 1)));
+    // Per data block of the row (kD cells): one block pointer, then the cells.
+    for (int ix = ix0; ix < ix1;) {
+      const int col = ix & (kT - 1);
+      const int block_end = std::min(ix1, ix + (kD - col % kD));
+      const T* blk = t.blocks[block_of(local0 + col)].get();
+      if (blk != nullptr) {
+        const T* cell = blk + cell_in_block(local0 + col) * stride_;
+        for (int x = ix; x < block_end; ++x, cell += stride_) {
+          const int i = x - ix0;
+          const std::uint32_t n = count[i];
+          if (n == 0) continue;
+          // Same arithmetic as blit(): the values are bit-identical to raster()'s.
+          const T inv = T(1) / static_cast<T>(n);
+          std::complex<float>* out = layers + static_cast<std::size_t>(i) * L_;
+          for (int l = 0; l < L_; ++l) {
+            const T re = cell[off_[l]] * inv, im = cplx_[l] ? cell[off_[l] + 1] * inv : T(0);
+            out[l] = std::complex<float>(static_cast<float>(re), static_cast<float>(im));
+          }
+          // The hit sums are whole numbers (±1 per look): rounding is lround's.
+          const T h = cell[hit_];
+          hits[i] = h > T(0) ? static_cast<std::uint32_t>(h + T(0.5)) : 0U;
+        }
+      }
+      ix = block_end;
     }
   }
 
@@ -988,6 +1033,21 @@ CovarianceRaster CovarianceGridmap::raster(const CellBox& box) const {
   }
   for (std::uint64_t k : keys) impl_->blit(key_tx(k), key_ty(k), r);
   return r;
+}
+
+void CovarianceGridmap::read_row(int iy, int ix0, int ix1, std::span<std::uint32_t> count,
+                                 std::span<std::uint32_t> hits,
+                                 std::span<std::complex<float>> layers) const {
+  const auto n = static_cast<std::size_t>(std::max(0, ix1 - ix0));
+  const auto L = static_cast<std::size_t>(num_layers(q()));
+  POLMAP_EXPECT(count.size() >= n && hits.size() >= n && layers.size() >= n * L);
+  for (int ix = ix0; ix < ix1;) {
+    const int tx = ix >> 6;
+    const int end = std::min(ix1, (tx + 1) * kT);
+    const auto i = static_cast<std::size_t>(ix - ix0);
+    impl_->read_tile_row(tx, iy, ix, end, count.data() + i, hits.data() + i, layers.data() + i * L);
+    ix = end;
+  }
 }
 
 cv::Mat CovarianceGridmap::trace_image(const CellBox& box, double min_persistence) const {

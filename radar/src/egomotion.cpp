@@ -492,44 +492,65 @@ MotionEstimate EgoMotionEstimator::process(const SensorFrame& frame) {
            f.cov(1, 1) <= cfg_.max_yaw_rate_std_rps * cfg_.max_yaw_rate_std_rps;
   };
 
-  // Stage 1: global RANSAC over the whole augmented set.
+  // With acceleration limits (a previous estimate), every acceptable motion lies in
+  // prior_box: search there first, on the copies such a motion can explain. This finds
+  // what the global search would accept (its best hypothesis must lie in the box too)
+  // at a fraction of the cost: about one copy per detection instead of one per Nyquist
+  // zone, hence a higher inlier share and fewer adaptive iterations.
   Fit fit;
+  bool accepted = false;
   const std::optional<Eigen::Vector2d> seed =
       motion_prior ? std::optional<Eigen::Vector2d>(motion_prior->mean) : std::nullopt;
-  const Hypothesis best = ransac.run(pool, global, rng, seed);
-  if (best.inliers < n_required) {
-    est.status = MotionEstimate::Status::TooFewDetections;
-    return est;
-  }
-  fit = ransac.refine(best.v, best.w, motion_prior);
-  bool accepted = well_constrained(fit) && consistent(fit.v, fit.w);
-
-  // Stage 2: the best hypothesis violates the acceleration limits (or its fit
-  // failed): look for the best limit-consistent hypothesis, sampling only
-  // copies that such a hypothesis could explain.
-  if (!accepted && prior_box) {
+  if (prior_box) {
     const MotionBox box = prior_box->intersect(global);
     const double dv = 0.5 * (box.v_hi - box.v_lo), dw = 0.5 * (box.w_hi - box.w_lo);
     const double vc = 0.5 * (box.v_hi + box.v_lo), wc = 0.5 * (box.w_hi + box.w_lo);
-    std::vector<int> pool2;
+    // A copy is kept if some motion in the box could make it an inlier: its residual
+    // there is at most the box's spread plus the largest inlier threshold in the box
+    // (the threshold grows with the azimuth term |g·m|, largest at a corner).
+    const double ratio = cfg_.vr_sigma_mps > 0 ? cfg_.azimuth_sigma_rad / cfg_.vr_sigma_mps : 0.0;
+    Problem sub;
     for (std::size_t j = 0; j < prob.a_vr.size(); ++j) {
       const double pred = prob.a_h0[j] * vc + prob.a_h1[j] * wc;
-      const double tol = std::abs(prob.a_h0[j]) * dv + std::abs(prob.a_h1[j]) * dw + thr_margin;
-      if (std::abs(prob.a_vr[j] - pred) <= tol) pool2.push_back(static_cast<int>(j));
+      const double dmax = std::abs(prob.a_g0[j] * vc + prob.a_g1[j] * wc) +
+                          std::abs(prob.a_g0[j]) * dv + std::abs(prob.a_g1[j]) * dw;
+      const double thr =
+          cfg_.inlier_threshold_mps * std::sqrt(1.0 + ratio * ratio * dmax * dmax + prob.a_ext[j]);
+      const double tol = std::abs(prob.a_h0[j]) * dv + std::abs(prob.a_h1[j]) * dw + thr;
+      if (std::abs(prob.a_vr[j] - pred) > tol * (1.0 + 1e-9)) continue;
+      sub.a_h0.push_back(prob.a_h0[j]);
+      sub.a_h1.push_back(prob.a_h1[j]);
+      sub.a_g0.push_back(prob.a_g0[j]);
+      sub.a_g1.push_back(prob.a_g1[j]);
+      sub.a_vr.push_back(prob.a_vr[j]);
+      sub.a_ext.push_back(prob.a_ext[j]);
+      sub.a_det.push_back(prob.a_det[j]);
     }
-    const Hypothesis best2 = ransac.run(pool2, box, rng, seed);
-    if (best2.inliers >= n_required) {
-      const Fit fit2 = ransac.refine(best2.v, best2.w, motion_prior);
-      if (well_constrained(fit2) && consistent(fit2.v, fit2.w)) {
-        fit = fit2;
-        accepted = true;
-        est.used_consistent_fallback = true;
-      }
+    std::vector<int> sub_pool(sub.a_vr.size());
+    for (std::size_t j = 0; j < sub_pool.size(); ++j) sub_pool[j] = static_cast<int>(j);
+    const Hypothesis best = Ransac(sub, cfg_).run(sub_pool, box, rng, seed);
+    if (best.inliers >= n_required) {
+      fit = ransac.refine(best.v, best.w, motion_prior);
+      accepted = well_constrained(fit) && consistent(fit.v, fit.w);
     }
     if (!accepted) {
-      est.status = MotionEstimate::Status::Rejected;
+      // Rare: tell "too few static detections for any motion" from "the motion they
+      // show violates the limits" by the global search.
+      const Hypothesis global_best = ransac.run(pool, global, rng, seed);
+      est.status = global_best.inliers < n_required ? MotionEstimate::Status::TooFewDetections
+                                                    : MotionEstimate::Status::Rejected;
       return est;
     }
+    est.searched_within_limits = true;
+  } else {
+    // No limits yet: global RANSAC over the whole augmented set.
+    const Hypothesis best = ransac.run(pool, global, rng, seed);
+    if (best.inliers < n_required) {
+      est.status = MotionEstimate::Status::TooFewDetections;
+      return est;
+    }
+    fit = ransac.refine(best.v, best.w, motion_prior);
+    accepted = well_constrained(fit);
   }
   if (!accepted) {
     est.status = MotionEstimate::Status::TooFewDetections;  // unconstrained or degenerate

@@ -3,6 +3,7 @@
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
+#include <map>
 #include <numbers>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/ximgproc.hpp>
@@ -405,16 +406,30 @@ std::vector<LineCandidate> extract_lines(const CovarianceGridmap& map,
   // Halo: the filters' support plus a minimum segment, so segments crossing the
   // border are found whole on both sides and only clipped.
   const int halo = static_cast<int>(std::ceil((4.0 * cfg.sigma_m + cfg.min_length_m) / cs)) + 4;
-  std::set<std::pair<int, int>> chunks;
+  // Per chunk, the bounding box of its populated tiles plus the halo: cells outside
+  // populated tiles read as the floor (0 dB), where the filters give nothing, so this
+  // finds what the whole chunk would; a sliding-window map fills only part of a chunk.
+  std::map<std::pair<int, int>, CellBox> chunks;
   for (const auto& t : map.tile_indices()) {
-    chunks.insert({floor_div(t[0], cfg.chunk_tiles), floor_div(t[1], cfg.chunk_tiles)});
+    const CellBox tb{t[0] * kTileSizeCells, t[1] * kTileSizeCells, (t[0] + 1) * kTileSizeCells,
+                     (t[1] + 1) * kTileSizeCells};
+    const auto [it, inserted] = chunks.try_emplace(
+        {floor_div(t[0], cfg.chunk_tiles), floor_div(t[1], cfg.chunk_tiles)}, tb);
+    if (!inserted) {
+      CellBox& b = it->second;
+      b = CellBox{std::min(b.min_ix, tb.min_ix), std::min(b.min_iy, tb.min_iy),
+                  std::max(b.max_ix, tb.max_ix), std::max(b.max_iy, tb.max_iy)};
+    }
   }
   std::vector<LineCandidate> all;
-  for (const auto& [cx, cy] : chunks) {
+  for (const auto& [key, populated] : chunks) {
+    const auto [cx, cy] = key;
     const CellBox core{cx * chunk_cells, cy * chunk_cells, (cx + 1) * chunk_cells,
                        (cy + 1) * chunk_cells};
-    const CellBox box{core.min_ix - halo, core.min_iy - halo, core.max_ix + halo,
-                      core.max_iy + halo};
+    const CellBox box{std::max(core.min_ix, populated.min_ix) - halo,
+                      std::max(core.min_iy, populated.min_iy) - halo,
+                      std::min(core.max_ix, populated.max_ix) + halo,
+                      std::min(core.max_iy, populated.max_iy) + halo};
     const cv::Mat p = map.trace_image(box, cfg.min_persistence);
     auto lines = extract_lines(p, box, cs, map.noise_power(), map.q(), cfg, &core);
     all.insert(all.end(), lines.begin(), lines.end());

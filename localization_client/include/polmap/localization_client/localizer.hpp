@@ -71,7 +71,12 @@ struct LocalizerConfig {
   /// Sliding-window gridmap (window_s > 0 = localization mode). 2 s: ~20 m of
   /// driving at 10 m/s and 60 sensor frames per cell, long enough for stable
   /// pCFAR statistics, short enough that odometry drift stays below a cell.
-  radar::GridmapConfig gridmap{0.1, PolLevel::Full, 2.0, 0.0};
+  /// Range bins up to 40 m only: with ~3° beams a return at 40 m is smeared over
+  /// 2 m across the beam (4 m at 80 m), so farther candidates are too imprecise
+  /// to match and to constrain the pose; dropping them cut the cost of a frame by
+  /// ~3× and lowered the position and heading errors on bench_localizer (urban,
+  /// rural, industrial, seed 1; 2026-12-02).
+  radar::GridmapConfig gridmap{0.1, PolLevel::Full, 2.0, 40.0};
   radar::PointExtractorConfig points;
   radar::LineExtractorConfig lines;
   LocalMapConfig local_map;

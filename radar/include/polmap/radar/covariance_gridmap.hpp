@@ -205,6 +205,13 @@ class CovarianceGridmap {
   [[nodiscard]] std::vector<std::array<int, 2>> tile_indices() const;
   /// Dense copy of a box (cells outside allocated tiles read as N = 0, C = 0).
   [[nodiscard]] CovarianceRaster raster(const CellBox& box) const;
+  /// One row of cells [ix0, ix1) at iy, with exactly the values raster() writes: N,
+  /// hits and the upper-triangle layers of C, interleaved per cell (layers[(ix − ix0)·L + l],
+  /// L = q(q+1)/2 in layer order; zero where N = 0 or no bin was stored). Streaming
+  /// detectors read the map row by row through this instead of one dense raster. The
+  /// spans must hold ix1 − ix0 cells (layers: L per cell).
+  void read_row(int iy, int ix0, int ix1, std::span<std::uint32_t> count,
+                std::span<std::uint32_t> hits, std::span<std::complex<float>> layers) const;
   /// trace(C) of a box as CV_32F (linear power); row r ↔ iy = box.min_iy + r (south at row 0).
   /// Cells with persistence hits/N below min_persistence read as 0.
   [[nodiscard]] cv::Mat trace_image(const CellBox& box, double min_persistence = 0.0) const;

@@ -193,9 +193,10 @@ struct MotionEstimate {
   int num_inliers = 0;     ///< static detections used in the final fit
   int num_detections = 0;  ///< detections of all combined frames
   int num_frames = 0;      ///< sensor frames (with detections) combined
-  /// True when the best hypothesis violated the acceleration limits and the
-  /// best limit-consistent one was used instead.
-  bool used_consistent_fallback = false;
+  /// True when the motion was searched within the acceleration limits around the
+  /// previous estimates only (every estimate after the first few): a motion outside
+  /// them, e.g. that of a truck filling the view, cannot be chosen.
+  bool searched_within_limits = false;
   /// True when older frames were corrected with an estimated acceleration.
   bool time_corrected = false;
   /// True when the motion prior (previous estimate) entered the fit.

@@ -90,9 +90,17 @@ struct PointExtractorConfig {
 
 /// pCFAR over a whole gridmap (processed in chunks with halos; candidates are
 /// unique: each belongs to the chunk that contains its centroid). Sorted by
-/// position (y, then x).
+/// position (y, then x). Streams each chunk row by row from the map's tiles
+/// (CovarianceGridmap::read_row) with a rolling integral image of 2·training + 2 rows,
+/// so no dense raster of the chunk is built; the arithmetic is that of the raster path,
+/// and the result equals extract_points_reference().
 std::vector<PointCandidate> extract_points(const CovarianceGridmap& map,
                                            const PointExtractorConfig& cfg = {});
+
+/// The straightforward version of extract_points(map): one dense CovarianceRaster per
+/// chunk, processed by extract_points(raster). For tests and benchmarks.
+std::vector<PointCandidate> extract_points_reference(const CovarianceGridmap& map,
+                                                     const PointExtractorConfig& cfg = {});
 
 /// pCFAR over one raster. If core is given, only components whose centroid cell
 /// lies in core are returned.

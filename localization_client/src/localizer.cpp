@@ -11,6 +11,7 @@
 #include <unordered_map>
 
 #include "polmap/schema/errors.hpp"
+#include "polmap/util/cpu_time.hpp"
 
 namespace polmap::loc {
 
@@ -26,6 +27,20 @@ std::string_view to_string(LocalizationOutput::Status s) {
       return "lost";
   }
   return "unknown";
+}
+
+StageCpuTimes& StageCpuTimes::operator+=(const StageCpuTimes& o) {
+  egomotion_s += o.egomotion_s;
+  gridmap_s += o.gridmap_s;
+  points_s += o.points_s;
+  lines_s += o.lines_s;
+  clustering_s += o.clustering_s;
+  tiles_s += o.tiles_s;
+  matching_s += o.matching_s;
+  smoothing_s += o.smoothing_s;
+  graph_s += o.graph_s;
+  total_s += o.total_s;
+  return *this;
 }
 
 namespace {
@@ -361,7 +376,7 @@ struct Localizer::Impl {
   /// Tracking: smoothing + graph update. Returns the solution if solved.
   std::optional<GraphSolution> track(const MatchResult& match, double time_s,
                                      const Pose2& T_odom_vehicle, bool use_lines,
-                                     LocalizationOutput& out) {
+                                     LocalizationOutput& out, util::CpuLap& lap) {
     // Votes from matches whose transform is trustworthy (the gate is tight
     // while tracking; an ambiguous or empty result casts no votes).
     if (match.status == MatchResult::Status::Ok ||
@@ -394,6 +409,7 @@ struct Localizer::Impl {
       // the window nor counts as time without associations.
       standstill_total_s += since_last_track_s;
       last_assoc_time_s += since_last_track_s;
+      out.cpu.smoothing_s += lap.lap();
       return std::nullopt;
     }
     if (!delta) graph.clear();  // odometry cannot link: restart the window
@@ -463,7 +479,9 @@ struct Localizer::Impl {
       graph.clear_pose_priors();
       graph.add_pose_prior(key, guess, predicted_cov());
     }
+    out.cpu.smoothing_s += lap.lap();
     const GraphSolution sol = graph.solve();
+    out.cpu.graph_s += lap.lap();
     out.graph_updated = true;
     out.graph_update_time_s = sol.solve_time_s;
     if (sol.status != GraphSolution::Status::Ok) return std::nullopt;
@@ -476,6 +494,8 @@ struct Localizer::Impl {
 
   LocalizationOutput process(const SensorFrame& f) {
     const auto t0 = Clock::now();
+    util::CpuLap lap;
+    const double cpu0 = util::thread_cpu_s();
     LocalizationOutput out;
     out.time_s = f.time_s;
     const auto mit = mount_by_id.find(f.sensor_id);
@@ -499,9 +519,11 @@ struct Localizer::Impl {
       last_v_mps = m.v_mps;
     }
     odo.add(m);
+    out.cpu.egomotion_s = lap.lap();
     if (odo.empty()) {
       out.status = status;
       out.processing_time_s = seconds_since(t0);
+      out.cpu.total_s = util::thread_cpu_s() - cpu0;
       return out;
     }
     if (pending_initial) {
@@ -516,6 +538,7 @@ struct Localizer::Impl {
     if (T_odom_vehicle && f.spectrum.azimuth_bins_rad.size() >= 2) {
       gridmap.add(f.spectrum, *T_odom_vehicle * mit->second.T_vehicle_sensor, f.time_s);
     }
+    out.cpu.gridmap_s = lap.lap();
 
     const bool extract =
         anchored && T_odom_vehicle && f.sensor_id == last_sensor_id &&
@@ -525,18 +548,22 @@ struct Localizer::Impl {
       ++extractions;
       const auto t_extract = Clock::now();
       const std::vector<PointCandidate> points = radar::extract_points(gridmap, cfg.points);
+      out.cpu.points_s = lap.lap();
       const bool use_lines = extractions % cfg.lines_every_n_extractions == 0 ||
                              last_point_matches < cfg.lines_below_point_matches;
       std::vector<LineCandidate> lines;
       if (use_lines) lines = radar::extract_lines(gridmap, cfg.lines);
+      out.cpu.lines_s = lap.lap();
       out.extraction_time_s = seconds_since(t_extract);
       out.candidates = static_cast<int>(points.size());
       out.line_candidates = static_cast<int>(lines.size());
       const auto t_match = Clock::now();
       local_map.add(f.time_s, *T_odom_vehicle, points, lines);
+      out.cpu.clustering_s = lap.lap();
 
       const Pose2 pred = T_map_odom * *T_odom_vehicle;
       update_map(pred);
+      out.cpu.tiles_s = lap.lap();
       MatchPrior prior;
       prior.T_map_odom = T_map_odom;
       prior.T_odom_vehicle = *T_odom_vehicle;
@@ -552,15 +579,18 @@ struct Localizer::Impl {
       out.match_point_associations = static_cast<int>(match.points.size());
       out.match_line_associations = static_cast<int>(match.lines.size());
       out.matching_time_s = seconds_since(t_match);
+      out.cpu.matching_s = lap.lap();
       if (searching) {
         search(match, f.time_s, *T_odom_vehicle);
+        out.cpu.smoothing_s += lap.lap();
       } else {
-        track(match, f.time_s, *T_odom_vehicle, use_lines, out);
+        track(match, f.time_s, *T_odom_vehicle, use_lines, out, lap);
         if (cfg.relocalization_every_n_extractions > 0 &&
             extractions % cfg.relocalization_every_n_extractions == 0 &&
             relocalization_check(match, mcfg, f.time_s, *T_odom_vehicle)) {
           out.relocalized = true;
         }
+        out.cpu.matching_s += lap.lap();
         status = f.time_s - last_assoc_time_s <= cfg.degraded_after_s ? Status::Tracking
                                                                       : Status::Degraded;
         if (position_sigma_m(predicted_cov()) > cfg.lost_sigma_m ||
@@ -585,6 +615,8 @@ struct Localizer::Impl {
       out.pose.yaw_enu_rad = wrap_angle_rad(out.T_map_vehicle.yaw_rad - frame->convergence_rad(xy));
     }
     out.processing_time_s = seconds_since(t0);
+    out.cpu.smoothing_s += lap.lap();  // status and output bookkeeping
+    out.cpu.total_s = util::thread_cpu_s() - cpu0;
     return out;
   }
 };

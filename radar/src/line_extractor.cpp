@@ -45,14 +45,13 @@ RidgeImages ridgeness(const cv::Mat& power, double cs, double noise_power, int q
   POLMAP_EXPECT(cfg.median_kernel_cells == 3 || cfg.median_kernel_cells == 5 ||
                 cfg.median_kernel_cells == 1);
   const double floor = floor_power(power, noise_power, q, cfg);
-  cv::Mat db(power.size(), CV_32F);
-  for (int r = 0; r < power.rows; ++r) {
-    const float* p = power.ptr<float>(r);
-    float* d = db.ptr<float>(r);
-    for (int c = 0; c < power.cols; ++c) {
-      d[c] = static_cast<float>(10.0 * std::log10(std::max<double>(p[c], floor) / floor));
-    }
-  }
+  // dB over the floor, vectorized: 10·log10(max(p, floor)/floor) = (10/ln 10)·ln(·).
+  cv::Mat db;
+  cv::max(power, floor, db);
+  db.convertTo(db, CV_32F, 1.0 / floor);
+  cv::log(db, db);
+  db.convertTo(db, CV_32F, 10.0 / std::log(10.0));
+  cv::max(db, 0.0, db);  // ln(1) may come out a rounding step below 0
   cv::Mat med;
   if (cfg.median_kernel_cells > 1) {
     cv::medianBlur(db, med, cfg.median_kernel_cells);
@@ -62,28 +61,28 @@ RidgeImages ridgeness(const cv::Mat& power, double cs, double noise_power, int q
   const double sigma = cfg.sigma_m / cs;  // cells
   cv::Mat smooth;
   cv::GaussianBlur(med, smooth, cv::Size(0, 0), sigma, sigma, cv::BORDER_REPLICATE);
-  cv::Mat dxx, dyy, dxy, dx, dy;  // per cell
-  // ksize 1 gives the plain central second difference [1 −2 1]; dxy from the 3×3 Sobel
-  // (scale 1/4 makes it the central cross difference); gradients [−1 0 1]/2.
-  cv::Sobel(smooth, dxx, CV_32F, 2, 0, 1, 1.0, 0.0, cv::BORDER_REPLICATE);
-  cv::Sobel(smooth, dyy, CV_32F, 0, 2, 1, 1.0, 0.0, cv::BORDER_REPLICATE);
-  cv::Sobel(smooth, dxy, CV_32F, 1, 1, 3, 0.25, 0.0, cv::BORDER_REPLICATE);
-  cv::Sobel(smooth, dx, CV_32F, 1, 0, 1, 0.5, 0.0, cv::BORDER_REPLICATE);
-  cv::Sobel(smooth, dy, CV_32F, 0, 1, 1, 0.5, 0.0, cv::BORDER_REPLICATE);
   cv::Mat out(power.size(), CV_32F);
   cv::Mat centre(power.size(), CV_8U);
   const float s2 = static_cast<float>(sigma * sigma);
-  for (int r = 0; r < power.rows; ++r) {
-    const float* a = dxx.ptr<float>(r);
-    const float* b = dyy.ptr<float>(r);
-    const float* c = dxy.ptr<float>(r);
-    const float* gx = dx.ptr<float>(r);
-    const float* gy = dy.ptr<float>(r);
+  const int rows = power.rows, cols = power.cols;
+  for (int r = 0; r < rows; ++r) {
+    // Derivatives of the smoothed image by central differences, borders replicated:
+    // dxx = [1 −2 1] along x, dyy along y, dxy = central cross difference / 4,
+    // gradients [−1 0 1]/2 (one pass instead of five filtered images).
+    const float* up = smooth.ptr<float>(std::max(r - 1, 0));
+    const float* mid = smooth.ptr<float>(r);
+    const float* dn = smooth.ptr<float>(std::min(r + 1, rows - 1));
     float* o = out.ptr<float>(r);
     std::uint8_t* m = centre.ptr<std::uint8_t>(r);
-    for (int k = 0; k < power.cols; ++k) {
-      const float mean = 0.5F * (a[k] + b[k]);
-      const float dev = std::sqrt(0.25F * (a[k] - b[k]) * (a[k] - b[k]) + c[k] * c[k]);
+    for (int k = 0; k < cols; ++k) {
+      const int kl = std::max(k - 1, 0), kr = std::min(k + 1, cols - 1);
+      const float a = mid[kl] - 2.0F * mid[k] + mid[kr];  // dxx
+      const float b = up[k] - 2.0F * mid[k] + dn[k];      // dyy
+      const float c = 0.25F * ((dn[kr] - dn[kl]) - (up[kr] - up[kl]));
+      const float gx = 0.5F * (mid[kr] - mid[kl]);
+      const float gy = 0.5F * (dn[k] - up[k]);
+      const float mean = 0.5F * (a + b);
+      const float dev = std::sqrt(0.25F * (a - b) * (a - b) + c * c);
       const float l1 = mean - dev, l2 = mean + dev;  // l1 ≤ l2
       o[k] = std::max(0.0F, s2 * (-l1 - std::abs(l2)));
       m[k] = 0;
@@ -91,10 +90,10 @@ RidgeImages ridgeness(const cv::Mat& power, double cs, double noise_power, int q
       // Eigenvector of l1 (across the ridge) and the Newton step to the profile's
       // maximum along it (Steger): the ridge centre lies in this cell iff the step
       // stays inside it. On the flank of a step edge the step is ~σ: rejected.
-      float nx = c[k], ny = l1 - a[k];
+      float nx = c, ny = l1 - a;
       if (std::abs(nx) + std::abs(ny) < 1e-12F) {
-        nx = l1 - b[k];
-        ny = c[k];
+        nx = l1 - b;
+        ny = c;
       }
       if (std::abs(nx) + std::abs(ny) < 1e-12F) {
         nx = 1.0F;
@@ -103,7 +102,7 @@ RidgeImages ridgeness(const cv::Mat& power, double cs, double noise_power, int q
       const float norm = std::sqrt(nx * nx + ny * ny);
       nx /= norm;
       ny /= norm;
-      const float t = -(gx[k] * nx + gy[k] * ny) / l1;
+      const float t = -(gx * nx + gy * ny) / l1;
       m[k] = std::abs(t * nx) <= 0.5F && std::abs(t * ny) <= 0.5F ? 1 : 0;
     }
   }

@@ -33,6 +33,7 @@
 #include <string>
 
 #include "command.hpp"
+#include "polmap/eval/stage_budget.hpp"
 #include "polmap/eval/trajectory_eval.hpp"
 #include "polmap/localization_client/localizer.hpp"
 #include "polmap/localization_client/tile_fetcher.hpp"
@@ -172,10 +173,12 @@ void run(const LocalizeOptions& o) {
   double proc_sum = 0.0, proc_max = 0.0, graph_sum = 0.0, first_tracking = -1.0;
   double t_first = pending.front().time_s, t_last = t_first;
   std::uint64_t map_version = 0;
+  loc::StageCpuTimes stage_cpu;
   const auto wall0 = std::chrono::steady_clock::now();
   Progress progress("localize " + o.recording, static_cast<double>(reader.file_size()));
   auto handle = [&](const SensorFrame& f) {
     const loc::LocalizationOutput out = localizer.process(f);
+    stage_cpu += out.cpu;
     ++frames;
     t_last = f.time_s;
     proc_sum += out.processing_time_s;
@@ -234,6 +237,10 @@ void run(const LocalizeOptions& o) {
   j["mean_graph_ms"] = graph_solves > 0 ? 1e3 * graph_sum / graph_solves : 0.0;
   j["wall_s"] = wall_s;
   j["realtime_factor"] = wall_s > 0 ? (t_last - t_first) / wall_s : 0.0;
+  const double drive_s = t_last - t_first;
+  // CPU of the localizer's thread by stage plus the fetcher's worker thread.
+  if (drive_s > 0)
+    j["stage_ms_per_s"] = eval::stage_budget_json(stage_cpu, drive_s, fs_stats.worker_cpu_s);
   j["tiles"] = {{"responses_200", fs_stats.responses_200},
                 {"responses_304", fs_stats.responses_304},
                 {"responses_204", fs_stats.responses_204},
@@ -267,6 +274,9 @@ void run(const LocalizeOptions& o) {
       static_cast<unsigned long long>(fs_stats.responses_404),
       static_cast<unsigned long long>(fs_stats.disk_loads),
       static_cast<unsigned long long>(fs_stats.bytes_downloaded), fcfg.cache_dir.string().c_str());
+  if (drive_s > 0) {
+    std::printf("%s", eval::format_stage_budget(stage_cpu, drive_s, fs_stats.worker_cpu_s).c_str());
+  }
 }
 
 void setup(CLI::App& app) {

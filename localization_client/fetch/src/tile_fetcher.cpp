@@ -14,6 +14,7 @@
 
 #include "polmap/localization_client/tile_cache_file.hpp"
 #include "polmap/schema/errors.hpp"
+#include "polmap/util/cpu_time.hpp"
 
 namespace polmap::loc {
 namespace {
@@ -222,7 +223,9 @@ struct TileFetcher::Impl {
       Job job = pick->second;
       jobs.erase(pick);
       in_flight = true;
+      const double cpu0 = util::thread_cpu_s();
       process_locked(lock, key, job, client);
+      stats.worker_cpu_s += util::thread_cpu_s() - cpu0;
       in_flight = false;
       changed.notify_all();
     }

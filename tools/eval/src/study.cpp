@@ -14,6 +14,7 @@
 #include <sstream>
 #include <thread>
 
+#include "polmap/eval/stage_budget.hpp"
 #include "polmap/eval/store_tile_source.hpp"
 #include "polmap/eval/svg_plot.hpp"
 #include "polmap/eval/trajectory_eval.hpp"
@@ -30,6 +31,7 @@
 #include "polmap/sim/truth.hpp"
 #include "polmap/sim/world.hpp"
 #include "polmap/tiles/local_frame.hpp"
+#include "polmap/util/cpu_time.hpp"
 
 namespace polmap::eval {
 namespace {
@@ -43,11 +45,7 @@ double seconds_since(Clock::time_point t0) {
 
 /// CPU time of the calling thread: the localizer is single-threaded (Ceres runs
 /// with one thread), so this is its cost independent of other load on the machine.
-double thread_cpu_s() {
-  timespec ts{};
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
-}
+using util::thread_cpu_s;
 
 std::string level_dir_name(PolLevel l) { return std::string(to_string(l)); }
 
@@ -169,6 +167,7 @@ StudyDriveResult localize_simulated_drive(const std::shared_ptr<const sim::World
   double first_frame_t = std::numeric_limits<double>::quiet_NaN();
   double last_t = 0.0;
   std::int64_t matched_sum = 0;
+  const double fetcher_cpu0_s = opt.fetcher != nullptr ? opt.fetcher->stats().worker_cpu_s : 0.0;
 
   auto handle = [&](const SensorFrame& f) {
     if (opt.before_frame) opt.before_frame(f.time_s);
@@ -176,6 +175,7 @@ StudyDriveResult localize_simulated_drive(const std::shared_ptr<const sim::World
     const double c0 = thread_cpu_s();
     const loc::LocalizationOutput out = localizer.process(f);
     const double cpu = thread_cpu_s() - c0;
+    r.stage_cpu += out.cpu;
     const double wall = seconds_since(t0);
     r.localizer_cpu_s += cpu;
     r.localizer_wall_s += wall;
@@ -306,6 +306,7 @@ StudyDriveResult localize_simulated_drive(const std::shared_ptr<const sim::World
                        : static_cast<double>(matched_sum) / static_cast<double>(graph_ms.size());
   r.frame_mean_ms = mean(frame_ms);
   r.frame_p95_ms = percentile(frame_ms, 0.95);
+  r.frame_p99_ms = percentile(frame_ms, 0.99);
   r.frame_max_ms = frame_ms.empty() ? 0.0 : *std::max_element(frame_ms.begin(), frame_ms.end());
   r.extraction_mean_ms = mean(extract_ms);
   r.matching_mean_ms = mean(match_ms);
@@ -314,6 +315,11 @@ StudyDriveResult localize_simulated_drive(const std::shared_ptr<const sim::World
   r.graph_update_max_ms =
       graph_ms.empty() ? 0.0 : *std::max_element(graph_ms.begin(), graph_ms.end());
   const double span = last_t - first_frame_t;
+  if (opt.fetcher != nullptr) {
+    // The fetcher's worker thread works for this localizer (one drive at a time).
+    r.helper_threads_cpu_s = opt.fetcher->stats().worker_cpu_s - fetcher_cpu0_s;
+    r.localizer_cpu_s += r.helper_threads_cpu_s;
+  }
   r.realtime_factor = r.localizer_cpu_s > 0 ? span / r.localizer_cpu_s : 0.0;
   r.realtime_factor_wall = r.localizer_wall_s > 0 ? span / r.localizer_wall_s : 0.0;
   return r;
@@ -889,7 +895,7 @@ std::string format_speed_table(const StudyResult& r) {
     << (r.http ? "downloaded over HTTP" : "read from the store") << ")\n";
   char buf[360];
   std::snprintf(buf, sizeof buf, "%-6s %-5s %-5s %14s %9s %8s %8s %8s %9s %9s %8s %10s %8s\n",
-                "level", "seed", "drive", "x real (wall)", "frame ms", "p95 ms", "extr ms",
+                "level", "seed", "drive", "x real (wall)", "frame ms", "p99 ms", "extr ms",
                 "match ms", "graph ms", "graph p95", "matches", "tile B/km", "map pts");
   o << buf;
   for (const auto& d : r.results) {
@@ -898,7 +904,7 @@ std::string format_speed_table(const StudyResult& r) {
         "%-6s %-5llu #%-4d %6.1f (%5.1f) %9.2f %8.2f %8.2f %8.2f %9.2f %9.2f %8.1f %10.0f "
         "%8lld\n",
         std::string(to_string(d.level)).c_str(), static_cast<unsigned long long>(d.seed),
-        d.drive + 1, d.realtime_factor, d.realtime_factor_wall, d.frame_mean_ms, d.frame_p95_ms,
+        d.drive + 1, d.realtime_factor, d.realtime_factor_wall, d.frame_mean_ms, d.frame_p99_ms,
         d.extraction_mean_ms, d.matching_mean_ms, d.graph_update_mean_ms, d.graph_update_p95_ms,
         d.mean_matched_points, d.tile_bytes_per_km, static_cast<long long>(d.map_point_landmarks));
     o << buf;
@@ -1013,46 +1019,51 @@ nlohmann::json to_json(const StudyResult& r) {
                            {"tile_bytes_per_km", s.tile_bytes_per_km}});
   }
   for (const auto& d : r.results) {
-    j["results"].push_back({{"seed", d.seed},
-                            {"level", to_string(d.level)},
-                            {"drive", d.drive},
-                            {"drive_id", d.drive_id},
-                            {"duration_s", d.duration_s},
-                            {"distance_m", d.distance_m},
-                            {"reliable_gnss_share", d.reliable_gnss_share},
-                            {"point_candidates", d.point_candidates},
-                            {"line_candidates", d.line_candidates},
-                            {"map_version", d.map_version},
-                            {"map_point_landmarks", d.map_point_landmarks},
-                            {"map_line_landmarks", d.map_line_landmarks},
-                            {"map_build_s", d.map_build_s},
-                            {"errors", to_json(d.errors)},
-                            {"converged", d.converged},
-                            {"converge_time_s", d.converge_time_s},
-                            {"diverged", d.diverged},
-                            {"lost_events", d.lost_events},
-                            {"tracking_share", d.tracking_share},
-                            {"degraded_share", d.degraded_share},
-                            {"lost_share", d.lost_share},
-                            {"mean_matched_points", d.mean_matched_points},
-                            {"frames", d.frames},
-                            {"localizer_cpu_s", d.localizer_cpu_s},
-                            {"localizer_wall_s", d.localizer_wall_s},
-                            {"realtime_factor", d.realtime_factor},
-                            {"realtime_factor_wall", d.realtime_factor_wall},
-                            {"extraction_mean_ms", d.extraction_mean_ms},
-                            {"matching_mean_ms", d.matching_mean_ms},
-                            {"frame_mean_ms", d.frame_mean_ms},
-                            {"frame_p95_ms", d.frame_p95_ms},
-                            {"frame_max_ms", d.frame_max_ms},
-                            {"graph_updates", d.graph_updates},
-                            {"graph_update_mean_ms", d.graph_update_mean_ms},
-                            {"graph_update_p95_ms", d.graph_update_p95_ms},
-                            {"graph_update_max_ms", d.graph_update_max_ms},
-                            {"tile_bytes", d.tile_bytes},
-                            {"tile_bytes_per_km", d.tile_bytes_per_km},
-                            {"simulate_process_s", d.simulate_process_s},
-                            {"diagnosis", d.diagnosis ? to_json(*d.diagnosis) : nlohmann::json()}});
+    j["results"].push_back(
+        {{"seed", d.seed},
+         {"level", to_string(d.level)},
+         {"drive", d.drive},
+         {"drive_id", d.drive_id},
+         {"duration_s", d.duration_s},
+         {"distance_m", d.distance_m},
+         {"reliable_gnss_share", d.reliable_gnss_share},
+         {"point_candidates", d.point_candidates},
+         {"line_candidates", d.line_candidates},
+         {"map_version", d.map_version},
+         {"map_point_landmarks", d.map_point_landmarks},
+         {"map_line_landmarks", d.map_line_landmarks},
+         {"map_build_s", d.map_build_s},
+         {"errors", to_json(d.errors)},
+         {"converged", d.converged},
+         {"converge_time_s", d.converge_time_s},
+         {"diverged", d.diverged},
+         {"lost_events", d.lost_events},
+         {"tracking_share", d.tracking_share},
+         {"degraded_share", d.degraded_share},
+         {"lost_share", d.lost_share},
+         {"mean_matched_points", d.mean_matched_points},
+         {"frames", d.frames},
+         {"localizer_cpu_s", d.localizer_cpu_s},
+         {"localizer_wall_s", d.localizer_wall_s},
+         {"realtime_factor", d.realtime_factor},
+         {"realtime_factor_wall", d.realtime_factor_wall},
+         {"extraction_mean_ms", d.extraction_mean_ms},
+         {"matching_mean_ms", d.matching_mean_ms},
+         {"frame_mean_ms", d.frame_mean_ms},
+         {"frame_p95_ms", d.frame_p95_ms},
+         {"frame_p99_ms", d.frame_p99_ms},
+         {"stage_ms_per_s",
+          d.duration_s > 0 ? stage_budget_json(d.stage_cpu, d.duration_s, d.helper_threads_cpu_s)
+                           : nlohmann::json()},
+         {"frame_max_ms", d.frame_max_ms},
+         {"graph_updates", d.graph_updates},
+         {"graph_update_mean_ms", d.graph_update_mean_ms},
+         {"graph_update_p95_ms", d.graph_update_p95_ms},
+         {"graph_update_max_ms", d.graph_update_max_ms},
+         {"tile_bytes", d.tile_bytes},
+         {"tile_bytes_per_km", d.tile_bytes_per_km},
+         {"simulate_process_s", d.simulate_process_s},
+         {"diagnosis", d.diagnosis ? to_json(*d.diagnosis) : nlohmann::json()}});
   }
   for (const auto& f : r.figures) j["figures"].push_back(f.string());
   return j;

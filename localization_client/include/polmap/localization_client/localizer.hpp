@@ -147,6 +147,22 @@ struct LocalizerConfig {
   double prediction_sigma_yaw_per_m = 0.002;
 };
 
+/// CPU time (thread CPU clock) of each stage of process() calls, seconds. Per call in
+/// LocalizationOutput; sums of many calls give a per-stage budget.
+struct StageCpuTimes {
+  double egomotion_s = 0.0;   ///< ego-motion estimate and odometry
+  double gridmap_s = 0.0;     ///< sliding-window gridmap update (add and expire)
+  double points_s = 0.0;      ///< pCFAR point candidates
+  double lines_s = 0.0;       ///< line candidates
+  double clustering_s = 0.0;  ///< local-map clustering of the candidates
+  double tiles_s = 0.0;       ///< map tiles around the pose (conversion, landmark index)
+  double matching_s = 0.0;    ///< local map to map landmarks (and the relocalization check)
+  double smoothing_s = 0.0;   ///< association smoothing and graph bookkeeping
+  double graph_s = 0.0;       ///< graph solve and covariance
+  double total_s = 0.0;       ///< the whole call
+  StageCpuTimes& operator+=(const StageCpuTimes& o);
+};
+
 /// Output of one process() call.
 struct LocalizationOutput {
   enum class Status { Initializing, Tracking, Degraded, Lost };
@@ -169,6 +185,7 @@ struct LocalizationOutput {
   double processing_time_s = 0.0;    ///< whole process() call (wall time)
   double extraction_time_s = 0.0;    ///< candidate extraction (wall time), if extracted
   double matching_time_s = 0.0;      ///< local map + tiles + matching (wall time)
+  StageCpuTimes cpu;                 ///< CPU time of this call by stage
   int candidates = 0;                ///< point candidates extracted at this frame
   int line_candidates = 0;           ///< line candidates extracted at this frame
   int local_point_clusters = 0;

@@ -97,6 +97,9 @@ struct TileFetcherStats {
   std::uint64_t map_version = 0;  ///< newest X-Polmap-Map-Version seen (0: none)
   bool server_reachable = false;  ///< last request reached the server
   std::size_t queued = 0;
+  /// CPU time of the fetch worker thread (requests, decoding, cache files), seconds:
+  /// a localizer's cost includes it.
+  double worker_cpu_s = 0.0;
 };
 
 class TileFetcher final : public TileSource {

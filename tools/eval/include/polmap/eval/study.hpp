@@ -196,7 +196,11 @@ struct StudyDriveResult {
   double realtime_factor = 0.0;       ///< drive time / localizer CPU time
   double realtime_factor_wall = 0.0;  ///< drive time / localizer wall time
   /// Per process() call, thread CPU time.
-  double frame_mean_ms = 0.0, frame_p95_ms = 0.0, frame_max_ms = 0.0;
+  double frame_mean_ms = 0.0, frame_p95_ms = 0.0, frame_p99_ms = 0.0, frame_max_ms = 0.0;
+  /// CPU time by stage summed over the drive (stage_budget.hpp), and that of helper
+  /// threads (the tile fetcher's worker with --http), included in localizer_cpu_s.
+  loc::StageCpuTimes stage_cpu;
+  double helper_threads_cpu_s = 0.0;
   /// Per extraction (every extract_every_n_cycles cycles), wall time as the
   /// localizer reports it: candidate extraction, and local map + tiles + matching.
   double extraction_mean_ms = 0.0, matching_mean_ms = 0.0;

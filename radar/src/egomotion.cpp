@@ -88,19 +88,33 @@ class Ransac {
   /// Scores hypothesis (v, w) over all augmented copies: a copy is an inlier
   /// when |v_r − h·m| < thr·σ_i/σ_vr. Copies of one detection are 2·v_ua
   /// apart, so at most one copy per detection can be an inlier.
-  void score(Hypothesis& h) const {
+  void score(Hypothesis& h) const { score(h, -1); }
+
+  /// As score(h), but gives up (h.inliers = −1) as soon as h can no longer reach
+  /// `to_beat` inliers: the remaining copies could not make up the difference, so
+  /// better(h, best) would be false anyway. Checked per block of copies.
+  void score(Hypothesis& h, int to_beat) const {
     const std::size_t n = p_.a_vr.size();
     const double v = h.v, w = h.w;
+    constexpr std::size_t kBlock = 64;
     int inl = 0;
     double cost = 0.0;
-    for (std::size_t j = 0; j < n; ++j) {
-      const double r = p_.a_vr[j] - (p_.a_h0[j] * v + p_.a_h1[j] * w);
-      const double d = p_.a_g0[j] * v + p_.a_g1[j] * w;
-      const double t2 = thr2_ * (1.0 + az2_ * d * d + p_.a_ext[j]);
-      const double q = r * r / t2;
-      const bool in = q < 1.0;
-      inl += in ? 1 : 0;
-      cost += in ? q : 0.0;
+    for (std::size_t j0 = 0; j0 < n; j0 += kBlock) {
+      const std::size_t j1 = std::min(n, j0 + kBlock);
+      for (std::size_t j = j0; j < j1; ++j) {
+        const double r = p_.a_vr[j] - (p_.a_h0[j] * v + p_.a_h1[j] * w);
+        const double d = p_.a_g0[j] * v + p_.a_g1[j] * w;
+        const double t2 = thr2_ * (1.0 + az2_ * d * d + p_.a_ext[j]);
+        const double q = r * r / t2;
+        const bool in = q < 1.0;
+        inl += in ? 1 : 0;
+        cost += in ? q : 0.0;
+      }
+      if (inl + static_cast<std::int64_t>(n - j1) < to_beat) {
+        h.inliers = -1;
+        h.cost = std::numeric_limits<double>::infinity();
+        return;
+      }
     }
     h.inliers = inl;
     h.cost = cost - inl;  // = Σ_in (q − 1): lower is better among equal counts
@@ -146,7 +160,7 @@ class Ransac {
       h.w = (a0 * p_.a_vr[jb] - b0 * p_.a_vr[ja]) / det;
       if (!box.contains(h.v, h.w)) continue;
       ++iterations;
-      score(h);
+      score(h, best.inliers);
       if (better(h, best)) {
         best = h;
         const double frac = static_cast<double>(best.inliers) / static_cast<double>(pool.size());

@@ -110,7 +110,7 @@ DriveManifest prepare_manifest(DriveManifest m, const PackageWriteOptions& optio
   const std::string frame_proj = tiles::LocalFrame(m.origin).proj_string();
   if (m.crs_proj.empty()) {
     m.crs_proj = frame_proj;
-  } else if (!same_crs(m.crs_proj, frame_proj)) {
+  } else if (!is_local_frame_proj(m.crs_proj, m.origin)) {
     throw ValidationError("write_drive_package: manifest.crs_proj '" + m.crs_proj +
                           "' is not the LocalFrame of manifest.origin");
   }

@@ -3,9 +3,12 @@
 #include <ogr_spatialref.h>
 
 #include <algorithm>
+#include <charconv>
 #include <cmath>
 #include <cstring>
+#include <map>
 #include <mutex>
+#include <set>
 
 #include "package_internal.hpp"
 #include "polmap/schema/errors.hpp"
@@ -97,12 +100,39 @@ ScopedGdalConfig::~ScopedGdalConfig() {
   CPLSetThreadLocalConfigOption(key_.c_str(), had_old_ ? old_.c_str() : nullptr);
 }
 
-bool same_crs(const std::string& a, const std::string& b) {
-  ensure_gdal();
-  OGRSpatialReference sa, sb;
-  if (sa.SetFromUserInput(a.c_str()) != OGRERR_NONE) return false;
-  if (sb.SetFromUserInput(b.c_str()) != OGRERR_NONE) return false;
-  return sa.IsSame(&sb) != 0;
+bool is_local_frame_proj(std::string_view proj, const GeoPoint& origin) {
+  if (proj.size() > 512) return false;
+  // The terms of LocalFrame::proj_string(); lat_0/lon_0 are compared as numbers.
+  std::map<std::string, std::string, std::less<>> want{
+      {"proj", "tmerc"}, {"lat_0", ""},      {"lon_0", ""},  {"k", "1"},     {"x_0", "0"},
+      {"y_0", "0"},      {"ellps", "WGS84"}, {"units", "m"}, {"no_defs", ""}};
+  std::set<std::string, std::less<>> seen;
+  std::size_t i = 0;
+  while (i < proj.size()) {
+    if (proj[i] == ' ') {
+      ++i;
+      continue;
+    }
+    const std::size_t end = std::min(proj.find(' ', i), proj.size());
+    const std::string_view term = proj.substr(i, end - i);
+    i = end;
+    if (term.size() < 2 || term[0] != '+') return false;
+    const std::size_t eq = term.find('=');
+    const std::string_view key = term.substr(1, eq == std::string_view::npos ? term.npos : eq - 1);
+    const std::string_view value = eq == std::string_view::npos ? "" : term.substr(eq + 1);
+    const auto it = want.find(key);
+    if (it == want.end() || !seen.insert(std::string(key)).second) return false;
+    if (key == "lat_0" || key == "lon_0") {
+      double v = 0.0;
+      const auto [ptr, ec] = std::from_chars(value.data(), value.data() + value.size(), v);
+      if (ec != std::errc() || ptr != value.data() + value.size()) return false;
+      const double expected = key == "lat_0" ? origin.lat_deg : origin.lon_deg;
+      if (!(std::abs(v - expected) <= 1e-9)) return false;
+    } else if (value != it->second || (key == "no_defs") != (eq == std::string_view::npos)) {
+      return false;
+    }
+  }
+  return seen.size() == want.size();
 }
 
 // ------------------------------------------------------------------------ writer

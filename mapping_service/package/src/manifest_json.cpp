@@ -218,7 +218,7 @@ DriveManifest manifest_from_json(const json& j) {
     }
   }
   m.crs_proj = f.string("crs_proj");
-  if (!same_crs(m.crs_proj, tiles::LocalFrame(m.origin).proj_string())) {
+  if (!is_local_frame_proj(m.crs_proj, m.origin)) {
     throw PackageValidationError(
         kManifest, "crs_proj",
         "'" + m.crs_proj + "' is not the drive frame (LocalFrame) of 'origin'");

@@ -251,8 +251,9 @@ GridmapScan validate_gridmap(const std::string& path, const DriveManifest& m,
   const OGRSpatialReference* srs = ds->GetSpatialRef();
   if (srs == nullptr) invalid(kTif, "crs", "missing");
   {
+    // The canonical string of the validated origin, never the manifest's text.
     OGRSpatialReference expected;
-    expected.SetFromUserInput(m.crs_proj.c_str());
+    expected.importFromProj4(tiles::LocalFrame(m.origin).proj_string().c_str());
     if (!srs->IsSame(&expected)) {
       char* proj = nullptr;
       srs->exportToProj4(&proj);

@@ -520,6 +520,14 @@ std::vector<Row> package_rows() {
   add("manifest: 1000000-byte crs_proj",
       with_manifest(tar, [&](json& j) { j["crs_proj"] = std::string(1'000'000, 'c'); }), 422,
       "field 'crs_proj'");
+  // fuzz_package: PROJ's user-input parser searched its database for > 10 s on this name;
+  // crs_proj is now parsed without PROJ. File paths and URLs must not be opened either.
+  for (const char* crs : {"+proj;tmerc +lat_0=35.224 +lon_0=138.8045 +k=1 +x_0=0 +y_0=0 "
+                          "+ellps=WGS84 +units=m +no_defs",
+                          "/etc/passwd", "http://127.0.0.1:9/crs.wkt", "EPSG:4326"}) {
+    add(std::string("manifest: crs_proj '") + crs + "'",
+        with_manifest(tar, [&](json& j) { j["crs_proj"] = crs; }), 422, "field 'crs_proj'");
+  }
   add("manifest: NUL in drive_id",
       with_manifest(tar, [](json& j) { j["drive_id"] = std::string("corpus\0base", 11); }), 422,
       "drive_id");

@@ -4,6 +4,9 @@
 /// API: detail/ headers may change without notice).
 #include <cstdint>
 #include <string>
+#include <string_view>
+
+#include "polmap/schema/geo.hpp"
 
 namespace polmap::mapping::detail {
 
@@ -43,7 +46,11 @@ class ScopedGdalConfig {
   bool had_old_ = false;
 };
 
-/// True if two PROJ/WKT CRS definitions describe the same CRS (OSRIsSame).
-bool same_crs(const std::string& a, const std::string& b);
+/// True if `proj` is the PROJ string of the drive frame at `origin`
+/// (tiles::LocalFrame::proj_string): exactly its +key=value terms, in any order, with
+/// lat_0/lon_0 within 1e-9° of the origin. Parsed here without PROJ: a manifest is
+/// hostile, and PROJ's user-input parser resolves names against its database, reads
+/// files and URLs, and can take seconds on a crafted name (fuzz_package found one).
+bool is_local_frame_proj(std::string_view proj, const GeoPoint& origin);
 
 }  // namespace polmap::mapping::detail

@@ -141,6 +141,7 @@ struct Localizer::Impl {
   double last_assoc_time_s = -std::numeric_limits<double>::infinity();
   double tracking_since_s = 0.0;
   std::uint64_t extractions = 0;
+  std::uint64_t last_lines_extraction = 0;
   int last_point_matches = 0;
 
   // Tiles.
@@ -549,8 +550,11 @@ struct Localizer::Impl {
       const auto t_extract = Clock::now();
       const std::vector<PointCandidate> points = radar::extract_points(gridmap, cfg.points);
       out.cpu.points_s = lap.lap();
-      const bool use_lines = extractions % cfg.lines_every_n_extractions == 0 ||
-                             last_point_matches < cfg.lines_below_point_matches;
+      const bool use_lines =
+          extractions % cfg.lines_every_n_extractions == 0 ||
+          (last_point_matches < cfg.lines_below_point_matches &&
+           extractions >= last_lines_extraction + cfg.lines_min_interval_extractions);
+      if (use_lines) last_lines_extraction = extractions;
       std::vector<LineCandidate> lines;
       if (use_lines) lines = radar::extract_lines(gridmap, cfg.lines);
       out.cpu.lines_s = lap.lap();

@@ -35,8 +35,8 @@ TEST(LocalFrameCrs, RejectsOtherFramesAndHostileText) {
            // The fuzz finding: PROJ took > 10 s resolving this "name".
            std::string("+proj;tmerc +lat_0=35.224000000000 +lon_0=138.804500000000 +k=1 +x_0=0 "
                        "+y_0=0 +ellps=WGS84 +units=m +no_defs"),
-           canonical + " +towgs84=0,0,0",          // extra term
-           canonical + " +k=1",                    // repeated term
+           canonical + " +towgs84=0,0,0",  // extra term
+           canonical + " +k=1",            // repeated term
            "+proj=tmerc +lat_0=35.224 +lon_0=138.8045 +k=1 +x_0=0 +y_0=0 +ellps=WGS84 +units=m",
            "+proj=utm +lat_0=35.224 +lon_0=138.8045 +k=1 +x_0=0 +y_0=0 +ellps=WGS84 +units=m "
            "+no_defs",

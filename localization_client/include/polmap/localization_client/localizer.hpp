@@ -103,6 +103,10 @@ struct LocalizerConfig {
   /// lines_below_point_matches points matched (paper §IV-B: 10th frame / < 5).
   int lines_every_n_extractions = 10;
   int lines_below_point_matches = 5;
+  /// The few-points trigger fires at most every this many extractions: where points
+  /// are few it fires every time, and line extraction (image filters over the whole
+  /// window) then dominates the client's CPU. 2: lines at 1.25 Hz there.
+  int lines_min_interval_extractions = 2;
   /// Map landmarks within this radius of the predicted position are matched
   /// (radar range 80 m + margin for the gate).
   double map_radius_m = 120.0;

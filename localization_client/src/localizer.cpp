@@ -129,6 +129,12 @@ struct Localizer::Impl {
   Pose2 init_last_T_map_odom;
   int reloc_streak = 0;
   Pose2 reloc_last_T_map_odom;
+  /// A relocalization check due at the next frame (see process()).
+  struct PendingRelocalization {
+    std::size_t tracking_point_matches = 0;
+    MatcherConfig matcher;
+  };
+  std::optional<PendingRelocalization> pending_reloc;
 
   // Graph bookkeeping.
   std::optional<SlidingWindowGraph::PoseKey> last_key;
@@ -251,6 +257,7 @@ struct Localizer::Impl {
   // ---------------------------------------------------------------- states
 
   void reset_tracking() {
+    pending_reloc.reset();
     graph.clear();
     point_smoother.clear();
     line_smoother.clear();
@@ -321,7 +328,7 @@ struct Localizer::Impl {
   }
 
   /// Relocalization check (LocalizerConfig): returns true if it re-anchored.
-  bool relocalization_check(const MatchResult& tracking_match, const MatcherConfig& mcfg,
+  bool relocalization_check(std::size_t tracking_point_matches, const MatcherConfig& mcfg,
                             double time_s, const Pose2& T_odom_vehicle) {
     MatchPrior wide;
     wide.T_map_odom = T_map_odom;
@@ -338,8 +345,8 @@ struct Localizer::Impl {
     const bool better =
         r.status == MatchResult::Status::Ok &&
         static_cast<int>(r.points.size()) >= cfg.init_min_point_matches &&
-        r.points.size() >= tracking_match.points.size() +
-                               static_cast<std::size_t>(cfg.relocalization_extra_matches);
+        r.points.size() >=
+            tracking_point_matches + static_cast<std::size_t>(cfg.relocalization_extra_matches);
     const bool distinct = dxy > std::max(1.0, 3.0 * position_sigma_m(pred)) ||
                           dyaw > std::max(0.026, 3.0 * std::sqrt(pred(2, 2)));
     if (!better || !distinct) {
@@ -544,6 +551,15 @@ struct Localizer::Impl {
     const bool extract =
         anchored && T_odom_vehicle && f.sensor_id == last_sensor_id &&
         f.cycle_index % static_cast<std::uint32_t>(cfg.extract_every_n_cycles) == 0;
+    if (pending_reloc && !extract) {
+      const PendingRelocalization p = *pending_reloc;
+      pending_reloc.reset();
+      if (!searching && anchored && T_odom_vehicle &&
+          relocalization_check(p.tracking_point_matches, p.matcher, f.time_s, *T_odom_vehicle)) {
+        out.relocalized = true;
+      }
+      out.cpu.matching_s += lap.lap();
+    }
     if (extract) {
       out.extracted = true;
       ++extractions;
@@ -589,12 +605,12 @@ struct Localizer::Impl {
         out.cpu.smoothing_s += lap.lap();
       } else {
         track(match, f.time_s, *T_odom_vehicle, use_lines, out, lap);
+        // The relocalization check (a wide-gate match, as expensive as an extraction)
+        // runs at the next frame, so that no frame carries both.
         if (cfg.relocalization_every_n_extractions > 0 &&
-            extractions % cfg.relocalization_every_n_extractions == 0 &&
-            relocalization_check(match, mcfg, f.time_s, *T_odom_vehicle)) {
-          out.relocalized = true;
+            extractions % cfg.relocalization_every_n_extractions == 0) {
+          pending_reloc = PendingRelocalization{match.points.size(), mcfg};
         }
-        out.cpu.matching_s += lap.lap();
         status = f.time_s - last_assoc_time_s <= cfg.degraded_after_s ? Status::Tracking
                                                                       : Status::Degraded;
         if (position_sigma_m(predicted_cov()) > cfg.lost_sigma_m ||

@@ -144,7 +144,9 @@ struct LocalizerConfig {
   double init_pose_sigma_xy_m = 0.5;
   double init_pose_sigma_yaw_rad = 0.02;
   /// Relocalization check while tracking: every this many extractions the
-  /// local map is also matched in the wide initial gate. If that finds an
+  /// local map is also matched in the wide initial gate (at the frame after the
+  /// extraction: the check costs about as much as an extraction, and no single
+  /// frame should carry both). If that finds an
   /// unambiguous match with at least relocalization_extra_matches more
   /// associations than the tracking match, away from the current estimate
   /// (> max(1 m, 3σ) or > max(1.5°, 3σ)), twice in a row and agreeing, the

@@ -7,6 +7,7 @@
 #include <limits>
 #include <numbers>
 #include <string>
+#include <type_traits>
 #include <unordered_map>
 
 #include "polmap/radar/polarimetry.hpp"
@@ -205,10 +206,35 @@ struct CovarianceGridmap::Impl {
   virtual std::uint32_t count(int ix, int iy) const = 0;
   virtual void cell_sums(int ix, int iy, cdouble* out) const = 0;
 
+  /// What one window frame did to the map, recorded when it was added, so that its
+  /// removal replays exactly those cells (counts return exactly, sums to rounding)
+  /// without recomputing the footprint geometry and scan conversion.
+  struct FrameOps {
+    struct Cover {
+      std::uint64_t tile = 0;
+      bool inside = false;                    ///< the whole tile was covered (base count)
+      std::array<std::uint64_t, 64> masks{};  ///< partial: per 8×8 block, covered cells
+    };
+    struct Cell {
+      int ix = 0, iy = 0;
+      std::uint32_t product = 0;  ///< offset into products
+    };
+    std::vector<Cover> cover;
+    std::vector<Cell> cells;
+    std::vector<double> products;  ///< per stored bin: its packed k k^H and hit
+    [[nodiscard]] std::size_t bytes() const {
+      return cover.capacity() * sizeof(Cover) + cells.capacity() * sizeof(Cell) +
+             products.capacity() * sizeof(double);
+    }
+  };
+  /// Removes a frame recorded by apply(..., +1, &ops) (window mode only).
+  virtual void unapply(const FrameOps& ops) = 0;
+  virtual void apply_recorded(const PolSpectrum& s, const Pose2& T, FrameOps& ops) = 0;
+
   struct FrameRecord {
     double time_s;
-    Pose2 pose;
-    PolSpectrum spectrum;
+    float noise_sigma;
+    FrameOps ops;
   };
   std::deque<FrameRecord> window;
   double noise_sum = 0.0;
@@ -244,13 +270,65 @@ class ImplT final : public CovarianceGridmap::Impl {
     touched_.clear();
     cover(g, sign);
     scatter(g, s, sign);
-    if (sign < 0) {
-      for (std::uint64_t k : touched_) {
-        auto it = tiles_.find(k);
-        if (it != tiles_.end() && it->second->touch == 0) tiles_.erase(it);
-      }
-      cache_tile_ = nullptr;  // may point at an erased tile
+    if (sign < 0) free_untouched();
+  }
+
+  void apply_recorded(const PolSpectrum& s, const Pose2& T_frame_sensor, FrameOps& ops) override {
+    if constexpr (std::is_same_v<T, double>) {
+      const Geometry g = make_geometry(s, T_frame_sensor);
+      touched_.clear();
+      record_ = &ops;
+      cover(g, +1);
+      scatter(g, s, +1);
+      record_ = nullptr;
+    } else {
+      throw ContractViolation("CovarianceGridmap: recorded frames need double sums");
     }
+  }
+
+  void unapply(const FrameOps& ops) override {
+    if constexpr (std::is_same_v<T, double>) {
+      touched_.clear();
+      for (const FrameOps::Cover& c : ops.cover) {
+        Tile<T>& t = tile(key_tx(c.tile), key_ty(c.tile));
+        t.touch -= 1;
+        touched_.push_back(c.tile);
+        if (c.inside) {
+          t.base -= 1;
+          continue;
+        }
+        t.partial -= 1;
+        for (int b = 0; b < kBlocksPerSide * kBlocksPerSide; ++b) {
+          if (c.masks[b] == 0) continue;
+          const int row0 = (b / kBlocksPerSide) * kB, col0 = (b % kBlocksPerSide) * kB;
+          if (t.n32) {
+            count_block(t.n32.get(), row0, col0, c.masks[b], -1);
+          } else {
+            count_block(t.n16.get(), row0, col0, c.masks[b], -1);
+          }
+        }
+      }
+      for (const FrameOps::Cell& c : ops.cells) {
+        Tile<T>& t = tile(c.ix >> 6, c.iy >> 6);
+        const int local = local_index(c.ix, c.iy);
+        T* sums = t.block(block_of(local), stride_) + cell_in_block(local) * stride_;
+        const double* p = ops.products.data() + c.product;
+        // s − p equals s + (−p): the same value the re-applied negative frame adds.
+        for (int k = 0; k < stride_; ++k) sums[k] -= p[k];
+      }
+      free_untouched();
+    } else {
+      throw ContractViolation("CovarianceGridmap: recorded frames need double sums");
+    }
+  }
+
+  /// Frees the tiles of touched_ that no frame touches any more.
+  void free_untouched() {
+    for (std::uint64_t k : touched_) {
+      auto it = tiles_.find(k);
+      if (it != tiles_.end() && it->second->touch == 0) tiles_.erase(it);
+    }
+    cache_tile_ = nullptr;  // may point at an erased tile
   }
 
   void add_sample(int ix, int iy, std::span<const cdouble> k) override {
@@ -561,6 +639,7 @@ class ImplT final : public CovarianceGridmap::Impl {
           t.base += static_cast<std::uint32_t>(sign);
           t.touch += static_cast<std::uint32_t>(sign);
           touched_.push_back(tile_key(tx, ty));
+          if (record_ != nullptr) record_->cover.push_back({tile_key(tx, ty), true, {}});
           continue;
         }
         // Partial tile: per block, full mask or per-cell mask.
@@ -587,6 +666,10 @@ class ImplT final : public CovarianceGridmap::Impl {
         Tile<T>& t = tile(tx, ty);
         t.touch += static_cast<std::uint32_t>(sign);
         touched_.push_back(tile_key(tx, ty));
+        if (record_ != nullptr) {
+          record_->cover.push_back({tile_key(tx, ty), false, {}});
+          std::copy(masks.begin(), masks.end(), record_->cover.back().masks.begin());
+        }
         if (sign > 0) {
           t.reserve_partial(1);
         } else {
@@ -701,6 +784,12 @@ class ImplT final : public CovarianceGridmap::Impl {
         p[hit_] = static_cast<T>(sign);
         has_[sc.range_bin - ia] = 1;
       }
+      if constexpr (std::is_same_v<T, double>) {
+        if (record_ != nullptr) {
+          run_products_ = static_cast<std::uint32_t>(record_->products.size());
+          record_->products.insert(record_->products.end(), prod_.begin(), prod_.end());
+        }
+      }
       scan_run(g, beam, ia, ib);
       i = j;
     }
@@ -758,6 +847,10 @@ class ImplT final : public CovarianceGridmap::Impl {
           if (rb < ia || rb > ib) continue;
           if (!has_[rb - ia]) continue;
           accumulate(ix, iy, prod_.data() + static_cast<std::size_t>(rb - ia) * stride_);
+          if (record_ != nullptr) {
+            record_->cells.push_back(
+                {ix, iy, run_products_ + static_cast<std::uint32_t>((rb - ia) * stride_)});
+          }
         }
       }
     }
@@ -777,6 +870,8 @@ class ImplT final : public CovarianceGridmap::Impl {
   std::uint64_t cache_key_ = 0;
   Tile<T>* cache_tile_ = nullptr;
   std::vector<std::uint64_t> touched_;
+  FrameOps* record_ = nullptr;      ///< apply_recorded(): where the frame's operations go
+  std::uint32_t run_products_ = 0;  ///< offset of the current run's products in record_
   std::vector<T> prod_;
   std::vector<int> off_;    ///< scalar offset of layer l within a cell's packed sums
   std::vector<char> cplx_;  ///< layer l is off-diagonal (complex)
@@ -876,29 +971,27 @@ int CovarianceGridmap::q() const { return pol_dimension(cfg_.level); }
 
 void CovarianceGridmap::add(const PolSpectrum& spectrum, const Pose2& T_frame_sensor,
                             double time_s) {
-  if (cfg_.window_s > 0.0) expire_before(time_s - cfg_.window_s);
-  impl_->apply(spectrum, T_frame_sensor, +1);
-  const double sigma2 = double(spectrum.noise_sigma) * spectrum.noise_sigma;
-  impl_->noise_sum += sigma2;
-  impl_->frames += 1;
   if (cfg_.window_s > 0.0) {
-    impl_->window.push_back({time_s, T_frame_sensor, spectrum});
-    impl_->window_bytes += spectrum.cells.size() * sizeof(SpectrumCell) +
-                           spectrum.azimuth_bins_rad.size() * sizeof(float) +
-                           sizeof(Impl::FrameRecord);
+    expire_before(time_s - cfg_.window_s);
+    Impl::FrameRecord rec{time_s, spectrum.noise_sigma, {}};
+    impl_->apply_recorded(spectrum, T_frame_sensor, rec.ops);
+    impl_->window_bytes += rec.ops.bytes() + sizeof(Impl::FrameRecord);
+    impl_->window.push_back(std::move(rec));
+  } else {
+    impl_->apply(spectrum, T_frame_sensor, +1);
   }
+  impl_->noise_sum += double(spectrum.noise_sigma) * spectrum.noise_sigma;
+  impl_->frames += 1;
 }
 
 void CovarianceGridmap::expire_before(double time_s) {
   auto& w = impl_->window;
   while (!w.empty() && w.front().time_s < time_s) {
     const auto& f = w.front();
-    impl_->apply(f.spectrum, f.pose, -1);
-    impl_->noise_sum -= double(f.spectrum.noise_sigma) * f.spectrum.noise_sigma;
+    impl_->unapply(f.ops);
+    impl_->noise_sum -= double(f.noise_sigma) * f.noise_sigma;
     impl_->frames -= 1;
-    impl_->window_bytes -= f.spectrum.cells.size() * sizeof(SpectrumCell) +
-                           f.spectrum.azimuth_bins_rad.size() * sizeof(float) +
-                           sizeof(Impl::FrameRecord);
+    impl_->window_bytes -= f.ops.bytes() + sizeof(Impl::FrameRecord);
     w.pop_front();
   }
   if (w.empty()) impl_->noise_sum = 0.0;  // no drift from repeated subtraction

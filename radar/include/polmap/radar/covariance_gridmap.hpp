@@ -31,11 +31,11 @@
 ///
 /// Modes (paper §III-B3): window_s = 0 keeps the full history (mapping); window_s > 0
 /// keeps only frames with time ≥ newest time − window_s (localization). The window
-/// keeps each frame's spectrum and pose and, when the frame leaves, re-applies it
-/// with negative sign through the same deterministic cell assignment, so counts
-/// return exactly and sums to rounding (double); tiles no frame touches any more
-/// are freed. The window is in frame time order: add() frames with non-decreasing
-/// time_s (sensors interleaved is fine).
+/// records, per frame, the coverage masks and the cells and products it added and,
+/// when the frame leaves, subtracts exactly those (no geometry or scan conversion is
+/// recomputed), so counts return exactly and sums to rounding (double); tiles no
+/// frame touches any more are freed. The window is in frame time order: add() frames with
+/// non-decreasing time_s (sensors interleaved is fine).
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 #include <complex>
@@ -179,7 +179,7 @@ class CovarianceGridmap {
   /// Frames currently accumulated (in window mode: inside the window).
   [[nodiscard]] std::size_t num_frames() const;
   [[nodiscard]] std::size_t num_tiles() const;
-  /// Heap bytes held by tiles (counts and sums) and the window's frame copies.
+  /// Heap bytes held by tiles (counts and sums) and the window's frame records.
   [[nodiscard]] std::size_t memory_bytes() const;
 
   /// Cells of all allocated tiles (empty box when the map is empty).

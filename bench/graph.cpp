@@ -17,6 +17,8 @@
 // Reference on this machine's class of CPU for the same problem (GTSAM, from the issue):
 // iSAM2 (relinearize every 10 steps) 0.78 ms/frame at 0.124 m, BatchFixedLagSmoother
 // (10 s) 10 ms/frame at 0.123 m.
+#include "polmap/localization_client/graph.hpp"
+
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <cmath>
@@ -26,7 +28,6 @@
 #include <random>
 #include <vector>
 
-#include "polmap/localization_client/graph.hpp"
 #include "polmap/util/cpu_time.hpp"
 
 using namespace polmap;
@@ -66,8 +67,8 @@ std::vector<Landmark> landmarks(const std::vector<Truth>& path, std::mt19937_64&
   // Path samples are 1 m apart (10 m/s at 10 Hz): every 4th, both sides.
   for (std::size_t k = 0; k < path.size(); k += 4) {
     for (int side : {-1, 1}) {
-      const Truth& p = path[std::min(path.size() - 1, k + static_cast<std::size_t>(
-                                                          std::max(0.0, 2.0 + jitter(rng))))];
+      const Truth& p = path[std::min(
+          path.size() - 1, k + static_cast<std::size_t>(std::max(0.0, 2.0 + jitter(rng))))];
       const Eigen::Vector2d n(-std::sin(p.yaw), std::cos(p.yaw));
       Landmark l;
       l.true_m = Eigen::Vector2d(p.x, p.y) + side * lateral(rng) * n;

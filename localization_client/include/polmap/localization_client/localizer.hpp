@@ -78,12 +78,14 @@ struct LocalizerConfig {
   /// Sliding-window gridmap (window_s > 0 = localization mode). 2 s: ~20 m of
   /// driving at 10 m/s and 60 sensor frames per cell, long enough for stable
   /// pCFAR statistics, short enough that odometry drift stays below a cell.
-  /// Range bins up to 40 m only: with ~3° beams a return at 40 m is smeared over
-  /// 2 m across the beam (4 m at 80 m), so farther candidates are too imprecise
-  /// to match and to constrain the pose; dropping them cut the cost of a frame by
-  /// ~3× and lowered the position and heading errors on bench_localizer (urban,
-  /// rural, industrial, seed 1; 2026-12-02).
-  radar::GridmapConfig gridmap{0.1, PolLevel::Full, 2.0, 40.0};
+  /// Range bins up to 50 m only: with ~3° beams a return at 50 m is smeared over
+  /// 2.6 m across the beam (4 m at 80 m), so farther candidates are imprecise to
+  /// match and constrain the pose little, while the window's area, hence the cost
+  /// of the gridmap and of every extraction, grows with the range squared. On
+  /// `polmap study` (2026-12-02) 50 m kept urban and rural accuracy at that of the
+  /// full 80 m (40 m lost up to 2× lateral accuracy on single urban drives) at about
+  /// 2.3× less CPU; industrial and the OpenDRIVE world were more accurate.
+  radar::GridmapConfig gridmap{0.1, PolLevel::Full, 2.0, 50.0};
   /// Extraction over the whole window in one chunk (32 tiles = 205 m): a 2 s window
   /// to 40 m fits, and no chunk halos are processed twice. Mapping keeps 8-tile chunks
   /// (bounded memory on long drives).

@@ -19,6 +19,8 @@
 // Degraded frames with v > 0.5 m/s, compute time per frame and per extraction.
 #include "polmap/localization_client/localizer.hpp"
 
+#include <unistd.h>
+
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <chrono>
@@ -56,6 +58,18 @@ bool is_point_landmark(sim::ObjectClass c) {
 bool is_line_landmark(sim::ObjectClass c) {
   using C = sim::ObjectClass;
   return c == C::Curbstone || c == C::GuardrailBeam || c == C::Wall || c == C::RoadBorder;
+}
+
+/// Resident set size of this process, MiB (/proc/self/statm).
+double resident_mb() {
+  std::FILE* f = std::fopen("/proc/self/statm", "r");
+  if (f == nullptr) return 0.0;
+  long pages_total = 0, pages_resident = 0;
+  const int n = std::fscanf(f, "%ld %ld", &pages_total, &pages_resident);
+  std::fclose(f);
+  return n == 2 ? static_cast<double>(pages_resident) * static_cast<double>(sysconf(_SC_PAGESIZE)) /
+                      (1024.0 * 1024.0)
+                : 0.0;
 }
 
 /// Oracle tiles: permanent truth objects in their tiles' frames.
@@ -235,6 +249,10 @@ int main(int argc, char** argv) {
   loc::StageCpuTimes stage_cpu;
   std::vector<double> frame_cpu_ms;
   double t_first = -1.0, t_last = 0.0;
+  // Resident memory every 10 s of driving (the whole process: localizer, simulator
+  // and oracle tiles): flat after the first minute is the client's requirement.
+  std::vector<std::pair<double, double>> rss_mb;
+  double next_rss_s = 0.0;
   while (auto rec = source->next()) {
     const auto* f = std::get_if<SensorFrame>(&*rec);
     if (f == nullptr) continue;  // the localizer never reads GNSS
@@ -243,6 +261,10 @@ int main(int argc, char** argv) {
     frame_cpu_ms.push_back(1e3 * out.cpu.total_s);
     if (t_first < 0) t_first = f->time_s;
     t_last = f->time_s;
+    if (t_last - t_first >= next_rss_s) {
+      rss_mb.emplace_back(t_last - t_first, resident_mb());
+      next_rss_s += 10.0;
+    }
     ++frames;
     proc_sum += out.processing_time_s;
     proc_max = std::max(proc_max, out.processing_time_s);
@@ -311,6 +333,16 @@ int main(int argc, char** argv) {
     j["frame_cpu_p99_ms"] =
         frame_cpu_ms[static_cast<std::size_t>(0.99 * (frame_cpu_ms.size() - 1))];
     j["frame_cpu_max_ms"] = frame_cpu_ms.back();
+  }
+  if (!rss_mb.empty()) {
+    double at_60 = rss_mb.front().second, max_after_60 = 0.0;
+    for (const auto& [t, mb] : rss_mb) {
+      if (t <= 60.0) at_60 = mb;
+      if (t > 60.0) max_after_60 = std::max(max_after_60, mb);
+    }
+    j["rss_mb_at_60s"] = at_60;
+    j["rss_mb_max_after_60s"] = max_after_60;
+    j["rss_mb_end"] = rss_mb.back().second;
   }
   if (t_last > t_first) {
     j["stage_ms_per_s"] = eval::stage_budget_json(stage_cpu, t_last - t_first,

@@ -82,12 +82,13 @@ struct LocalizerConfig {
   /// 2.6 m across the beam (4 m at 80 m), so farther candidates are imprecise to
   /// match and constrain the pose little, while the window's area, hence the cost
   /// of the gridmap and of every extraction, grows with the range squared. On
-  /// `polmap study` (2026-12-02) 50 m kept urban and rural accuracy at that of the
-  /// full 80 m (40 m lost up to 2× lateral accuracy on single urban drives) at about
-  /// 2.3× less CPU; industrial and the OpenDRIVE world were more accurate.
+  /// `polmap study` (2026-12-02, bench/baselines/b1f2c99) 50 m kept urban and rural
+  /// accuracy within 5 % of the full 80 m at b95f220, and industrial and the
+  /// OpenDRIVE world more accurate; 40 m lost up to 2× lateral accuracy on single
+  /// urban drives, and the full range cost ~1.6× the CPU of 55 m (urban, seed 1).
   radar::GridmapConfig gridmap{0.1, PolLevel::Full, 2.0, 50.0};
   /// Extraction over the whole window in one chunk (32 tiles = 205 m): a 2 s window
-  /// to 40 m fits, and no chunk halos are processed twice. Mapping keeps 8-tile chunks
+  /// to 50 m fits, and no chunk halos are processed twice. Mapping keeps 8-tile chunks
   /// (bounded memory on long drives).
   radar::PointExtractorConfig points = with_chunk_tiles(radar::PointExtractorConfig{}, 32);
   radar::LineExtractorConfig lines = with_chunk_tiles(radar::LineExtractorConfig{}, 32);

@@ -57,8 +57,14 @@ int main() try {
   // Localizer with the default configuration over an in-memory tile source.
   loc::InMemoryTileSource source;
   source.put(decoded);
-  loc::Localizer localizer(loc::LocalizerConfig{}, default_front_mounts(), source);
-  check(localizer.config().extract_every_n_cycles == 3, "default localizer config");
+  // The installed headers' defaults (documented in localizer.hpp) and a non-default
+  // value round-trip through the library.
+  loc::LocalizerConfig lcfg;
+  check(lcfg.gridmap.window_s == 2.0 && lcfg.extract_every_n_cycles >= 1,
+        "default localizer config");
+  lcfg.lines_every_n_extractions = 7;
+  loc::Localizer localizer(lcfg, default_front_mounts(), source);
+  check(localizer.config().lines_every_n_extractions == 7, "localizer keeps its config");
   const GeoPoint centre = tiles::tile_center(tile.key);
   localizer.set_initial_pose(GeoPose{centre, 0.0}, 5.0, 0.1);
   check(localizer.map_frame().has_value() &&

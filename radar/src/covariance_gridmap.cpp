@@ -5,6 +5,7 @@
 #include <cmath>
 #include <deque>
 #include <limits>
+#include <map>
 #include <numbers>
 #include <string>
 #include <type_traits>
@@ -1103,6 +1104,26 @@ std::vector<std::array<int, 2>> CovarianceGridmap::tile_indices() const {
   std::vector<std::array<int, 2>> out;
   for (std::uint64_t k : impl_->keys()) out.push_back({key_tx(k), key_ty(k)});
   std::sort(out.begin(), out.end());
+  return out;
+}
+
+std::vector<CovarianceGridmap::PopulatedChunk> CovarianceGridmap::populated_chunks(
+    int chunk_tiles) const {
+  POLMAP_EXPECT(chunk_tiles >= 1);
+  auto floor_div = [](int a, int b) { return a >= 0 ? a / b : -((-a + b - 1) / b); };
+  std::map<std::pair<int, int>, CellBox> boxes;
+  for (const auto& [tx, ty] : tile_indices()) {
+    const CellBox tb{tx * kT, ty * kT, (tx + 1) * kT, (ty + 1) * kT};
+    const auto [it, inserted] =
+        boxes.try_emplace({floor_div(tx, chunk_tiles), floor_div(ty, chunk_tiles)}, tb);
+    if (!inserted) {
+      CellBox& b = it->second;
+      b = CellBox{std::min(b.min_ix, tb.min_ix), std::min(b.min_iy, tb.min_iy),
+                  std::max(b.max_ix, tb.max_ix), std::max(b.max_iy, tb.max_iy)};
+    }
+  }
+  std::vector<PopulatedChunk> out;
+  for (const auto& [key, b] : boxes) out.push_back({key.first, key.second, b});
   return out;
 }
 

@@ -14,8 +14,6 @@
 namespace polmap::radar {
 namespace {
 
-int floor_div(int a, int b) { return a >= 0 ? a / b : -((-a + b - 1) / b); }
-
 double floor_power(const cv::Mat& power, double noise_power, int q,
                    const LineExtractorConfig& cfg) {
   if (noise_power > 0.0) return q * noise_power * std::pow(10.0, cfg.floor_db_over_noise / 10.0);
@@ -408,21 +406,8 @@ std::vector<LineCandidate> extract_lines(const CovarianceGridmap& map,
   // Per chunk, the bounding box of its populated tiles plus the halo: cells outside
   // populated tiles read as the floor (0 dB), where the filters give nothing, so this
   // finds what the whole chunk would; a sliding-window map fills only part of a chunk.
-  std::map<std::pair<int, int>, CellBox> chunks;
-  for (const auto& t : map.tile_indices()) {
-    const CellBox tb{t[0] * kTileSizeCells, t[1] * kTileSizeCells, (t[0] + 1) * kTileSizeCells,
-                     (t[1] + 1) * kTileSizeCells};
-    const auto [it, inserted] = chunks.try_emplace(
-        {floor_div(t[0], cfg.chunk_tiles), floor_div(t[1], cfg.chunk_tiles)}, tb);
-    if (!inserted) {
-      CellBox& b = it->second;
-      b = CellBox{std::min(b.min_ix, tb.min_ix), std::min(b.min_iy, tb.min_iy),
-                  std::max(b.max_ix, tb.max_ix), std::max(b.max_iy, tb.max_iy)};
-    }
-  }
   std::vector<LineCandidate> all;
-  for (const auto& [key, populated] : chunks) {
-    const auto [cx, cy] = key;
+  for (const auto& [cx, cy, populated] : map.populated_chunks(cfg.chunk_tiles)) {
     const CellBox core{cx * chunk_cells, cy * chunk_cells, (cx + 1) * chunk_cells,
                        (cy + 1) * chunk_cells};
     const CellBox box{std::max(core.min_ix, populated.min_ix) - halo,

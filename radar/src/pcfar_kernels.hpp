@@ -24,8 +24,6 @@ namespace polmap::radar::pcfar {
 template <int Q>
 using CMat = Eigen::Matrix<cdouble, Q, Q>;
 
-inline int floor_div(int a, int b) { return a >= 0 ? a / b : -((-a + b - 1) / b); }
-
 /// Clips the cell rectangle [x0, x1) × [y0, y1) to a w × h raster; false if empty.
 inline bool clip_to_raster(int w, int h, int& x0, int& y0, int& x1, int& y1) {
   x0 = std::clamp(x0, 0, w);
@@ -127,6 +125,45 @@ inline std::vector<std::vector<std::pair<int, int>>> strip_offsets(int guard, in
     }
   }
   return strips;
+}
+
+/// Greatest-of line strip (PointExtractorConfig::line_aware) through cell (x, y) of a
+/// w × h raster: of the strips with at least half their cells observed, the one whose
+/// mean trace is highest and above best_tr. layers_at(xx, yy) gives the cell's layers
+/// (`stride` apart) or nullptr when the cell is unobserved. On a find, `best` holds that
+/// strip's plane sums and best_tr its mean trace; returns whether one was found.
+template <int Q, typename LayersAt>
+bool brightest_strip(const std::vector<std::vector<std::pair<int, int>>>& strips,
+                     const PlaneLayout& p, int x, int y, int w, int h, std::size_t stride,
+                     LayersAt&& layers_at, std::vector<double>& strip, std::vector<double>& best,
+                     double& best_tr) {
+  constexpr int L = num_layers(Q);
+  bool found = false;
+  for (const auto& s : strips) {
+    std::fill(strip.begin(), strip.end(), 0.0);
+    for (const auto& [dx, dy] : s) {
+      const int xx = x + dx, yy = y + dy;
+      if (xx < 0 || yy < 0 || xx >= w || yy >= h) continue;
+      const std::complex<float>* v = layers_at(xx, yy);
+      if (v == nullptr) continue;
+      strip[0] += 1.0;
+      for (int l = 0; l < L; ++l) {
+        const std::complex<float> c = v[l * stride];
+        strip[p.re[l]] += c.real();
+        if (p.im[l] >= 0) strip[p.im[l]] += c.imag();
+      }
+    }
+    if (strip[0] < 0.5 * static_cast<double>(s.size())) continue;
+    double tr = 0.0;
+    for (int i = 0; i < Q; ++i) tr += strip[p.re[layer_index(Q, i, i)]];
+    tr /= strip[0];
+    if (tr > best_tr) {
+      best_tr = tr;
+      best = strip;
+      found = true;
+    }
+  }
+  return found;
 }
 
 inline void check_config(const PointExtractorConfig& cfg, double cs, int& guard, int& train) {

@@ -178,29 +178,14 @@ Detection detect(const CovarianceRaster& r, const PointExtractorConfig& cfg, int
     if (cfg.line_aware) {
       // Greatest-of with the brightest line strip through the cell (file comment).
       double best_tr = tr_s;
-      for (const auto& s : strips) {
-        std::fill(strip.begin(), strip.end(), 0.0);
-        for (const auto& [dx, dy] : s) {
-          const int xx = x + dx, yy = y + dy;
-          if (xx < 0 || yy < 0 || xx >= w || yy >= h) continue;
-          const std::size_t j = static_cast<std::size_t>(yy) * w + xx;
-          if (r.count[j] == 0) continue;
-          strip[0] += 1.0;
-          for (int l = 0; l < L; ++l) {
-            const std::complex<float> v = r.layers[l * plane + j];
-            strip[p.re[l]] += v.real();
-            if (p.im[l] >= 0) strip[p.im[l]] += v.imag();
-          }
-        }
-        if (strip[0] < 0.5 * static_cast<double>(s.size())) continue;
-        double tr = 0.0;
-        for (int i = 0; i < Q; ++i) tr += strip[p.re[layer_index(Q, i, i)]];
-        tr /= strip[0];
-        if (tr > best_tr) {
-          best_tr = tr;
-          best = strip;
-          chosen = best.data();
-        }
+      if (pcfar::brightest_strip<Q>(
+              strips, p, x, y, w, h, plane,
+              [&](int xx, int yy) -> const std::complex<float>* {
+                const std::size_t j = static_cast<std::size_t>(yy) * w + xx;
+                return r.count[j] == 0 ? nullptr : r.layers.data() + j;
+              },
+              strip, best, best_tr)) {
+        chosen = best.data();
       }
       if (chosen != sums.data()) {
         if (!(tr_c > th.contrast * best_tr)) {
@@ -252,24 +237,11 @@ std::vector<Chunk> chunks_of(const CovarianceGridmap& map, const PointExtractorC
   const double cs = map.cell_size_m();
   const int chunk_cells = cfg.chunk_tiles * kTileSizeCells;
   const int halo = static_cast<int>(std::ceil((cfg.training_radius_m + cfg.max_extent_m) / cs)) + 2;
-  std::map<std::pair<int, int>, CellBox> populated;
-  for (const auto& t : map.tile_indices()) {
-    const CellBox tb{t[0] * kTileSizeCells, t[1] * kTileSizeCells, (t[0] + 1) * kTileSizeCells,
-                     (t[1] + 1) * kTileSizeCells};
-    const auto key =
-        std::make_pair(floor_div(t[0], cfg.chunk_tiles), floor_div(t[1], cfg.chunk_tiles));
-    const auto [it, inserted] = populated.try_emplace(key, tb);
-    if (!inserted) {
-      CellBox& b = it->second;
-      b = CellBox{std::min(b.min_ix, tb.min_ix), std::min(b.min_iy, tb.min_iy),
-                  std::max(b.max_ix, tb.max_ix), std::max(b.max_iy, tb.max_iy)};
-    }
-  }
   std::vector<Chunk> out;
-  for (const auto& [key, b] : populated) {
-    const auto [cx, cy] = key;
-    out.push_back({CellBox{cx * chunk_cells, cy * chunk_cells, (cx + 1) * chunk_cells,
-                           (cy + 1) * chunk_cells},
+  for (const auto& c : map.populated_chunks(cfg.chunk_tiles)) {
+    const CellBox& b = c.populated;
+    out.push_back({CellBox{c.chunk_x * chunk_cells, c.chunk_y * chunk_cells,
+                           (c.chunk_x + 1) * chunk_cells, (c.chunk_y + 1) * chunk_cells},
                    CellBox{b.min_ix - halo, b.min_iy - halo, b.max_ix + halo, b.max_iy + halo}});
   }
   return out;

@@ -192,28 +192,14 @@ std::vector<PointCandidate> stream(const CovarianceGridmap& map, const Chunk& ch
       const double* chosen = sums.data();
       if (cfg.line_aware) {
         double best_tr = tr_s;
-        for (const auto& st : strips) {
-          std::fill(strip.begin(), strip.end(), 0.0);
-          for (const auto& [dx, dy] : st) {
-            const int xx = x + dx, yy = y + dy;
-            if (xx < 0 || yy < 0 || xx >= w || yy >= h) continue;
-            if (count.row(yy)[xx] == 0) continue;
-            strip[0] += 1.0;
-            const std::complex<float>* v = layers.row(yy) + static_cast<std::size_t>(xx) * L;
-            for (int l = 0; l < L; ++l) {
-              strip[layout.re[l]] += v[l].real();
-              if (layout.im[l] >= 0) strip[layout.im[l]] += v[l].imag();
-            }
-          }
-          if (strip[0] < 0.5 * static_cast<double>(st.size())) continue;
-          double tr = 0.0;
-          for (int i = 0; i < Q; ++i) tr += strip[layout.re[layer_index(Q, i, i)]];
-          tr /= strip[0];
-          if (tr > best_tr) {
-            best_tr = tr;
-            best = strip;
-            chosen = best.data();
-          }
+        if (brightest_strip<Q>(
+                strips, layout, x, y, w, h, 1,
+                [&](int xx, int yy) -> const std::complex<float>* {
+                  return count.row(yy)[xx] == 0 ? nullptr
+                                                : layers.row(yy) + static_cast<std::size_t>(xx) * L;
+                },
+                strip, best, best_tr)) {
+          chosen = best.data();
         }
         if (chosen != sums.data()) {
           if (!(tr_c > th.contrast * best_tr)) continue;

@@ -203,6 +203,15 @@ class CovarianceGridmap {
   void for_each_tile(const std::function<void(const CovarianceTileView&)>& fn) const;
   /// Tile indices (tile_x, tile_y) of allocated tiles, sorted.
   [[nodiscard]] std::vector<std::array<int, 2>> tile_indices() const;
+  /// Chunks of chunk_tiles × chunk_tiles tiles that hold allocated tiles, each with the
+  /// bounding box of its allocated tiles (cells outside read as N = 0), ordered by
+  /// (chunk_x, chunk_y). Chunk (cx, cy) covers tiles [cx·chunk_tiles, (cx+1)·chunk_tiles).
+  struct PopulatedChunk {
+    int chunk_x = 0;
+    int chunk_y = 0;
+    CellBox populated;
+  };
+  [[nodiscard]] std::vector<PopulatedChunk> populated_chunks(int chunk_tiles) const;
   /// Dense copy of a box (cells outside allocated tiles read as N = 0, C = 0).
   [[nodiscard]] CovarianceRaster raster(const CellBox& box) const;
   /// One row of cells [ix0, ix1) at iy, with exactly the values raster() writes: N,

@@ -203,6 +203,9 @@ struct CovarianceGridmap::Impl {
   virtual void read_tile_row(int tx, int iy, int ix0, int ix1, std::uint32_t* count,
                              std::uint32_t* hits, std::complex<float>* layers) const = 0;
   /// Writes trace(C) of one tile (kT² floats, 0 where N = 0); false if the tile does not exist.
+  /// CovarianceGridmap::read_row_power for the cells of one tile (ix0..ix1 inside tile tx).
+  virtual void read_tile_row_power(int tx, int iy, int ix0, int ix1, std::uint32_t* count,
+                                   std::uint32_t* hits, float* power) const = 0;
   virtual bool materialize_trace(int tx, int ty, float* trace, double min_persistence) const = 0;
   virtual std::uint32_t count(int ix, int iy) const = 0;
   virtual void cell_sums(int ix, int iy, cdouble* out) const = 0;
@@ -505,6 +508,44 @@ class ImplT final : public CovarianceGridmap::Impl {
             out[l] = std::complex<float>(static_cast<float>(re), static_cast<float>(im));
           }
           // The hit sums are whole numbers (±1 per look): rounding is lround's.
+          const T h = cell[hit_];
+          hits[i] = h > T(0) ? static_cast<std::uint32_t>(h + T(0.5)) : 0U;
+        }
+      }
+      ix = block_end;
+    }
+  }
+
+  void read_tile_row_power(int tx, int iy, int ix0, int ix1, std::uint32_t* count,
+                           std::uint32_t* hits, float* power) const override {
+    const int n_cells = ix1 - ix0;
+    std::fill(power, power + n_cells, 0.0F);
+    std::fill(hits, hits + n_cells, 0U);
+    auto it = tiles_.find(tile_key(tx, iy >> 6));
+    if (it == tiles_.end()) {
+      std::fill(count, count + n_cells, 0U);
+      return;
+    }
+    const Tile<T>& t = *it->second;
+    const int local0 = (iy & (kT - 1)) * kT;
+    for (int ix = ix0; ix < ix1; ++ix) count[ix - ix0] = t.count(local0 + (ix & (kT - 1)));
+    int diag[3] = {0, 0, 0};
+    for (int i = 0; i < q_; ++i) diag[i] = off_[layer_index(q_, i, i)];
+    for (int ix = ix0; ix < ix1;) {
+      const int col = ix & (kT - 1);
+      const int block_end = std::min(ix1, ix + (kD - col % kD));
+      const T* blk = t.blocks[block_of(local0 + col)].get();
+      if (blk != nullptr) {
+        const T* cell = blk + cell_in_block(local0 + col) * stride_;
+        for (int x = ix; x < block_end; ++x, cell += stride_) {
+          const int i = x - ix0;
+          const std::uint32_t n = count[i];
+          if (n == 0) continue;
+          // read_tile_row's arithmetic per diagonal layer, summed as cell_power sums.
+          const T inv = T(1) / static_cast<T>(n);
+          float p = 0.0F;
+          for (int d = 0; d < q_; ++d) p += static_cast<float>(cell[diag[d]] * inv);
+          power[i] = p;
           const T h = cell[hit_];
           hits[i] = h > T(0) ? static_cast<std::uint32_t>(h + T(0.5)) : 0U;
         }
@@ -1160,6 +1201,21 @@ void CovarianceGridmap::read_row(int iy, int ix0, int ix1, std::span<std::uint32
     const int end = std::min(ix1, (tx + 1) * kT);
     const auto i = static_cast<std::size_t>(ix - ix0);
     impl_->read_tile_row(tx, iy, ix, end, count.data() + i, hits.data() + i, layers.data() + i * L);
+    ix = end;
+  }
+}
+
+void CovarianceGridmap::read_row_power(int iy, int ix0, int ix1, std::span<std::uint32_t> count,
+                                       std::span<std::uint32_t> hits,
+                                       std::span<float> power) const {
+  const auto n = static_cast<std::size_t>(std::max(0, ix1 - ix0));
+  POLMAP_EXPECT(count.size() >= n && hits.size() >= n && power.size() >= n);
+  for (int ix = ix0; ix < ix1;) {
+    const int tx = ix >> 6;
+    const int end = std::min(ix1, (tx + 1) * kT);
+    const auto i = static_cast<std::size_t>(ix - ix0);
+    impl_->read_tile_row_power(tx, iy, ix, end, count.data() + i, hits.data() + i,
+                               power.data() + i);
     ix = end;
   }
 }

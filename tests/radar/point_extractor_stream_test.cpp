@@ -2,7 +2,8 @@
 // straightforward version (extract_points_reference: one dense raster per chunk): the
 // same candidates, bit for bit, on sliding-window maps of a moving sensor over static
 // points and speckle (three polarimetric levels), on mapping-mode maps spread over
-// several chunks, and read_row() returns exactly what raster() holds.
+// several chunks, and read_row() returns exactly what raster() holds (read_row_power()
+// exactly the trace of read_row()).
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -152,6 +153,30 @@ TEST(CovarianceGridmapReadRow, EqualsRaster) {
     }
   }
   EXPECT_GT(observed, 1000U);
+}
+
+TEST(CovarianceGridmapReadRowPower, EqualsTraceOfReadRow) {
+  // The first pass of the streaming pCFAR must see exactly the power the test uses.
+  const CovarianceGridmap map = sliding_window_map(PolLevel::Full, 9);
+  const CellBox b = map.bounds();
+  const int w = b.width() + 10, L = num_layers(3);
+  std::vector<std::uint32_t> count(w), hits(w), count2(w), hits2(w);
+  std::vector<std::complex<float>> layers(static_cast<std::size_t>(w) * L);
+  std::vector<float> power(w);
+  std::size_t bright = 0;
+  for (int iy = b.min_iy - 5; iy < b.max_iy + 5; iy += 2) {
+    map.read_row(iy, b.min_ix - 5, b.max_ix + 5, count, hits, layers);
+    map.read_row_power(iy, b.min_ix - 5, b.max_ix + 5, count2, hits2, power);
+    for (int x = 0; x < w; ++x) {
+      ASSERT_EQ(count2[x], count[x]);
+      ASSERT_EQ(hits2[x], hits[x]);
+      float p = 0.0F;
+      for (int i = 0; i < 3; ++i) p += layers[x * L + layer_index(3, i, i)].real();
+      ASSERT_EQ(power[x], p) << iy << " " << x;
+      if (p > 30.0 * map.noise_power()) ++bright;  // above the 10 dB floor (q = 3)
+    }
+  }
+  EXPECT_GT(bright, 20U);  // the scene's points, not only empty cells
 }
 
 }  // namespace

@@ -221,6 +221,12 @@ class CovarianceGridmap {
   /// spans must hold ix1 − ix0 cells (layers: L per cell).
   void read_row(int iy, int ix0, int ix1, std::span<std::uint32_t> count,
                 std::span<std::uint32_t> hits, std::span<std::complex<float>> layers) const;
+  /// N, hits and trace(C) of one row of cells [ix0, ix1) at iy: the same N and hits as
+  /// read_row() and, bit for bit, the float trace a detector sums from its layers (the
+  /// diagonal layers in order), without converting the off-diagonal ones. A cheap first
+  /// pass for detectors that test only cells above a power floor.
+  void read_row_power(int iy, int ix0, int ix1, std::span<std::uint32_t> count,
+                      std::span<std::uint32_t> hits, std::span<float> power) const;
   /// trace(C) of a box as CV_32F (linear power); row r ↔ iy = box.min_iy + r (south at row 0).
   /// Cells with persistence hits/N below min_persistence read as 0.
   [[nodiscard]] cv::Mat trace_image(const CellBox& box, double min_persistence = 0.0) const;

@@ -203,9 +203,10 @@ struct CovarianceGridmap::Impl {
   virtual void read_tile_row(int tx, int iy, int ix0, int ix1, std::uint32_t* count,
                              std::uint32_t* hits, std::complex<float>* layers) const = 0;
   /// Writes trace(C) of one tile (kT² floats, 0 where N = 0); false if the tile does not exist.
-  /// CovarianceGridmap::read_row_power for the cells of one tile (ix0..ix1 inside tile tx).
-  virtual void read_tile_row_power(int tx, int iy, int ix0, int ix1, std::uint32_t* count,
-                                   std::uint32_t* hits, float* power) const = 0;
+  /// CovarianceGridmap::cells_above for the cells of tile (tx, ty) inside box.
+  virtual void cells_above(int tx, int ty, const CellBox& box, double min_power,
+                           double min_persistence, std::uint32_t min_count,
+                           std::vector<std::array<int, 2>>& out) const = 0;
   virtual bool materialize_trace(int tx, int ty, float* trace, double min_persistence) const = 0;
   virtual std::uint32_t count(int ix, int iy) const = 0;
   virtual void cell_sums(int ix, int iy, cdouble* out) const = 0;
@@ -516,41 +517,39 @@ class ImplT final : public CovarianceGridmap::Impl {
     }
   }
 
-  void read_tile_row_power(int tx, int iy, int ix0, int ix1, std::uint32_t* count,
-                           std::uint32_t* hits, float* power) const override {
-    const int n_cells = ix1 - ix0;
-    std::fill(power, power + n_cells, 0.0F);
-    std::fill(hits, hits + n_cells, 0U);
-    auto it = tiles_.find(tile_key(tx, iy >> 6));
-    if (it == tiles_.end()) {
-      std::fill(count, count + n_cells, 0U);
-      return;
-    }
+  void cells_above(int tx, int ty, const CellBox& box, double min_power, double min_persistence,
+                   std::uint32_t min_count, std::vector<std::array<int, 2>>& out) const override {
+    auto it = tiles_.find(tile_key(tx, ty));
+    if (it == tiles_.end()) return;
     const Tile<T>& t = *it->second;
-    const int local0 = (iy & (kT - 1)) * kT;
-    for (int ix = ix0; ix < ix1; ++ix) count[ix - ix0] = t.count(local0 + (ix & (kT - 1)));
     int diag[3] = {0, 0, 0};
     for (int i = 0; i < q_; ++i) diag[i] = off_[layer_index(q_, i, i)];
-    for (int ix = ix0; ix < ix1;) {
-      const int col = ix & (kT - 1);
-      const int block_end = std::min(ix1, ix + (kD - col % kD));
-      const T* blk = t.blocks[block_of(local0 + col)].get();
-      if (blk != nullptr) {
-        const T* cell = blk + cell_in_block(local0 + col) * stride_;
-        for (int x = ix; x < block_end; ++x, cell += stride_) {
-          const int i = x - ix0;
-          const std::uint32_t n = count[i];
-          if (n == 0) continue;
-          // read_tile_row's arithmetic per diagonal layer, summed as cell_power sums.
-          const T inv = T(1) / static_cast<T>(n);
-          float p = 0.0F;
-          for (int d = 0; d < q_; ++d) p += static_cast<float>(cell[diag[d]] * inv);
-          power[i] = p;
-          const T h = cell[hit_];
-          hits[i] = h > T(0) ? static_cast<std::uint32_t>(h + T(0.5)) : 0U;
-        }
+    // trace = Σ_d sum_d / N rounded per term to float: above min_power only if the exact
+    // sum is above min_power·N within float rounding (≈ 1e-7 relative).
+    const T floor = static_cast<T>(min_power * (1.0 - 1e-6));
+    for (int b = 0; b < kDataBlocksPerSide * kDataBlocksPerSide; ++b) {
+      const T* blk = t.blocks[b].get();
+      if (!blk) continue;  // no stored bin: trace 0
+      const int row0 = (b / kDataBlocksPerSide) * kD, col0 = (b % kDataBlocksPerSide) * kD;
+      const int ix0 = tx * kT + col0, iy0 = ty * kT + row0;
+      if (ix0 + kD <= box.min_ix || ix0 >= box.max_ix || iy0 + kD <= box.min_iy ||
+          iy0 >= box.max_iy) {
+        continue;
       }
-      ix = block_end;
+      for (int c = 0; c < kCellsPerDataBlock; ++c) {
+        const int local = (row0 + c / kD) * kT + col0 + c % kD;
+        const std::uint32_t n = t.count(local);
+        if (n == 0 || n < min_count) continue;
+        const T* cell = blk + c * stride_;
+        // read_row's hits are round(h); h + ½ ≥ p·N keeps every cell it lets pass.
+        if (cell[hit_] + T(0.5) < static_cast<T>(min_persistence * n)) continue;
+        T sum = 0;
+        for (int d = 0; d < q_; ++d) sum += cell[diag[d]];
+        if (!(sum > floor * static_cast<T>(n))) continue;
+        const int ix = ix0 + c % kD, iy = iy0 + c / kD;
+        if (ix < box.min_ix || ix >= box.max_ix || iy < box.min_iy || iy >= box.max_iy) continue;
+        out.push_back({ix, iy});
+      }
     }
   }
 
@@ -1205,19 +1204,19 @@ void CovarianceGridmap::read_row(int iy, int ix0, int ix1, std::span<std::uint32
   }
 }
 
-void CovarianceGridmap::read_row_power(int iy, int ix0, int ix1, std::span<std::uint32_t> count,
-                                       std::span<std::uint32_t> hits,
-                                       std::span<float> power) const {
-  const auto n = static_cast<std::size_t>(std::max(0, ix1 - ix0));
-  POLMAP_EXPECT(count.size() >= n && hits.size() >= n && power.size() >= n);
-  for (int ix = ix0; ix < ix1;) {
-    const int tx = ix >> 6;
-    const int end = std::min(ix1, (tx + 1) * kT);
-    const auto i = static_cast<std::size_t>(ix - ix0);
-    impl_->read_tile_row_power(tx, iy, ix, end, count.data() + i, hits.data() + i,
-                               power.data() + i);
-    ix = end;
+std::vector<std::array<int, 2>> CovarianceGridmap::cells_above(const CellBox& box, double min_power,
+                                                               double min_persistence,
+                                                               std::uint32_t min_count) const {
+  std::vector<std::array<int, 2>> out;
+  if (box.empty()) return out;
+  const int tx0 = box.min_ix >> 6, tx1 = (box.max_ix - 1) >> 6;
+  const int ty0 = box.min_iy >> 6, ty1 = (box.max_iy - 1) >> 6;
+  for (int ty = ty0; ty <= ty1; ++ty) {
+    for (int tx = tx0; tx <= tx1; ++tx) {
+      impl_->cells_above(tx, ty, box, min_power, min_persistence, min_count, out);
+    }
   }
+  return out;
 }
 
 cv::Mat CovarianceGridmap::trace_image(const CellBox& box, double min_persistence) const {

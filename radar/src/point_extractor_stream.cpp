@@ -9,8 +9,8 @@
 // reference forms it, so the tests, statistics and candidates are the same bit for bit;
 // connected components of the (few) detections come from a union-find instead of a label
 // image. Only the regions that can hold a detection are streamed (Active, below): a
-// cheap first pass (CovarianceGridmap::read_row_power) finds the cells above the power
-// floor, and the statistics are formed around them only.
+// cheap first pass over the stored bins (CovarianceGridmap::cells_above) finds the cells
+// above the power floor, and the statistics are formed around them only.
 #include <cstdint>
 #include <numeric>
 #include <unordered_map>
@@ -99,22 +99,10 @@ Active active_regions(const CovarianceGridmap& map, const CellBox& box,
   const int bw = (w + B - 1) / B, bh = (h + B - 1) / B;
   a.blocks_w = bw;
   std::vector<std::uint8_t> seed(static_cast<std::size_t>(bw) * bh, 0);
-  thread_local std::vector<std::uint32_t> count, hits;
-  thread_local std::vector<float> power;
-  count.resize(w);
-  hits.resize(w);
-  power.resize(w);
-  for (int y = 0; y < h; ++y) {
-    map.read_row_power(box.min_iy + y, box.min_ix, box.max_ix, count, hits, power);
-    std::uint8_t* srow = seed.data() + static_cast<std::size_t>(y / B) * bw;
-    for (int x = 0; x < w; ++x) {
-      // The test's own first three conditions (stream(), below).
-      if (count[x] < th.min_count || hits[x] < cfg.min_persistence * count[x] ||
-          !(power[x] > th.min_power)) {
-        continue;
-      }
-      srow[x / B] = 1;
-    }
+  // The test's own first three conditions (stream(), below), on a superset.
+  for (const auto& [ix, iy] :
+       map.cells_above(box, th.min_power, cfg.min_persistence, th.min_count)) {
+    seed[static_cast<std::size_t>((iy - box.min_iy) / B) * bw + (ix - box.min_ix) / B] = 1;
   }
   // Dilation by the training radius (in blocks), then 8-connected groups by flood fill.
   const int R = (train + B - 1) / B;

@@ -221,12 +221,15 @@ class CovarianceGridmap {
   /// spans must hold ix1 − ix0 cells (layers: L per cell).
   void read_row(int iy, int ix0, int ix1, std::span<std::uint32_t> count,
                 std::span<std::uint32_t> hits, std::span<std::complex<float>> layers) const;
-  /// N, hits and trace(C) of one row of cells [ix0, ix1) at iy: the same N and hits as
-  /// read_row() and, bit for bit, the float trace a detector sums from its layers (the
-  /// diagonal layers in order), without converting the off-diagonal ones. A cheap first
-  /// pass for detectors that test only cells above a power floor.
-  void read_row_power(int iy, int ix0, int ix1, std::span<std::uint32_t> count,
-                      std::span<std::uint32_t> hits, std::span<float> power) const;
+  /// Cells of `box` that may pass a detector's first test: N ≥ min_count, persistence
+  /// hits ≥ min_persistence·N and trace(C) > min_power, as read_row() gives them. A
+  /// superset (the test is made on the sums before the float conversion, with a margin of
+  /// 1e-6 relative), each cell once, in no particular order. Only stored bins are visited,
+  /// so this is much cheaper than reading the box: a first pass for detectors that test
+  /// only cells above a power floor (min_power > 0).
+  [[nodiscard]] std::vector<std::array<int, 2>> cells_above(const CellBox& box, double min_power,
+                                                            double min_persistence,
+                                                            std::uint32_t min_count) const;
   /// trace(C) of a box as CV_32F (linear power); row r ↔ iy = box.min_iy + r (south at row 0).
   /// Cells with persistence hits/N below min_persistence read as 0.
   [[nodiscard]] cv::Mat trace_image(const CellBox& box, double min_persistence = 0.0) const;

@@ -1,7 +1,8 @@
 // Ridge/Hough line extraction on synthetic power images: a bright line in speckled
 // clutter is recovered within 0.3 m at its ends and 1° in direction, at any
 // orientation; point-like blobs give no lines; a wall crossing gridmap chunk
-// borders comes out as one segment.
+// borders comes out as one segment; filtering only around cells above the floor gives
+// what filtering the whole image gives.
 #include "polmap/radar/line_extractor.hpp"
 
 #include <gtest/gtest.h>
@@ -136,6 +137,34 @@ TEST(LineExtractor, WallAcrossChunkBordersIsOneSegment) {
   const auto lines = extract_lines(map);
   ASSERT_EQ(lines.size(), 1U) << describe(lines);
   expect_segment(lines[0], a, b);
+}
+
+TEST(LineExtractor, SparseFiltersEqualDenseFilters) {
+  // The fast path filters only around cells above the floor (ridgeness_sparse); the
+  // straightforward one the whole image. Same ridge image and lines, bit for bit, with
+  // structures far apart, near each other, and cut by the image border.
+  std::mt19937 rng(6);
+  const CellBox box{0, 0, 420, 260};
+  const std::vector<std::pair<Eigen::Vector2d, Eigen::Vector2d>> walls{
+      {{2.0, 3.0}, {14.0, 5.0}},   {{3.0, 8.0}, {12.0, 7.2}},   {{30.0, 20.0}, {41.0, 24.0}},
+      {{-1.0, 12.0}, {6.0, 18.0}}, {{36.0, -1.0}, {43.0, 6.0}}, {{20.0, 12.5}, {20.5, 25.9}}};
+  cv::Mat img = scene(rng, box, walls, 50.0, 4);
+  for (int k = 0; k < 6; ++k) img.ptr<float>(40 + 30 * k % 200)[300 + 13 * k] += 400.0F;
+  LineExtractorConfig dense;
+  dense.dense_filters = true;
+  const double noise = 1.0 / 3.0;
+  const cv::Mat r_fast = ridgeness_image(img, kCell, noise, 3, {});
+  const cv::Mat r_ref = ridgeness_image(img, kCell, noise, 3, dense);
+  EXPECT_GT(cv::countNonZero(r_ref > 1.5), 200);
+  EXPECT_EQ(cv::norm(r_fast, r_ref, cv::NORM_INF), 0.0);
+  const auto fast = extract_lines(img, box, kCell, noise, 3);
+  const auto ref = extract_lines(img, box, kCell, noise, 3, dense);
+  ASSERT_GE(ref.size(), 5U) << describe(ref);
+  ASSERT_EQ(fast.size(), ref.size()) << describe(fast) << " vs " << describe(ref);
+  for (std::size_t i = 0; i < ref.size(); ++i) {
+    EXPECT_EQ(fast[i].start_m, ref[i].start_m) << i;
+    EXPECT_EQ(fast[i].end_m, ref[i].end_m) << i;
+  }
 }
 
 TEST(LineExtractor, MergeCollinearJoinsPiecesOnly) {

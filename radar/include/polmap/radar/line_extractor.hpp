@@ -73,6 +73,9 @@ struct LineExtractorConfig {
   double merge_gap_m = 0.5;
   /// Gridmap processing chunk: chunk_tiles × chunk_tiles tiles plus a halo.
   int chunk_tiles = 8;
+  /// Filter the whole image instead of only the regions around cells above the floor
+  /// (the straightforward version, for tests: both give the same images and lines).
+  bool dense_filters = false;
 };
 
 /// Line candidates of a whole gridmap (metres in the map frame), sorted by start (y, x).

@@ -5,6 +5,7 @@
 #include <Eigen/Core>
 #include <memory>
 #include <nanoflann.hpp>
+#include <optional>
 #include <utility>
 #include <vector>
 
@@ -47,6 +48,25 @@ class KdTree2 {
     const double query[2] = {q.x(), q.y()};
     index_->findNeighbors(rs, query, nanoflann::SearchParams());
     return {idx, std::sqrt(d2)};
+  }
+
+  /// Nearest point if one lies within max_m of q (inclusive): the same point as
+  /// nearest(), but the search prunes every branch beyond max_m, which is most of the
+  /// tree for a query far from every point.
+  [[nodiscard]] std::optional<std::pair<std::size_t, double>> nearest_within(
+      const Eigen::Vector2d& q, double max_m) const {
+    if (cloud_.pts.empty()) return std::nullopt;
+    std::size_t idx = 0;
+    double d2 = 0.0;
+    nanoflann::KNNResultSet<double, std::size_t> rs(1);
+    rs.init(&idx, &d2);
+    // The bound: only closer points are added. Padded like radius(), so a point at
+    // exactly max_m (whose squared distance may round either way) is kept.
+    d2 = max_m * max_m * (1.0 + 1e-12) + 1e-18;
+    const double query[2] = {q.x(), q.y()};
+    index_->findNeighbors(rs, query, nanoflann::SearchParams());
+    if (rs.size() == 0) return std::nullopt;
+    return std::pair{idx, std::sqrt(d2)};
   }
 
  private:

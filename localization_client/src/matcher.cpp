@@ -68,6 +68,11 @@ std::optional<std::pair<std::size_t, double>> MapIndex::nearest_point(
   return trees_->points.nearest(q);
 }
 
+std::optional<std::pair<std::size_t, double>> MapIndex::nearest_point_within(
+    const Eigen::Vector2d& q, double max_m) const {
+  return trees_->points.nearest_within(q, max_m);
+}
+
 void MapIndex::edges_near(const Eigen::Vector2d& q, double radius_m,
                           std::vector<std::size_t>& out) const {
   std::vector<std::size_t> hits;
@@ -156,8 +161,10 @@ class Scorer {
     const Eigen::Vector2d v = T_prior * prior_.T_odom_vehicle.translation();
     map_.points_within(v, view_radius_m, near);
     for (std::size_t m : near) {
-      const auto nn = clusters_tree_->nearest(inv * map_.points()[m].position_m);
-      if (nn.second <= cfg_.coverage_radius_m + gate_radius_m) region_.push_back(m);
+      if (clusters_tree_->nearest_within(inv * map_.points()[m].position_m,
+                                         cfg_.coverage_radius_m + gate_radius_m)) {
+        region_.push_back(m);
+      }
     }
   }
 
@@ -167,9 +174,11 @@ class Scorer {
     const Pose2 inv = T.inverse();
     const double itr = 1.0 / cfg_.point_truncation_m;
     double cost = 0.0;
+    // Truncated at 1: only a cluster within the truncation distance changes the term.
     for (std::size_t m : region_) {
-      const double d =
-          std::min(clusters_tree_->nearest(inv * map_.points()[m].position_m).second * itr, 1.0);
+      const auto nn = clusters_tree_->nearest_within(inv * map_.points()[m].position_m,
+                                                     cfg_.point_truncation_m);
+      const double d = nn ? std::min(nn->second * itr, 1.0) : 1.0;
       cost += d * d;
     }
     return cfg_.map_to_local_weight * cost;
@@ -179,7 +188,8 @@ class Scorer {
     double cost = 0.0;
     const double inv = 1.0 / cfg_.point_truncation_m;
     for (std::size_t i = 0; i < points_.size(); ++i) {
-      const auto nn = map_.nearest_point(T * points_[i].centroid_odom_m);
+      const auto nn =
+          map_.nearest_point_within(T * points_[i].centroid_odom_m, cfg_.point_truncation_m);
       const double d = nn ? std::min(nn->second * inv, 1.0) : 1.0;
       cost += weights_[i] * d * d;
     }
@@ -227,8 +237,8 @@ class Scorer {
       int n = 0;
       for (std::size_t i = 0; i < points_.size(); ++i) {
         const Eigen::Vector2d p = T * points_[i].centroid_odom_m;
-        const auto nn = map_.nearest_point(p);
-        if (!nn || nn->second > cfg_.point_truncation_m) continue;
+        const auto nn = map_.nearest_point_within(p, cfg_.point_truncation_m);
+        if (!nn) continue;
         const Eigen::Vector2d r = p - map_.points()[nn->first].position_m;
         Eigen::Matrix<double, 2, 3> J;
         J << 1, 0, perp(p - c_map).x(), 0, 1, perp(p - c_map).y();
@@ -240,8 +250,9 @@ class Scorer {
         const Pose2 inv = T.inverse();
         for (std::size_t m : region_) {
           const Eigen::Vector2d& pm = map_.points()[m].position_m;
-          const auto nn = clusters_tree_->nearest(inv * pm);
-          if (nn.second > cfg_.point_truncation_m) continue;
+          const auto within = clusters_tree_->nearest_within(inv * pm, cfg_.point_truncation_m);
+          if (!within) continue;
+          const auto& nn = *within;
           const Eigen::Vector2d p = T * points_[nn.first].centroid_odom_m;
           const Eigen::Vector2d r = p - pm;
           Eigen::Matrix<double, 2, 3> J;

@@ -6,6 +6,7 @@
 
 #include <gtest/gtest.h>
 
+#include <limits>
 #include <map>
 #include <numbers>
 #include <random>
@@ -263,6 +264,44 @@ TEST(Matcher, EmptyInputs) {
   const std::vector<PointCluster> one{c};
   const MatchResult r = match_local_map(one, {}, MapIndex(), prior);
   EXPECT_EQ(r.status, MatchResult::Status::TooFewMatches);
+}
+
+TEST(MapIndex, NearestWithinEqualsBruteForce) {
+  // The bounded search of the scorer against a scan of every landmark.
+  std::mt19937 rng(31);
+  std::uniform_real_distribution<double> u(-50.0, 50.0);
+  std::vector<PointLandmark> pts;
+  for (int i = 0; i < 400; ++i) {
+    PointLandmark p;
+    p.id = i;
+    p.position_m = {u(rng), 0.2 * u(rng)};
+    pts.push_back(p);
+  }
+  const MapIndex map(pts, {});
+  int found = 0;
+  for (int k = 0; k < 2000; ++k) {
+    const Eigen::Vector2d q(u(rng), 0.3 * u(rng));
+    const double max_m = k % 2 == 0 ? 0.5 : 2.0;
+    std::size_t best = 0;
+    double best_d = std::numeric_limits<double>::infinity();
+    for (std::size_t i = 0; i < pts.size(); ++i) {
+      const double d = (pts[i].position_m - q).norm();
+      if (d < best_d) {
+        best_d = d;
+        best = i;
+      }
+    }
+    const auto nn = map.nearest_point_within(q, max_m);
+    ASSERT_EQ(nn.has_value(), best_d <= max_m) << k;
+    if (!nn) continue;
+    ++found;
+    EXPECT_EQ(nn->first, best) << k;
+    EXPECT_NEAR(nn->second, best_d, 1e-12) << k;
+    // On the boundary: a landmark exactly max_m away counts.
+    EXPECT_TRUE(map.nearest_point_within(q, best_d).has_value()) << k;
+  }
+  EXPECT_GT(found, 300);
+  EXPECT_LT(found, 1900);
 }
 
 }  // namespace

@@ -88,6 +88,10 @@ class MapIndex {
   /// Nearest map point (index, distance), nullopt if there are no points.
   [[nodiscard]] std::optional<std::pair<std::size_t, double>> nearest_point(
       const Eigen::Vector2d& q) const;
+  /// nearest_point() if within max_m (inclusive), else nullopt; much cheaper for
+  /// queries far from every landmark.
+  [[nodiscard]] std::optional<std::pair<std::size_t, double>> nearest_point_within(
+      const Eigen::Vector2d& q, double max_m) const;
   /// Indices of edges that may lie within radius_m of q (a superset: every
   /// edge whose Euclidean distance to q is <= radius_m is included).
   void edges_near(const Eigen::Vector2d& q, double radius_m, std::vector<std::size_t>& out) const;

@@ -336,8 +336,13 @@ struct Localizer::Impl {
     const Eigen::Matrix3d pred = predicted_cov();
     wide.covariance = pred;
     for (int i = 0; i < 3; ++i) wide.covariance(i, i) = std::max(pred(i, i), initial_cov(i, i));
+    MatcherConfig reloc = mcfg;
+    reloc.max_anchor_clusters =
+        std::min(reloc.max_anchor_clusters, cfg.relocalization_max_anchor_clusters);
+    reloc.max_yaw_hypotheses =
+        std::min(reloc.max_yaw_hypotheses, cfg.relocalization_max_yaw_hypotheses);
     const MatchResult r =
-        match_local_map(local_map.point_clusters(), local_map.line_clusters(), map, wide, mcfg);
+        match_local_map(local_map.point_clusters(), local_map.line_clusters(), map, wide, reloc);
     const Pose2 now = T_map_odom * T_odom_vehicle;
     const Pose2 alt = r.T_map_odom * T_odom_vehicle;
     const double dxy = (alt.translation() - now.translation()).norm();

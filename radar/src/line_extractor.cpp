@@ -9,6 +9,7 @@
 #include <opencv2/ximgproc.hpp>
 #include <set>
 
+#include "block_regions.hpp"
 #include "polmap/schema/errors.hpp"
 
 namespace polmap::radar {
@@ -113,9 +114,9 @@ RidgeImages ridgeness(const cv::Mat& power, double cs, double noise_power, int q
 /// outputs vanish farther than `reach` cells from any cell above the floor — in a 2 s
 /// localization window ~1 % of the cells are above it, in ~6 % of 16 × 16 blocks. Each
 /// bounding box of the cells within `reach` of one (8-connected groups) is filtered as
-/// its own image, padded by `reach` more: what the padding's border treatment changes
-/// stays inside the padding, and where the pad is clipped by the image edge the border
-/// treatment is the whole image's. The result equals ridgeness() of the whole image
+/// its own image (at block granularity: BlockRegions), padded by `reach` more: what the padding's
+/// border treatment changes stays inside the padding, and where the pad is clipped by the image
+/// edge the border treatment is the whole image's. The result equals ridgeness() of the whole image
 /// bit for bit (tests/radar/line_extractor_test.cpp).
 RidgeImages ridgeness_sparse(const cv::Mat& power, double cs, double noise_power, int q,
                              const LineExtractorConfig& cfg) {
@@ -126,27 +127,40 @@ RidgeImages ridgeness_sparse(const cv::Mat& power, double cs, double noise_power
   // float images) + the derivatives' cell, with a margin.
   const int gauss_radius = (static_cast<int>(std::lround(8.0 * sigma + 1.0)) | 1) / 2;
   const int reach = cfg.median_kernel_cells / 2 + gauss_radius + 1 + 2;
-  cv::Mat seeds = power > floor;
-  cv::Mat near;
-  cv::dilate(seeds, near,
-             cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * reach + 1, 2 * reach + 1)));
-  cv::Mat lab, st, cen;
-  const int n = cv::connectedComponentsWithStats(near, lab, st, cen, 8, CV_32S);
-  RidgeImages out{cv::Mat::zeros(power.size(), CV_32F), cv::Mat::zeros(power.size(), CV_32F),
-                  cv::Mat::zeros(power.size(), CV_8U)};
+  // Seeds per block of 16 × 16 cells, dilated by `reach` (in blocks).
+  constexpr int kBlock = 16;
+  BlockRegions blocks(power.cols, power.rows, kBlock);
+  const auto fl = static_cast<float>(floor);
+  for (int row = 0; row < power.rows; ++row) {
+    const float* p = power.ptr<float>(row);
+    for (int b0 = 0; b0 < power.cols; b0 += kBlock) {
+      const int b1 = std::min(power.cols, b0 + kBlock);
+      bool any = false;
+      for (int c = b0; c < b1; ++c) any |= p[c] > fl;
+      if (any) blocks.mark(b0, row);
+    }
+  }
+  blocks.group((reach + kBlock - 1) / kBlock);
+  // Reused buffers: fresh full-size images would be page-faulted in at every call.
+  thread_local cv::Mat db, ridge, centre;
+  for (cv::Mat* m : {&db, &ridge}) m->create(power.size(), CV_32F);
+  centre.create(power.size(), CV_8U);
+  db.setTo(0);
+  ridge.setTo(0);
+  centre.setTo(0);
   const cv::Rect image(0, 0, power.cols, power.rows);
-  for (int k = 1; k < n; ++k) {
-    const cv::Rect r(st.at<int>(k, cv::CC_STAT_LEFT), st.at<int>(k, cv::CC_STAT_TOP),
-                     st.at<int>(k, cv::CC_STAT_WIDTH), st.at<int>(k, cv::CC_STAT_HEIGHT));
+  for (const BlockRegion& b : blocks.regions) {
+    const cv::Rect r(b.x0, b.y0, b.x1 - b.x0, b.y1 - b.y0);
     const cv::Rect padded =
         cv::Rect(r.x - reach, r.y - reach, r.width + 2 * reach, r.height + 2 * reach) & image;
     const RidgeImages sub = ridgeness(power(padded).clone(), cs, noise_power, q, cfg);
     const cv::Rect inner(r.x - padded.x, r.y - padded.y, r.width, r.height);
-    sub.db(inner).copyTo(out.db(r));
-    sub.ridge(inner).copyTo(out.ridge(r));
-    sub.centre(inner).copyTo(out.centre(r));
+    sub.db(inner).copyTo(db(r));
+    sub.ridge(inner).copyTo(ridge(r));
+    sub.centre(inner).copyTo(centre(r));
   }
-  return out;
+  // Callers keep the images only until their next call on this thread.
+  return {db, ridge, centre};
 }
 
 /// Value of img at the cell containing a point (metres); −1 outside the image.
@@ -269,7 +283,7 @@ double sample_mean(const cv::Mat& img, const CellBox& box, double cs, const Eige
 
 cv::Mat ridgeness_image(const cv::Mat& power, double cell_size_m, double noise_power, int q,
                         const LineExtractorConfig& cfg) {
-  return ridgeness_sparse(power, cell_size_m, noise_power, q, cfg).ridge;
+  return ridgeness_sparse(power, cell_size_m, noise_power, q, cfg).ridge.clone();
 }
 
 std::vector<LineCandidate> merge_collinear(std::vector<LineCandidate> lines,

@@ -15,6 +15,7 @@
 #include <numeric>
 #include <unordered_map>
 
+#include "block_regions.hpp"
 #include "pcfar_kernels.hpp"
 
 namespace polmap::radar::pcfar {
@@ -54,12 +55,7 @@ int find_root(std::vector<int>& parent, int i) {
   return i;
 }
 
-/// A rectangle of cells [x0, x1) × [y0, y1) of a chunk box (box-relative) processed as
-/// one streaming pass; it tests the cells of the blocks labelled `label`.
-struct Region {
-  int x0 = 0, y0 = 0, x1 = 0, y1 = 0;
-  int label = 0;
-};
+using Region = BlockRegion;
 
 /// The parts of a chunk box that can hold a detection. Only cells that are observed,
 /// persistent and above the power floor are ever tested (at a noise floor of 10 dB,
@@ -74,13 +70,13 @@ struct Region {
 /// ~2^29, so the candidates stay those of the reference (the tests compare bit for bit).
 struct Active {
   static constexpr int kBlock = 16;
-  int blocks_w = 0;
-  std::vector<int> label;  ///< per block: its group (1, 2, …) or 0
-  std::vector<Region> regions;
+  BlockRegions blocks;
   bool whole = false;  ///< one region, the whole box: every cell is its own
 
+  Active(int w, int h) : blocks(w, h, kBlock) {}
+  [[nodiscard]] const std::vector<Region>& regions() const { return blocks.regions; }
   [[nodiscard]] bool owns(const Region& r, int x, int y) const {
-    return whole || label[static_cast<std::size_t>(y / kBlock) * blocks_w + x / kBlock] == r.label;
+    return whole || blocks.label_at(x, y) == r.label;
   }
 };
 
@@ -88,63 +84,19 @@ Active active_regions(const CovarianceGridmap& map, const CellBox& box,
                       const PointExtractorConfig& cfg, const Thresholds& th, int train,
                       bool has_floor) {
   const int w = box.width(), h = box.height();
-  Active a;
+  Active a(w, h);
   if (!has_floor) {
     // No power floor (synthetic maps): every observed cell is tested.
     a.whole = true;
-    a.regions.push_back(Region{0, 0, w, h, 1});
+    a.blocks.regions.push_back(Region{0, 0, w, h, 1});
     return a;
   }
-  const int B = Active::kBlock;
-  const int bw = (w + B - 1) / B, bh = (h + B - 1) / B;
-  a.blocks_w = bw;
-  std::vector<std::uint8_t> seed(static_cast<std::size_t>(bw) * bh, 0);
   // The test's own first three conditions (stream(), below), on a superset.
   for (const auto& [ix, iy] :
        map.cells_above(box, th.min_power, cfg.min_persistence, th.min_count)) {
-    seed[static_cast<std::size_t>((iy - box.min_iy) / B) * bw + (ix - box.min_ix) / B] = 1;
+    a.blocks.mark(ix - box.min_ix, iy - box.min_iy);
   }
-  // Dilation by the training radius (in blocks), then 8-connected groups by flood fill.
-  const int R = (train + B - 1) / B;
-  std::vector<std::uint8_t> mask(seed.size(), 0);
-  for (int by = 0; by < bh; ++by) {
-    for (int bx = 0; bx < bw; ++bx) {
-      if (!seed[static_cast<std::size_t>(by) * bw + bx]) continue;
-      for (int yy = std::max(0, by - R); yy <= std::min(bh - 1, by + R); ++yy) {
-        for (int xx = std::max(0, bx - R); xx <= std::min(bw - 1, bx + R); ++xx) {
-          mask[static_cast<std::size_t>(yy) * bw + xx] = 1;
-        }
-      }
-    }
-  }
-  a.label.assign(mask.size(), 0);
-  std::vector<int> stack;
-  for (std::size_t start = 0; start < mask.size(); ++start) {
-    if (!mask[start] || a.label[start] != 0) continue;
-    const int id = static_cast<int>(a.regions.size()) + 1;
-    int bx0 = bw, by0 = bh, bx1 = -1, by1 = -1;
-    a.label[start] = id;
-    stack.assign(1, static_cast<int>(start));
-    while (!stack.empty()) {
-      const int k = stack.back();
-      stack.pop_back();
-      const int bx = k % bw, by = k / bw;
-      bx0 = std::min(bx0, bx);
-      bx1 = std::max(bx1, bx);
-      by0 = std::min(by0, by);
-      by1 = std::max(by1, by);
-      for (int yy = std::max(0, by - 1); yy <= std::min(bh - 1, by + 1); ++yy) {
-        for (int xx = std::max(0, bx - 1); xx <= std::min(bw - 1, bx + 1); ++xx) {
-          const std::size_t n = static_cast<std::size_t>(yy) * bw + xx;
-          if (!mask[n] || a.label[n] != 0) continue;
-          a.label[n] = id;
-          stack.push_back(static_cast<int>(n));
-        }
-      }
-    }
-    a.regions.push_back(
-        Region{bx0 * B, by0 * B, std::min(w, (bx1 + 1) * B), std::min(h, (by1 + 1) * B), id});
-  }
+  a.blocks.group((train + Active::kBlock - 1) / Active::kBlock);
   return a;
 }
 
@@ -325,9 +277,9 @@ std::vector<PointCandidate> stream(const CovarianceGridmap& map, const Chunk& ch
       }
     }
   };
-  for (const Region& region : active.regions) scan(region);
+  for (const Region& region : active.regions()) scan(region);
   // Raster order of the chunk (the reference's), whatever the order of the regions.
-  if (active.regions.size() > 1) {
+  if (active.regions().size() > 1) {
     std::vector<int> order(dets.size());
     std::iota(order.begin(), order.end(), 0);
     std::sort(order.begin(), order.end(), [&](int a, int b) { return dets[a].idx < dets[b].idx; });

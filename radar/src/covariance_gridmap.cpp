@@ -179,6 +179,28 @@ inline int block_of(int local) {
 }
 inline int cell_in_block(int local) { return ((local / kT) % kD) * kD + (local % kT) % kD; }
 
+/// Calls f(blk, c, local, ix, iy) for every cell c of every stored data block of tile
+/// (tx, ty) that lies inside box (blk: the block's sums, local: the cell in the tile).
+template <typename T, typename F>
+void for_each_stored_cell(const Tile<T>& t, int tx, int ty, const CellBox& box, F&& f) {
+  for (int b = 0; b < kDataBlocksPerSide * kDataBlocksPerSide; ++b) {
+    const T* blk = t.blocks[b].get();
+    if (!blk) continue;
+    const int row0 = (b / kDataBlocksPerSide) * kD, col0 = (b % kDataBlocksPerSide) * kD;
+    const int ix0 = tx * kT + col0, iy0 = ty * kT + row0;
+    // Blocks entirely outside the box contribute nothing.
+    if (ix0 + kD <= box.min_ix || ix0 >= box.max_ix || iy0 + kD <= box.min_iy ||
+        iy0 >= box.max_iy) {
+      continue;
+    }
+    for (int c = 0; c < kCellsPerDataBlock; ++c) {
+      const int ix = ix0 + c % kD, iy = iy0 + c / kD;
+      if (ix < box.min_ix || ix >= box.max_ix || iy < box.min_iy || iy >= box.max_iy) continue;
+      f(blk, c, (row0 + c / kD) * kT + col0 + c % kD, ix, iy);
+    }
+  }
+}
+
 }  // namespace
 
 // ---------------------------------------------------------------------------------------------
@@ -445,34 +467,20 @@ class ImplT final : public CovarianceGridmap::Impl {
         r.count[row + (ix - box.min_ix)] = t.count((iy - ty * kT) * kT + (ix - tx * kT));
       }
     }
-    for (int b = 0; b < kDataBlocksPerSide * kDataBlocksPerSide; ++b) {
-      const T* blk = t.blocks[b].get();
-      if (!blk) continue;
-      const int row0 = (b / kDataBlocksPerSide) * kD, col0 = (b % kDataBlocksPerSide) * kD;
-      const int ix0 = tx * kT + col0, iy0 = ty * kT + row0;
-      // Blocks entirely outside the box contribute nothing.
-      if (ix0 + kD <= box.min_ix || ix0 >= box.max_ix || iy0 + kD <= box.min_iy ||
-          iy0 >= box.max_iy) {
-        continue;
+    for_each_stored_cell(t, tx, ty, box, [&](const T* blk, int c, int local, int ix, int iy) {
+      const std::uint32_t n = t.count(local);
+      if (n == 0) return;
+      const std::size_t idx =
+          static_cast<std::size_t>(iy - box.min_iy) * w + static_cast<std::size_t>(ix - box.min_ix);
+      const T inv = T(1) / static_cast<T>(n);
+      const T* cell = blk + c * stride_;
+      for (int l = 0; l < L_; ++l) {
+        const T re = cell[off_[l]] * inv, im = cplx_[l] ? cell[off_[l] + 1] * inv : T(0);
+        r.layers[l * plane + idx] =
+            std::complex<float>(static_cast<float>(re), static_cast<float>(im));
       }
-      for (int c = 0; c < kCellsPerDataBlock; ++c) {
-        const int ix = ix0 + c % kD, iy = iy0 + c / kD;
-        if (ix < box.min_ix || ix >= box.max_ix || iy < box.min_iy || iy >= box.max_iy) continue;
-        const int local = (row0 + c / kD) * kT + col0 + c % kD;
-        const std::uint32_t n = t.count(local);
-        if (n == 0) continue;
-        const std::size_t idx = static_cast<std::size_t>(iy - box.min_iy) * w +
-                                static_cast<std::size_t>(ix - box.min_ix);
-        const T inv = T(1) / static_cast<T>(n);
-        const T* cell = blk + c * stride_;
-        for (int l = 0; l < L_; ++l) {
-          const T re = cell[off_[l]] * inv, im = cplx_[l] ? cell[off_[l] + 1] * inv : T(0);
-          r.layers[l * plane + idx] =
-              std::complex<float>(static_cast<float>(re), static_cast<float>(im));
-        }
-        r.hits[idx] = static_cast<std::uint32_t>(std::lround(std::max<T>(cell[hit_], T(0))));
-      }
-    }
+      r.hits[idx] = static_cast<std::uint32_t>(std::lround(std::max<T>(cell[hit_], T(0))));
+    });
   }
 
   void read_tile_row(int tx, int iy, int ix0, int ix1, std::uint32_t* count, std::uint32_t* hits,
@@ -527,30 +535,17 @@ class ImplT final : public CovarianceGridmap::Impl {
     // trace = Σ_d sum_d / N rounded per term to float: above min_power only if the exact
     // sum is above min_power·N within float rounding (≈ 1e-7 relative).
     const T floor = static_cast<T>(min_power * (1.0 - 1e-6));
-    for (int b = 0; b < kDataBlocksPerSide * kDataBlocksPerSide; ++b) {
-      const T* blk = t.blocks[b].get();
-      if (!blk) continue;  // no stored bin: trace 0
-      const int row0 = (b / kDataBlocksPerSide) * kD, col0 = (b % kDataBlocksPerSide) * kD;
-      const int ix0 = tx * kT + col0, iy0 = ty * kT + row0;
-      if (ix0 + kD <= box.min_ix || ix0 >= box.max_ix || iy0 + kD <= box.min_iy ||
-          iy0 >= box.max_iy) {
-        continue;
-      }
-      for (int c = 0; c < kCellsPerDataBlock; ++c) {
-        const int local = (row0 + c / kD) * kT + col0 + c % kD;
-        const std::uint32_t n = t.count(local);
-        if (n == 0 || n < min_count) continue;
-        const T* cell = blk + c * stride_;
-        // read_row's hits are round(h); h + ½ ≥ p·N keeps every cell it lets pass.
-        if (cell[hit_] + T(0.5) < static_cast<T>(min_persistence * n)) continue;
-        T sum = 0;
-        for (int d = 0; d < q_; ++d) sum += cell[diag[d]];
-        if (!(sum > floor * static_cast<T>(n))) continue;
-        const int ix = ix0 + c % kD, iy = iy0 + c / kD;
-        if (ix < box.min_ix || ix >= box.max_ix || iy < box.min_iy || iy >= box.max_iy) continue;
-        out.push_back({ix, iy});
-      }
-    }
+    // Cells without a stored bin have trace 0: only stored blocks are visited.
+    for_each_stored_cell(t, tx, ty, box, [&](const T* blk, int c, int local, int ix, int iy) {
+      const std::uint32_t n = t.count(local);
+      if (n == 0 || n < min_count) return;
+      const T* cell = blk + c * stride_;
+      // read_row's hits are round(h); h + ½ ≥ p·N keeps every cell it lets pass.
+      if (cell[hit_] + T(0.5) < static_cast<T>(min_persistence * n)) return;
+      T sum = 0;
+      for (int d = 0; d < q_; ++d) sum += cell[diag[d]];
+      if (sum > floor * static_cast<T>(n)) out.push_back({ix, iy});
+    });
   }
 
   bool materialize_trace(int tx, int ty, float* trace, double min_persistence) const override {

@@ -113,11 +113,11 @@ RidgeImages ridgeness(const cv::Mat& power, double cs, double noise_power, int q
 /// kernel radius, central differences) maps an all-zero neighbourhood to 0, so the
 /// outputs vanish farther than `reach` cells from any cell above the floor — in a 2 s
 /// localization window ~1 % of the cells are above it, in ~6 % of 16 × 16 blocks. Each
-/// bounding box of the cells within `reach` of one (8-connected groups) is filtered as
-/// its own image (at block granularity: BlockRegions), padded by `reach` more: what the padding's
-/// border treatment changes stays inside the padding, and where the pad is clipped by the image
-/// edge the border treatment is the whole image's. The result equals ridgeness() of the whole image
-/// bit for bit (tests/radar/line_extractor_test.cpp).
+/// bounding box of the cells within `reach` of one (8-connected groups, at block
+/// granularity: BlockRegions) is filtered as its own image, padded by `reach` more: what
+/// the padding's border treatment changes stays inside the padding, and where the pad is
+/// clipped by the image edge the border treatment is the whole image's. The result
+/// equals ridgeness() of the whole image bit for bit (tests/radar/line_extractor_test.cpp).
 RidgeImages ridgeness_sparse(const cv::Mat& power, double cs, double noise_power, int q,
                              const LineExtractorConfig& cfg) {
   if (cfg.dense_filters || !(noise_power > 0.0)) return ridgeness(power, cs, noise_power, q, cfg);

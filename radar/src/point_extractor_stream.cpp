@@ -66,8 +66,9 @@ using Region = BlockRegion;
 /// region of its block's group only (bounding boxes may overlap). A cell's
 /// neighbourhood lies inside its region, clipped where the chunk box clips it, so every
 /// test sees the cells the whole-box pass would see. Only the integral images' origin
-/// moves: sums of float values in double are exact unless their magnitudes span more than
-/// ~2^29, so the candidates stay those of the reference (the tests compare bit for bit).
+/// moves: float values summed in double stay exact while the ratio of the largest to the
+/// smallest magnitude times the number of terms stays below 2^29 (53 − 24 bits), so in
+/// practice the candidates are those of the reference (the tests compare bit for bit).
 struct Active {
   static constexpr int kBlock = 16;
   BlockRegions blocks;

@@ -38,6 +38,7 @@
 /// non-decreasing time_s (sensors interleaved is fine).
 #include <Eigen/Core>
 #include <Eigen/Geometry>
+#include <array>
 #include <complex>
 #include <cstdint>
 #include <functional>

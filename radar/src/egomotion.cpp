@@ -6,6 +6,7 @@
 #include <limits>
 #include <random>
 
+#include "doppler_inliers.hpp"
 #include "polmap/schema/errors.hpp"
 
 namespace polmap::radar {
@@ -94,30 +95,11 @@ class Ransac {
   /// `to_beat` inliers: the remaining copies could not make up the difference, so
   /// better(h, best) would be false anyway. Checked per block of copies.
   void score(Hypothesis& h, int to_beat) const {
-    const std::size_t n = p_.a_vr.size();
-    const double v = h.v, w = h.w;
-    constexpr std::size_t kBlock = 64;
-    int inl = 0;
-    double cost = 0.0;
-    for (std::size_t j0 = 0; j0 < n; j0 += kBlock) {
-      const std::size_t j1 = std::min(n, j0 + kBlock);
-      for (std::size_t j = j0; j < j1; ++j) {
-        const double r = p_.a_vr[j] - (p_.a_h0[j] * v + p_.a_h1[j] * w);
-        const double d = p_.a_g0[j] * v + p_.a_g1[j] * w;
-        const double t2 = thr2_ * (1.0 + az2_ * d * d + p_.a_ext[j]);
-        const double q = r * r / t2;
-        const bool in = q < 1.0;
-        inl += in ? 1 : 0;
-        cost += in ? q : 0.0;
-      }
-      if (inl + static_cast<std::int64_t>(n - j1) < to_beat) {
-        h.inliers = -1;
-        h.cost = std::numeric_limits<double>::infinity();
-        return;
-      }
-    }
-    h.inliers = inl;
-    h.cost = cost - inl;  // = Σ_in (q − 1): lower is better among equal counts
+    const detail::DopplerRows rows{p_.a_vr.data(), p_.a_h0.data(),  p_.a_h1.data(), p_.a_g0.data(),
+                                   p_.a_g1.data(), p_.a_ext.data(), p_.a_vr.size()};
+    const detail::DopplerSupport s = detail::doppler_support(rows, h.v, h.w, thr2_, az2_, to_beat);
+    h.inliers = s.inliers;
+    h.cost = s.cost;
   }
 
   static bool better(const Hypothesis& a, const Hypothesis& b) {

@@ -132,38 +132,52 @@ inline std::vector<std::vector<std::pair<int, int>>> strip_offsets(int guard, in
 /// mean trace is highest and above best_tr. layers_at(xx, yy) gives the cell's layers
 /// (`stride` apart) or nullptr when the cell is unobserved. On a find, `best` holds that
 /// strip's plane sums and best_tr its mean trace; returns whether one was found.
+/// The strips are compared by their diagonal planes only and the winner's full plane
+/// sums formed once: each plane is summed over the same cells in the same order as a
+/// one-pass version would, so the sums are the same bit for bit at a third of the work.
 template <int Q, typename LayersAt>
 bool brightest_strip(const std::vector<std::vector<std::pair<int, int>>>& strips,
                      const PlaneLayout& p, int x, int y, int w, int h, std::size_t stride,
                      LayersAt&& layers_at, std::vector<double>& strip, std::vector<double>& best,
                      double& best_tr) {
   constexpr int L = num_layers(Q);
-  bool found = false;
+  const std::vector<std::pair<int, int>>* winner = nullptr;
   for (const auto& s : strips) {
-    std::fill(strip.begin(), strip.end(), 0.0);
+    double n = 0.0;
+    double diag[Q] = {};
     for (const auto& [dx, dy] : s) {
       const int xx = x + dx, yy = y + dy;
       if (xx < 0 || yy < 0 || xx >= w || yy >= h) continue;
       const std::complex<float>* v = layers_at(xx, yy);
       if (v == nullptr) continue;
-      strip[0] += 1.0;
-      for (int l = 0; l < L; ++l) {
-        const std::complex<float> c = v[l * stride];
-        strip[p.re[l]] += c.real();
-        if (p.im[l] >= 0) strip[p.im[l]] += c.imag();
-      }
+      n += 1.0;
+      for (int i = 0; i < Q; ++i) diag[i] += v[layer_index(Q, i, i) * stride].real();
     }
-    if (strip[0] < 0.5 * static_cast<double>(s.size())) continue;
+    if (n < 0.5 * static_cast<double>(s.size())) continue;
     double tr = 0.0;
-    for (int i = 0; i < Q; ++i) tr += strip[p.re[layer_index(Q, i, i)]];
-    tr /= strip[0];
+    for (int i = 0; i < Q; ++i) tr += diag[i];
+    tr /= n;
     if (tr > best_tr) {
       best_tr = tr;
-      best = strip;
-      found = true;
+      winner = &s;
     }
   }
-  return found;
+  if (winner == nullptr) return false;
+  std::fill(strip.begin(), strip.end(), 0.0);
+  for (const auto& [dx, dy] : *winner) {
+    const int xx = x + dx, yy = y + dy;
+    if (xx < 0 || yy < 0 || xx >= w || yy >= h) continue;
+    const std::complex<float>* v = layers_at(xx, yy);
+    if (v == nullptr) continue;
+    strip[0] += 1.0;
+    for (int l = 0; l < L; ++l) {
+      const std::complex<float> c = v[l * stride];
+      strip[p.re[l]] += c.real();
+      if (p.im[l] >= 0) strip[p.im[l]] += c.imag();
+    }
+  }
+  best = strip;
+  return true;
 }
 
 inline void check_config(const PointExtractorConfig& cfg, double cs, int& guard, int& train) {

@@ -221,10 +221,11 @@ std::vector<PointCandidate> stream(const CovarianceGridmap& map, const Chunk& ch
       const std::uint32_t* hit = hits.row(y);
       const float* pw = power.row(y);
       for (int x = 0; x < w; ++x) {
-        if (cnt[x] < th.min_count) continue;
-        if (!active.owns(region, x0 + x, y0 + y)) continue;
-        if (hit[x] < cfg.min_persistence * cnt[x]) continue;
+        // Cheapest and most selective condition first; owns() divides.
         if (!(pw[x] > th.min_power)) continue;
+        if (cnt[x] < th.min_count) continue;
+        if (hit[x] < cfg.min_persistence * cnt[x]) continue;
+        if (!active.owns(region, x0 + x, y0 + y)) continue;
         double s[2] = {0.0, 0.0};
         trace_box(x - train, y - train, x + train + 1, y + train + 1, 1.0, s);
         trace_box(x - guard, y - guard, x + guard + 1, y + guard + 1, -1.0, s);

@@ -8,6 +8,7 @@
 #include <unordered_set>
 
 #include "kdtree.hpp"
+#include "polmap/schema/errors.hpp"
 
 namespace polmap::loc {
 
@@ -435,48 +436,54 @@ MatchResult match_local_map(std::span<const PointCluster> points_odom,
       Eigen::Vector2d dt;
     };
     std::vector<Peak> peaks;
-    std::unordered_map<std::uint64_t, double> hist;
-    std::vector<std::size_t> near;
+    // Translation histogram: a dense grid over the gate (every vote's offset lies within
+    // r of zero), cleared through the list of touched bins, visited in row-major order.
+    const double gate = k * std::sqrt(var_xy);
+    const double r =
+        (std::isfinite(gate) ? std::min(gate, cfg.max_gate_radius_m) : cfg.max_gate_radius_m) +
+        cfg.pair_distance_tolerance_m;
     const double inv_cell = 1.0 / cfg.vote_cell_m;
-    auto bin_key = [](std::int64_t ix, std::int64_t iy) {
-      return (static_cast<std::uint64_t>(ix + (1 << 30)) << 32) |
-             static_cast<std::uint64_t>(iy + (1 << 30));
-    };
+    const int half = static_cast<int>(std::ceil(r * inv_cell)) + 2;  // + the 3×3 border
+    const int side = 2 * half + 1;
+    std::vector<double> hist(static_cast<std::size_t>(side) * side, 0.0);
+    std::vector<int> touched;
+    std::vector<std::size_t> near;
     for (int iy = -n_yaw; iy <= n_yaw; ++iy) {
       const double dyaw = iy * step;
       const Eigen::Matrix2d R = Pose2{0, 0, dyaw}.rotation();
-      hist.clear();
+      for (int b : touched) hist[b] = 0.0;
+      touched.clear();
       for (std::size_t i = 0; i < points_odom.size(); ++i) {
         const Eigen::Vector2d p = R * (predicted[i] - v) + v;
         // Gate radius of the translation (rotation is fixed per hypothesis).
-        const double r =
-            std::min(k * std::sqrt(var_xy), cfg.max_gate_radius_m) + cfg.pair_distance_tolerance_m;
         map.points_within(p, r, near);
         const double w = std::min(1.0, points_odom[i].num_observations / 3.0);
         for (std::size_t m : near) {
           const Eigen::Vector2d dt = map.points()[m].position_m - p;
-          hist[bin_key(static_cast<std::int64_t>(std::floor(dt.x() * inv_cell)),
-                       static_cast<std::int64_t>(std::floor(dt.y() * inv_cell)))] += w;
+          const int bx = static_cast<int>(std::floor(dt.x() * inv_cell)) + half;
+          const int by = static_cast<int>(std::floor(dt.y() * inv_cell)) + half;
+          POLMAP_EXPECT(bx >= 1 && by >= 1 && bx < side - 1 && by < side - 1);
+          const int b = by * side + bx;
+          if (hist[b] == 0.0) touched.push_back(b);
+          hist[b] += w;
         }
       }
+      std::sort(touched.begin(), touched.end());
       // Peaks of the 3×3 neighbourhood sums (an offset may straddle bins);
       // the best few distinct ones per yaw, so a second mode (a repetitive
       // post row) survives as a runner-up.
       constexpr int kPeaksPerYaw = 3;
       std::vector<Peak> best;
-      for (const auto& [key, n] : hist) {
-        const std::int64_t bx = static_cast<std::int64_t>(key >> 32) - (1 << 30);
-        const std::int64_t by = static_cast<std::int64_t>(key & 0xFFFFFFFFULL) - (1 << 30);
+      for (int b : touched) {
+        const int bx = b % side, by = b / side;
         double sum = 0.0;
         for (int dx = -1; dx <= 1; ++dx) {
-          for (int dy = -1; dy <= 1; ++dy) {
-            const auto it = hist.find(bin_key(bx + dx, by + dy));
-            if (it != hist.end()) sum += it->second;
-          }
+          for (int dy = -1; dy <= 1; ++dy) sum += hist[(by + dy) * side + bx + dx];
         }
         if (best.size() == kPeaksPerYaw && sum <= best.back().votes) continue;
         const Peak pk{sum, dyaw,
-                      Eigen::Vector2d((bx + 0.5) * cfg.vote_cell_m, (by + 0.5) * cfg.vote_cell_m)};
+                      Eigen::Vector2d((bx - half + 0.5) * cfg.vote_cell_m,
+                                      (by - half + 0.5) * cfg.vote_cell_m)};
         // Replace a weaker peak nearby, else insert.
         bool merged = false;
         for (auto& b : best) {

@@ -75,7 +75,8 @@ TEST(DopplerSupport, EqualsDividingEveryRowBitForBit) {
       // The early exit gives up in the same cases.
       for (int to_beat : {ref.inliers, ref.inliers + 1, static_cast<int>(n) / 2}) {
         const DopplerSupport f = doppler_support(rows.view(), hv, hw, kThr2, kAz2, to_beat);
-        const DopplerSupport g = doppler_support_reference(rows.view(), hv, hw, kThr2, kAz2, to_beat);
+        const DopplerSupport g =
+            doppler_support_reference(rows.view(), hv, hw, kThr2, kAz2, to_beat);
         ASSERT_EQ(f.inliers, g.inliers);
         ASSERT_EQ(f.cost, g.cost);
       }

@@ -135,11 +135,13 @@ inline std::vector<std::vector<std::pair<int, int>>> strip_offsets(int guard, in
 /// The strips are compared by their diagonal planes only and the winner's full plane
 /// sums formed once: each plane is summed over the same cells in the same order as a
 /// one-pass version would, so the sums are the same bit for bit at a third of the work.
-template <int Q, typename LayersAt>
+/// diag_at(xx, yy) gives the cell's Q diagonal layers (real parts, contiguous) or nullptr
+/// when the cell is unobserved: the comparison reads those only.
+template <int Q, typename LayersAt, typename DiagAt>
 bool brightest_strip(const std::vector<std::vector<std::pair<int, int>>>& strips,
                      const PlaneLayout& p, int x, int y, int w, int h, std::size_t stride,
-                     LayersAt&& layers_at, std::vector<double>& strip, std::vector<double>& best,
-                     double& best_tr) {
+                     LayersAt&& layers_at, DiagAt&& diag_at, std::vector<double>& strip,
+                     std::vector<double>& best, double& best_tr) {
   constexpr int L = num_layers(Q);
   const std::vector<std::pair<int, int>>* winner = nullptr;
   for (const auto& s : strips) {
@@ -148,10 +150,10 @@ bool brightest_strip(const std::vector<std::vector<std::pair<int, int>>>& strips
     for (const auto& [dx, dy] : s) {
       const int xx = x + dx, yy = y + dy;
       if (xx < 0 || yy < 0 || xx >= w || yy >= h) continue;
-      const std::complex<float>* v = layers_at(xx, yy);
+      const float* v = diag_at(xx, yy);
       if (v == nullptr) continue;
       n += 1.0;
-      for (int i = 0; i < Q; ++i) diag[i] += v[layer_index(Q, i, i) * stride].real();
+      for (int i = 0; i < Q; ++i) diag[i] += v[i];
     }
     if (n < 0.5 * static_cast<double>(s.size())) continue;
     double tr = 0.0;

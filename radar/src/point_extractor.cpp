@@ -178,11 +178,20 @@ Detection detect(const CovarianceRaster& r, const PointExtractorConfig& cfg, int
     if (cfg.line_aware) {
       // Greatest-of with the brightest line strip through the cell (file comment).
       double best_tr = tr_s;
+      float diag_buf[Q];
       if (pcfar::brightest_strip<Q>(
               strips, p, x, y, w, h, plane,
               [&](int xx, int yy) -> const std::complex<float>* {
                 const std::size_t j = static_cast<std::size_t>(yy) * w + xx;
                 return r.count[j] == 0 ? nullptr : r.layers.data() + j;
+              },
+              [&](int xx, int yy) -> const float* {
+                const std::size_t j = static_cast<std::size_t>(yy) * w + xx;
+                if (r.count[j] == 0) return nullptr;
+                for (int i = 0; i < Q; ++i) {
+                  diag_buf[i] = r.layers[layer_index(Q, i, i) * plane + j].real();
+                }
+                return diag_buf;
               },
               strip, best, best_tr)) {
         chosen = best.data();

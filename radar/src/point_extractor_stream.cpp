@@ -21,20 +21,23 @@
 namespace polmap::radar::pcfar {
 namespace {
 
-/// Rolling storage of the last `rows` rows of something with `per_row` elements, in a
-/// buffer that is reused from call to call (every row is written before it is read).
+/// Rolling storage of (at least) the last `rows` rows of something with `per_row`
+/// elements, in a buffer that is reused from call to call (every row is written before it
+/// is read). The ring holds a power of two rows, so finding a row is a mask, not a division.
 template <typename T>
 struct RowRing {
-  int rows = 0;
+  int mask = 0;
   std::size_t per_row = 0;
   T* data = nullptr;
-  RowRing(std::vector<T>& buffer, int rows_, std::size_t per_row_)
-      : rows(rows_), per_row(per_row_) {
-    const std::size_t n = static_cast<std::size_t>(rows_) * per_row_;
+  RowRing(std::vector<T>& buffer, int rows_, std::size_t per_row_) : per_row(per_row_) {
+    int rows = 1;
+    while (rows < rows_) rows *= 2;
+    mask = rows - 1;
+    const std::size_t n = static_cast<std::size_t>(rows) * per_row_;
     if (buffer.size() < n) buffer.resize(n);
     data = buffer.data();
   }
-  T* row(int y) { return data + static_cast<std::size_t>(y % rows) * per_row; }
+  T* row(int y) { return data + static_cast<std::size_t>(y & mask) * per_row; }
 };
 
 /// Buffers of the rings, kept per thread: a localizer extracts a few times per second,
@@ -42,7 +45,7 @@ struct RowRing {
 struct Workspace {
   std::vector<std::uint32_t> count, hits;
   std::vector<std::complex<float>> layers;
-  std::vector<float> power;
+  std::vector<float> power, diag;
   std::vector<double> full, trace;
 };
 
@@ -152,6 +155,9 @@ std::vector<PointCandidate> stream(const CovarianceGridmap& map, const Chunk& ch
     RowRing<std::uint32_t> count(ws.count, 2 * train + 1, w), hits(ws.hits, 2 * train + 1, w);
     RowRing<std::complex<float>> layers(ws.layers, 2 * train + 1, static_cast<std::size_t>(w) * L);
     RowRing<float> power(ws.power, 2 * train + 1, w);
+    // Per cell its Q diagonal layers and 1 if observed (0 if not), packed: what the line
+    // strips compare (brightest_strip), in a sixth of the layers' bytes.
+    RowRing<float> diag(ws.diag, 2 * train + 1, static_cast<std::size_t>(w) * (Q + 1));
     const std::size_t W = static_cast<std::size_t>(w) + 1;
     RowRing<double> full(ws.full, 2 * train + 2, W * NP), trace(ws.trace, 2 * train + 2, W * 2);
     std::fill(full.row(0), full.row(0) + W * NP, 0.0);
@@ -183,7 +189,14 @@ std::vector<PointCandidate> stream(const CovarianceGridmap& map, const Chunk& ch
         map.read_row(box.min_iy + y0 + r, box.min_ix + x0, box.min_ix + x0 + w,
                      {cnt, static_cast<std::size_t>(w)}, {hits.row(r), static_cast<std::size_t>(w)},
                      {lay, static_cast<std::size_t>(w) * L});
-        for (int x = 0; x < w; ++x) pw[x] = cell_power(lay + static_cast<std::size_t>(x) * L, 1, Q);
+        float* dg = diag.row(r);
+        for (int x = 0; x < w; ++x) {
+          const std::complex<float>* v = lay + static_cast<std::size_t>(x) * L;
+          pw[x] = cell_power(v, 1, Q);
+          float* d = dg + static_cast<std::size_t>(x) * (Q + 1);
+          for (int i = 0; i < Q; ++i) d[i] = v[layer_index(Q, i, i)].real();
+          d[Q] = cnt[x] > 0 ? 1.0F : 0.0F;
+        }
         const double* above = full.row(r);
         double* out = full.row(r + 1);
         const double* tabove = trace.row(r);
@@ -254,6 +267,10 @@ std::vector<PointCandidate> stream(const CovarianceGridmap& map, const Chunk& ch
                     return count.row(yy)[xx] == 0
                                ? nullptr
                                : layers.row(yy) + static_cast<std::size_t>(xx) * L;
+                  },
+                  [&](int xx, int yy) -> const float* {
+                    const float* d = diag.row(yy) + static_cast<std::size_t>(xx) * (Q + 1);
+                    return d[Q] == 0.0F ? nullptr : d;
                   },
                   strip, best, best_tr)) {
             chosen = best.data();

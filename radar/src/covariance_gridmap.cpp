@@ -248,10 +248,10 @@ struct CovarianceGridmap::Impl {
     };
     std::vector<Cover> cover;
     std::vector<Cell> cells;
-    std::vector<double> products;  ///< per stored bin: its packed k k^H and hit
+    std::vector<float> products;  ///< per stored bin: its packed k k^H and hit
     [[nodiscard]] std::size_t bytes() const {
       return cover.capacity() * sizeof(Cover) + cells.capacity() * sizeof(Cell) +
-             products.capacity() * sizeof(double);
+             products.capacity() * sizeof(float);
     }
   };
   /// Removes a frame recorded by apply(..., +1, &ops) (window mode only).
@@ -301,7 +301,7 @@ class ImplT final : public CovarianceGridmap::Impl {
   }
 
   void apply_recorded(const PolSpectrum& s, const Pose2& T_frame_sensor, FrameOps& ops) override {
-    if constexpr (std::is_same_v<T, double>) {
+    if constexpr (std::is_same_v<T, float>) {
       const Geometry g = make_geometry(s, T_frame_sensor);
       touched_.clear();
       record_ = &ops;
@@ -309,12 +309,12 @@ class ImplT final : public CovarianceGridmap::Impl {
       scatter(g, s, +1);
       record_ = nullptr;
     } else {
-      throw ContractViolation("CovarianceGridmap: recorded frames need double sums");
+      throw ContractViolation("CovarianceGridmap: recorded frames need float sums");
     }
   }
 
   void unapply(const FrameOps& ops) override {
-    if constexpr (std::is_same_v<T, double>) {
+    if constexpr (std::is_same_v<T, float>) {
       touched_.clear();
       for (const FrameOps::Cover& c : ops.cover) {
         Tile<T>& t = tile(key_tx(c.tile), key_ty(c.tile));
@@ -339,13 +339,17 @@ class ImplT final : public CovarianceGridmap::Impl {
         Tile<T>& t = tile(c.ix >> 6, c.iy >> 6);
         const int local = local_index(c.ix, c.iy);
         T* sums = t.block(block_of(local), stride_) + cell_in_block(local) * stride_;
-        const double* p = ops.products.data() + c.product;
+        const float* p = ops.products.data() + c.product;
         // s − p equals s + (−p): the same value the re-applied negative frame adds.
         for (int k = 0; k < stride_; ++k) sums[k] -= p[k];
+        // No frame left with data in the cell: its sums are zero, not a rounding residue
+        // (residues of far smaller magnitude than the data would make the pCFAR's
+        // integral images inexact).
+        if (sums[hit_] == T(0)) std::fill(sums, sums + stride_, T(0));
       }
       free_untouched();
     } else {
-      throw ContractViolation("CovarianceGridmap: recorded frames need double sums");
+      throw ContractViolation("CovarianceGridmap: recorded frames need float sums");
     }
   }
 
@@ -820,7 +824,7 @@ class ImplT final : public CovarianceGridmap::Impl {
         p[hit_] = static_cast<T>(sign);
         has_[sc.range_bin - ia] = 1;
       }
-      if constexpr (std::is_same_v<T, double>) {
+      if constexpr (std::is_same_v<T, float>) {
         if (record_ != nullptr) {
           run_products_ = static_cast<std::uint32_t>(record_->products.size());
           record_->products.insert(record_->products.end(), prod_.begin(), prod_.end());
@@ -993,11 +997,9 @@ void CovarianceRaster::set_covariance(int ix, int iy, const Eigen::MatrixXcd& c,
 
 CovarianceGridmap::CovarianceGridmap(GridmapConfig cfg) : cfg_(cfg) {
   POLMAP_EXPECT(cfg_.cell_size_m > 0.0 && cfg_.window_s >= 0.0 && cfg_.max_range_m >= 0.0);
-  if (cfg_.window_s > 0.0) {
-    impl_ = std::make_unique<ImplT<double>>(cfg_);
-  } else {
-    impl_ = std::make_unique<ImplT<float>>(cfg_);
-  }
+  // float sums in both modes: the window's rounding residue is bounded (see the header)
+  // and half the bytes per cell make adding, expiring and extracting ~6 % cheaper.
+  impl_ = std::make_unique<ImplT<float>>(cfg_);
 }
 CovarianceGridmap::~CovarianceGridmap() = default;
 CovarianceGridmap::CovarianceGridmap(CovarianceGridmap&&) noexcept = default;

@@ -27,14 +27,15 @@
 /// per-cell counts for partial coverage (32-bit after 65535 partial frames), and
 /// covariance sums allocated per 4×4 block only where data arrived, packed (real
 /// diagonal, complex upper off-diagonal: q + 2·(L−q) scalars per cell). Sums are
-/// float in mapping mode and double in sliding-window mode (which subtracts).
+/// float in both modes.
 ///
 /// Modes (paper §III-B3): window_s = 0 keeps the full history (mapping); window_s > 0
 /// keeps only frames with time ≥ newest time − window_s (localization). The window
 /// records, per frame, the coverage masks and the cells and products it added and,
 /// when the frame leaves, subtracts exactly those (no geometry or scan conversion is
-/// recomputed), so counts return exactly and sums to rounding (double); tiles no
-/// frame touches any more are freed. The window is in frame time order: add() frames with
+/// recomputed), so counts and hits return exactly and sums to float rounding (a residue
+/// of ~1e-7 of the largest sum a cell held; a tile no frame touches any more is freed,
+/// which clears it). The window is in frame time order: add() frames with
 /// non-decreasing time_s (sensors interleaved is fine).
 #include <Eigen/Core>
 #include <Eigen/Geometry>

@@ -7,6 +7,7 @@
 #include <numbers>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/ximgproc.hpp>
+#include <optional>
 #include <set>
 
 #include "block_regions.hpp"
@@ -36,6 +37,8 @@ struct RidgeImages {
   cv::Mat db;      ///< dB over the floor (not median filtered: the median erodes ends)
   cv::Mat ridge;   ///< ridgeness R
   cv::Mat centre;  ///< CV_8U: 1 where a ridge centre passes through the cell
+  /// Sparse filtering: the block groups outside which ridge and centre are 0.
+  std::optional<BlockRegions> regions;
 };
 
 RidgeImages ridgeness(const cv::Mat& power, double cs, double noise_power, int q,
@@ -105,7 +108,7 @@ RidgeImages ridgeness(const cv::Mat& power, double cs, double noise_power, int q
       m[k] = std::abs(t * nx) <= 0.5F && std::abs(t * ny) <= 0.5F ? 1 : 0;
     }
   }
-  return {db, out, centre};
+  return {db, out, centre, std::nullopt};
 }
 
 /// ridgeness() computed only where it can be non-zero. Below the floor a cell's dB is
@@ -160,7 +163,63 @@ RidgeImages ridgeness_sparse(const cv::Mat& power, double cs, double noise_power
     sub.centre(inner).copyTo(centre(r));
   }
   // Callers keep the images only until their next call on this thread.
-  return {db, ridge, centre};
+  return {db, ridge, centre, std::move(blocks)};
+}
+
+/// Ridge centres above the threshold, one-cell gaps closed and thickened to ≥ 3 cells
+/// (a 3×3 dilation: keeps every ridge a connected skeleton), each connected ridge
+/// thinned in its own bounding box and OR-ed into `skel` (same size as `ridge`). Thinning
+/// iterates over its image until nothing changes and the ridges cover a small part of
+/// the window, hence per component. Guo–Hall: OpenCV's Zhang–Suen collapses some 3-cell
+/// diagonal bands to a single pixel.
+void add_skeleton(const cv::Mat& ridge, const cv::Mat& centre, const LineExtractorConfig& cfg,
+                  cv::Mat skel) {
+  cv::Mat bin;
+  cv::threshold(ridge, bin, cfg.ridge_threshold_db, 255.0, cv::THRESH_BINARY);
+  bin.convertTo(bin, CV_8U);
+  bin.setTo(0, centre == 0);
+  cv::dilate(bin, bin, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(3, 3)));
+  cv::Mat lab, st, cen;
+  const int ncomp = cv::connectedComponentsWithStats(bin, lab, st, cen, 8, CV_32S);
+  for (int k = 1; k < ncomp; ++k) {
+    const int x = st.at<int>(k, cv::CC_STAT_LEFT), y = st.at<int>(k, cv::CC_STAT_TOP);
+    const int bw = st.at<int>(k, cv::CC_STAT_WIDTH), bh = st.at<int>(k, cv::CC_STAT_HEIGHT);
+    if (std::max(bw, bh) < 3) continue;  // too small to hold a line
+    // One-cell zero border so the thinning sees the component's outline.
+    cv::Mat roi = cv::Mat::zeros(bh + 2, bw + 2, CV_8U);
+    roi(cv::Rect(1, 1, bw, bh)).setTo(255, lab(cv::Rect(x, y, bw, bh)) == k);
+    cv::Mat thin;
+    cv::ximgproc::thinning(roi, thin, cv::ximgproc::THINNING_GUOHALL);
+    cv::Mat dst = skel(cv::Rect(x, y, bw, bh));
+    cv::bitwise_or(dst, thin(cv::Rect(1, 1, bw, bh)), dst);
+  }
+}
+
+/// The skeleton of the ridge image (add_skeleton() of the whole image). With sparse
+/// filtering each block group is processed on its own: its bounding box padded by the
+/// dilation's cell, with the ridge cells of other groups (bounding boxes may overlap)
+/// cleared. Groups are at least a block apart, so no dilated ridge joins two of them,
+/// every component is the whole image's and is thinned alike: the same skeleton.
+cv::Mat skeleton(const RidgeImages& ri, const LineExtractorConfig& cfg) {
+  cv::Mat skel = cv::Mat::zeros(ri.ridge.size(), CV_8U);
+  if (!ri.regions) {
+    add_skeleton(ri.ridge, ri.centre, cfg, skel);
+    return skel;
+  }
+  const BlockRegions& blocks = *ri.regions;
+  const cv::Rect image(0, 0, ri.ridge.cols, ri.ridge.rows);
+  for (const BlockRegion& b : blocks.regions) {
+    const cv::Rect padded = cv::Rect(b.x0 - 1, b.y0 - 1, b.x1 - b.x0 + 2, b.y1 - b.y0 + 2) & image;
+    cv::Mat ridge = ri.ridge(padded).clone();
+    for (int row = 0; row < padded.height; ++row) {
+      float* r = ridge.ptr<float>(row);
+      for (int col = 0; col < padded.width; ++col) {
+        if (blocks.label_at(padded.x + col, padded.y + row) != b.label) r[col] = 0.0F;
+      }
+    }
+    add_skeleton(ridge, ri.centre(padded), cfg, skel(padded));
+  }
+  return skel;
 }
 
 /// Value of img at the cell containing a point (metres); −1 outside the image.
@@ -334,33 +393,7 @@ std::vector<LineCandidate> extract_lines(const cv::Mat& power, const CellBox& bo
   POLMAP_EXPECT(power.rows == box.height() && power.cols == box.width());
   const RidgeImages ri = ridgeness_sparse(power, cs, noise_power, q, cfg);
   const cv::Mat& r = ri.ridge;
-  cv::Mat bin;
-  cv::threshold(r, bin, cfg.ridge_threshold_db, 255.0, cv::THRESH_BINARY);
-  bin.convertTo(bin, CV_8U);
-  bin.setTo(0, ri.centre == 0);
-  // Closing one-cell gaps and thickening to ≥ 3 cells first keeps every ridge a
-  // connected skeleton. Guo–Hall: OpenCV's Zhang–Suen collapses some 3-cell diagonal
-  // bands to a single pixel.
-  cv::dilate(bin, bin, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(3, 3)));
-  // Thinning iterates over the whole image until nothing changes; the ridges cover a
-  // small part of it, so thin each connected ridge in its own bounding box.
-  cv::Mat skel = cv::Mat::zeros(bin.size(), CV_8U);
-  {
-    cv::Mat lab, st, cen;
-    const int ncomp = cv::connectedComponentsWithStats(bin, lab, st, cen, 8, CV_32S);
-    for (int k = 1; k < ncomp; ++k) {
-      const int x = st.at<int>(k, cv::CC_STAT_LEFT), y = st.at<int>(k, cv::CC_STAT_TOP);
-      const int bw = st.at<int>(k, cv::CC_STAT_WIDTH), bh = st.at<int>(k, cv::CC_STAT_HEIGHT);
-      if (std::max(bw, bh) < 3) continue;  // too small to hold a line
-      // One-cell zero border so the thinning sees the component's outline.
-      cv::Mat roi = cv::Mat::zeros(bh + 2, bw + 2, CV_8U);
-      roi(cv::Rect(1, 1, bw, bh)).setTo(255, lab(cv::Rect(x, y, bw, bh)) == k);
-      cv::Mat thin;
-      cv::ximgproc::thinning(roi, thin, cv::ximgproc::THINNING_GUOHALL);
-      cv::Mat dst = skel(cv::Rect(x, y, bw, bh));
-      cv::bitwise_or(dst, thin(cv::Rect(1, 1, bw, bh)), dst);
-    }
-  }
+  const cv::Mat skel = skeleton(ri, cfg);
   std::vector<cv::Vec4i> hough;
   const int min_votes = std::max(2, static_cast<int>(cfg.hough_min_votes_m / cs));
   cv::HoughLinesP(skel, hough, cfg.hough_rho_m / cs, cfg.hough_theta_deg * std::numbers::pi / 180.0,

@@ -26,6 +26,8 @@ namespace {
 constexpr std::array<std::uint8_t, 8> kMagic{0x89, 'P', 'M', 'R', 'E', 'C', '\r', '\n'};
 constexpr std::size_t kPreambleBytes = 16;      // magic, u32 version, u32 reserved
 constexpr std::size_t kRecordHeaderBytes = 20;  // see RecordHeader
+// deflate expands at most ~1032:1 (a 258-byte match per 2 bits), zlib adds a few bytes.
+constexpr std::uint32_t kDeflateMaxRatio = 1032;
 constexpr std::size_t kTrajectoryPayloadBytes = 6 * 8 + 3 * 4 + 1;
 constexpr std::size_t kEndPayloadBytes = 2 * 8;
 
@@ -673,6 +675,18 @@ struct RecordingReader::Impl {
     }
     if (enc == static_cast<std::uint8_t>(Encoding::Raw) && stored_len != raw_len) {
       fail(start, "raw record with stored length != payload length");
+    }
+    // Limits before memory: a header may claim up to kMaxRecordBytes, so the payload must
+    // be in the file and its decompressed length within deflate's expansion bound
+    // (< 1032:1) before anything is reserved for them.
+    if (stored_len > size - offset) {
+      fail(offset, "file truncated: record payload needs " + std::to_string(stored_len) +
+                       " bytes, only " + std::to_string(size - offset) + " left");
+    }
+    if (enc == static_cast<std::uint8_t>(Encoding::Zlib) &&
+        raw_len > std::uint64_t{kDeflateMaxRatio} * stored_len + 64) {
+      fail(start, "zlib payload of " + std::to_string(stored_len) + " bytes cannot expand to " +
+                      std::to_string(raw_len) + " bytes");
     }
     stored.resize(stored_len);
     read_exact(stored.data(), stored_len, "record payload");

@@ -90,8 +90,7 @@ TEST(RecordingIoLimits, ZlibLengthBeyondDeflatesBoundIsRejectedBeforeItIsReserve
   // 8 stored bytes cannot inflate to 256 MiB; the stored bytes do exist in the file.
   with_first_record(8, 256u << 20, 1, path);
   const auto [msg, largest] = read(path);
-  EXPECT_NE(msg.find("zlib payload of 8 bytes cannot expand to 268435456 bytes"),
-            std::string::npos)
+  EXPECT_NE(msg.find("zlib payload of 8 bytes cannot expand to 268435456 bytes"), std::string::npos)
       << msg;
   EXPECT_LT(largest, 1U << 20) << msg;
   fs::remove_all(path.parent_path());

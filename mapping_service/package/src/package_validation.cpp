@@ -769,6 +769,20 @@ RasterLayout raster_layout(GDALDataset& ds, const std::string& file) {
     invalid(file, "bands", std::to_string(nb) + " bands is not 1 + q^2 for q in 1..4");
   }
   l.q = q;
+  // Blocks are read into fixed 256 × 256 float buffers: re-checked here, where they are
+  // read, not only by the validation that admitted the file.
+  for (int b = 1; b <= nb; ++b) {
+    GDALRasterBand* band = ds.GetRasterBand(b);
+    int bx = 0, by = 0;
+    band->GetBlockSize(&bx, &by);
+    if (band->GetRasterDataType() != GDT_Float32 || bx != detail::kGridmapBlockSize ||
+        by != detail::kGridmapBlockSize) {
+      invalid(file, "band " + std::to_string(b),
+              std::string(GDALGetDataTypeName(band->GetRasterDataType())) + " in " +
+                  std::to_string(bx) + "x" + std::to_string(by) +
+                  " blocks, expected Float32 in 256x256 tiles");
+    }
+  }
   if (ds.GetGeoTransform(l.gt) != CE_None) invalid(file, "geotransform", "missing");
   return l;
 }

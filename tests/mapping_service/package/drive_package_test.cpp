@@ -407,6 +407,33 @@ TEST_F(DrivePackageTest, EmptyDriveStillMakesAValidPackage) {
   EXPECT_EQ(read_gridmap(back).count, std::vector<std::uint32_t>{0});
 }
 
+TEST_F(DrivePackageTest, GridmapReaderRechecksTypeAndBlockSizeWhereItReadsBlocks) {
+  // A stored gridmap is read block by block into 256 x 256 float buffers: a file of another
+  // type or tiling (one that never went through validation) is refused, not overrun.
+  for (const auto& [type, block] :
+       {std::pair{GDT_Float64, 256}, std::pair{GDT_Float32, 512}, std::pair{GDT_Float32, 128}}) {
+    const fs::path tif = root_ / ("odd_" + std::to_string(block) + ".tif");
+    const std::string bs = std::to_string(block);
+    const std::string bx = "BLOCKXSIZE=" + bs, by = "BLOCKYSIZE=" + bs;
+    const char* opts[] = {"TILED=YES", bx.c_str(), by.c_str(), nullptr};
+    {
+      GDALDatasetUniquePtr ds(GetGDALDriverManager()->GetDriverByName("GTiff")->Create(
+          tif.c_str(), 600, 600, 2, type, const_cast<char**>(opts)));
+      ASSERT_TRUE(ds);
+      double gt[6] = {0, 0.1, 0, 60, 0, -0.1};
+      ds->SetGeoTransform(gt);
+    }
+    try {
+      (void)read_gridmap(tif.string());
+      ADD_FAILURE() << "read " << tif;
+    } catch (const PackageValidationError& e) {
+      EXPECT_EQ(e.error().field, "band 1") << e.what();
+      EXPECT_NE(std::string(e.what()).find("expected Float32 in 256x256 tiles"), std::string::npos)
+          << e.what();
+    }
+  }
+}
+
 }  // namespace
 }  // namespace polmap::mapping
 

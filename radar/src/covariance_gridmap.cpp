@@ -273,6 +273,9 @@ namespace {
 
 template <typename T>
 class ImplT final : public CovarianceGridmap::Impl {
+  // The window records its products as float (FrameOps::products) and subtracts them.
+  static_assert(std::is_same_v<T, float>, "sums are float in both modes");
+
  public:
   ImplT(const GridmapConfig& cfg) : cfg_(cfg), q_(pol_dimension(cfg.level)), L_(num_layers(q_)) {
     // Packed layout per cell: diagonal layers are real (one scalar), off-diagonal
@@ -301,56 +304,48 @@ class ImplT final : public CovarianceGridmap::Impl {
   }
 
   void apply_recorded(const PolSpectrum& s, const Pose2& T_frame_sensor, FrameOps& ops) override {
-    if constexpr (std::is_same_v<T, float>) {
-      const Geometry g = make_geometry(s, T_frame_sensor);
-      touched_.clear();
-      record_ = &ops;
-      cover(g, +1);
-      scatter(g, s, +1);
-      record_ = nullptr;
-    } else {
-      throw ContractViolation("CovarianceGridmap: recorded frames need float sums");
-    }
+    const Geometry g = make_geometry(s, T_frame_sensor);
+    touched_.clear();
+    record_ = &ops;
+    cover(g, +1);
+    scatter(g, s, +1);
+    record_ = nullptr;
   }
 
   void unapply(const FrameOps& ops) override {
-    if constexpr (std::is_same_v<T, float>) {
-      touched_.clear();
-      for (const FrameOps::Cover& c : ops.cover) {
-        Tile<T>& t = tile(key_tx(c.tile), key_ty(c.tile));
-        t.touch -= 1;
-        touched_.push_back(c.tile);
-        if (c.inside) {
-          t.base -= 1;
-          continue;
-        }
-        t.partial -= 1;
-        for (int b = 0; b < kBlocksPerSide * kBlocksPerSide; ++b) {
-          if (c.masks[b] == 0) continue;
-          const int row0 = (b / kBlocksPerSide) * kB, col0 = (b % kBlocksPerSide) * kB;
-          if (t.n32) {
-            count_block(t.n32.get(), row0, col0, c.masks[b], -1);
-          } else {
-            count_block(t.n16.get(), row0, col0, c.masks[b], -1);
-          }
+    touched_.clear();
+    for (const FrameOps::Cover& c : ops.cover) {
+      Tile<T>& t = tile(key_tx(c.tile), key_ty(c.tile));
+      t.touch -= 1;
+      touched_.push_back(c.tile);
+      if (c.inside) {
+        t.base -= 1;
+        continue;
+      }
+      t.partial -= 1;
+      for (int b = 0; b < kBlocksPerSide * kBlocksPerSide; ++b) {
+        if (c.masks[b] == 0) continue;
+        const int row0 = (b / kBlocksPerSide) * kB, col0 = (b % kBlocksPerSide) * kB;
+        if (t.n32) {
+          count_block(t.n32.get(), row0, col0, c.masks[b], -1);
+        } else {
+          count_block(t.n16.get(), row0, col0, c.masks[b], -1);
         }
       }
-      for (const FrameOps::Cell& c : ops.cells) {
-        Tile<T>& t = tile(c.ix >> 6, c.iy >> 6);
-        const int local = local_index(c.ix, c.iy);
-        T* sums = t.block(block_of(local), stride_) + cell_in_block(local) * stride_;
-        const float* p = ops.products.data() + c.product;
-        // s − p equals s + (−p): the same value the re-applied negative frame adds.
-        for (int k = 0; k < stride_; ++k) sums[k] -= p[k];
-        // No frame left with data in the cell: its sums are zero, not a rounding residue
-        // (residues of far smaller magnitude than the data would make the pCFAR's
-        // integral images inexact).
-        if (sums[hit_] == T(0)) std::fill(sums, sums + stride_, T(0));
-      }
-      free_untouched();
-    } else {
-      throw ContractViolation("CovarianceGridmap: recorded frames need float sums");
     }
+    for (const FrameOps::Cell& c : ops.cells) {
+      Tile<T>& t = tile(c.ix >> 6, c.iy >> 6);
+      const int local = local_index(c.ix, c.iy);
+      T* sums = t.block(block_of(local), stride_) + cell_in_block(local) * stride_;
+      const float* p = ops.products.data() + c.product;
+      // s − p equals s + (−p): the same value the re-applied negative frame adds.
+      for (int k = 0; k < stride_; ++k) sums[k] -= p[k];
+      // No frame left with data in the cell: its sums are zero, not a rounding residue
+      // (residues of far smaller magnitude than the data would make the pCFAR's
+      // integral images inexact).
+      if (sums[hit_] == T(0)) std::fill(sums, sums + stride_, T(0));
+    }
+    free_untouched();
   }
 
   /// Frees the tiles of touched_ that no frame touches any more.
@@ -824,11 +819,9 @@ class ImplT final : public CovarianceGridmap::Impl {
         p[hit_] = static_cast<T>(sign);
         has_[sc.range_bin - ia] = 1;
       }
-      if constexpr (std::is_same_v<T, float>) {
-        if (record_ != nullptr) {
-          run_products_ = static_cast<std::uint32_t>(record_->products.size());
-          record_->products.insert(record_->products.end(), prod_.begin(), prod_.end());
-        }
+      if (record_ != nullptr) {
+        run_products_ = static_cast<std::uint32_t>(record_->products.size());
+        record_->products.insert(record_->products.end(), prod_.begin(), prod_.end());
       }
       scan_run(g, beam, ia, ib);
       i = j;

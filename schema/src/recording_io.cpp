@@ -636,11 +636,16 @@ struct RecordingReader::Impl {
     throw FormatError(source, at, msg);
   }
 
-  void read_exact(std::uint8_t* p, std::size_t n, const char* what) {
+  /// The file must still hold n bytes for `what` (checked before anything is reserved).
+  void require_left(std::size_t n, const char* what) const {
     if (n > size - offset) {
       fail(offset, std::string("file truncated: ") + what + " needs " + std::to_string(n) +
                        " bytes, only " + std::to_string(size - offset) + " left");
     }
+  }
+
+  void read_exact(std::uint8_t* p, std::size_t n, const char* what) {
+    require_left(n, what);
     in.read(reinterpret_cast<char*>(p), static_cast<std::streamsize>(n));
     if (static_cast<std::size_t>(in.gcount()) != n) {
       fail(offset, std::string("read error or file shrank while reading ") + what);
@@ -679,10 +684,7 @@ struct RecordingReader::Impl {
     // Limits before memory: a header may claim up to kMaxRecordBytes, so the payload must
     // be in the file and its decompressed length within deflate's expansion bound
     // (< 1032:1) before anything is reserved for them.
-    if (stored_len > size - offset) {
-      fail(offset, "file truncated: record payload needs " + std::to_string(stored_len) +
-                       " bytes, only " + std::to_string(size - offset) + " left");
-    }
+    require_left(stored_len, "record payload");
     if (enc == static_cast<std::uint8_t>(Encoding::Zlib) &&
         raw_len > std::uint64_t{kDeflateMaxRatio} * stored_len + 64) {
       fail(start, "zlib payload of " + std::to_string(stored_len) + " bytes cannot expand to " +

@@ -181,6 +181,23 @@ GDALDatasetUniquePtr open_raster(const std::string& path, const std::string& fil
   return ds;
 }
 
+/// Blocks are read into fixed 256 × 256 float buffers (detail::GridmapBlockBuffer): a band
+/// must be Float32 in such tiles, checked by validation and again wherever blocks are read.
+void check_band_storage(GDALRasterBand& band, const std::string& file, const std::string& bname) {
+  if (band.GetRasterDataType() != GDT_Float32) {
+    invalid(file, bname,
+            std::string("data type ") + GDALGetDataTypeName(band.GetRasterDataType()) +
+                ", expected Float32");
+  }
+  int bx = 0, by = 0;
+  band.GetBlockSize(&bx, &by);
+  if (bx != detail::kGridmapBlockSize || by != detail::kGridmapBlockSize) {
+    invalid(
+        file, bname,
+        "block size " + std::to_string(bx) + "x" + std::to_string(by) + ", expected 256x256 tiles");
+  }
+}
+
 GridmapScan validate_gridmap(const std::string& path, const DriveManifest& m,
                              const PackageValidationConfig& cfg, const util::Deadline& deadline) {
   auto ds = open_raster(path, kTif);
@@ -209,22 +226,11 @@ GridmapScan validate_gridmap(const std::string& path, const DriveManifest& m,
   for (int b = 0; b < ds->GetRasterCount(); ++b) {
     GDALRasterBand* band = ds->GetRasterBand(b + 1);
     const std::string bname = "band " + std::to_string(b + 1);
-    if (band->GetRasterDataType() != GDT_Float32) {
-      invalid(kTif, bname,
-              std::string("data type ") + GDALGetDataTypeName(band->GetRasterDataType()) +
-                  ", expected Float32");
-    }
+    check_band_storage(*band, kTif, bname);
     if (names[b] != band->GetDescription()) {
       invalid(
           kTif, bname,
           std::string("description '") + band->GetDescription() + "', expected '" + names[b] + "'");
-    }
-    int bx = 0, by = 0;
-    band->GetBlockSize(&bx, &by);
-    if (bx != detail::kGridmapBlockSize || by != detail::kGridmapBlockSize) {
-      invalid(kTif, bname,
-              "block size " + std::to_string(bx) + "x" + std::to_string(by) +
-                  ", expected 256x256 tiles");
     }
   }
   double gt[6];
@@ -769,20 +775,9 @@ RasterLayout raster_layout(GDALDataset& ds, const std::string& file) {
     invalid(file, "bands", std::to_string(nb) + " bands is not 1 + q^2 for q in 1..4");
   }
   l.q = q;
-  // Blocks are read into fixed 256 × 256 float buffers: re-checked here, where they are
-  // read, not only by the validation that admitted the file.
-  for (int b = 1; b <= nb; ++b) {
-    GDALRasterBand* band = ds.GetRasterBand(b);
-    int bx = 0, by = 0;
-    band->GetBlockSize(&bx, &by);
-    if (band->GetRasterDataType() != GDT_Float32 || bx != detail::kGridmapBlockSize ||
-        by != detail::kGridmapBlockSize) {
-      invalid(file, "band " + std::to_string(b),
-              std::string(GDALGetDataTypeName(band->GetRasterDataType())) + " in " +
-                  std::to_string(bx) + "x" + std::to_string(by) +
-                  " blocks, expected Float32 in 256x256 tiles");
-    }
-  }
+  // Re-checked where the blocks are read, not only by the validation that admitted the file.
+  for (int b = 1; b <= nb; ++b)
+    check_band_storage(*ds.GetRasterBand(b), file, "band " + std::to_string(b));
   if (ds.GetGeoTransform(l.gt) != CE_None) invalid(file, "geotransform", "missing");
   return l;
 }

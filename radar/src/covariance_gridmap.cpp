@@ -267,6 +267,7 @@ struct CovarianceGridmap::Impl {
   double noise_sum = 0.0;
   std::int64_t frames = 0;
   std::size_t window_bytes = 0;
+  double imported_noise_power = 0.0;  ///< set_noise_power() of a map built by merge_tile
 };
 
 namespace {
@@ -1040,7 +1041,14 @@ void CovarianceGridmap::merge_tile(const CovarianceTileView& tile) {
 }
 
 double CovarianceGridmap::noise_power() const {
-  return impl_->frames > 0 ? impl_->noise_sum / static_cast<double>(impl_->frames) : 0.0;
+  return impl_->frames > 0 ? impl_->noise_sum / static_cast<double>(impl_->frames)
+                           : impl_->imported_noise_power;
+}
+
+void CovarianceGridmap::set_noise_power(double noise_power) {
+  POLMAP_EXPECT(cfg_.window_s == 0.0 && impl_->frames == 0);
+  POLMAP_EXPECT(std::isfinite(noise_power) && noise_power >= 0.0);
+  impl_->imported_noise_power = noise_power;
 }
 std::size_t CovarianceGridmap::num_frames() const {
   return static_cast<std::size_t>(impl_->frames);

@@ -30,6 +30,8 @@ struct ProcessOptions {
   std::string pol = "full";
   double cell_size_m = 0.1;
   int mantissa_bits = 23;
+  int format = 2;
+  bool landmarks_only = false;
   bool tar = false;
   bool overwrite = false;
   bool json = false;
@@ -75,6 +77,9 @@ void run(const ProcessOptions& o) {
   mapping::PackageWriteOptions wopts;
   wopts.overwrite = o.overwrite;
   wopts.mantissa_bits = o.mantissa_bits;
+  wopts.format_version = static_cast<std::uint32_t>(o.format);
+  wopts.landmarks_only = o.landmarks_only;
+  if (o.landmarks_only && o.format < 2) throw ValidationError("--landmarks-only needs --format 2");
   char producer[128];
   std::snprintf(producer, sizeof(producer), "polmap process 0.1.0 (pol %s, cell %g m)",
                 o.pol.c_str(), o.cell_size_m);
@@ -96,6 +101,11 @@ void run(const ProcessOptions& o) {
     package_bytes = dir_bytes(out);
   }
 
+  std::uint64_t gridmap_bytes = 0, candidates_bytes = 0;
+  for (const auto& f : manifest.files) {
+    (f.name == mapping::kGridmapFileName ? gridmap_bytes : candidates_bytes) = f.size_bytes;
+  }
+  const std::string candidates_name = manifest.files.back().name;
   const auto& st = result.stats;
   const double km = st.distance_m / 1000.0;
   const double per_km = km > 0 ? static_cast<double>(package_bytes) / km : 0.0;
@@ -116,8 +126,10 @@ void run(const ProcessOptions& o) {
                      {"lines", manifest.counts.lines},
                      {"gridmap_width", manifest.gridmap.width},
                      {"gridmap_height", manifest.gridmap.height},
-                     {"gridmap_bytes", manifest.files.at(0).size_bytes},
-                     {"candidates_bytes", manifest.files.at(1).size_bytes},
+                     {"format_version", manifest.format_version},
+                     {"landmarks_only", !manifest.has_gridmap},
+                     {"gridmap_bytes", gridmap_bytes},
+                     {"candidates_bytes", candidates_bytes},
                      {"package_bytes", package_bytes},
                      {"package_bytes_per_km", per_km},
                      {"seconds", st.total_seconds}};
@@ -132,10 +144,11 @@ void run(const ProcessOptions& o) {
       static_cast<unsigned long long>(manifest.counts.points),
       static_cast<unsigned long long>(manifest.counts.lines), manifest.gridmap.width,
       manifest.gridmap.height, manifest.cell_size_m, o.pol.c_str(), manifest.gridmap.num_bands);
-  std::printf("package %s%s: %.2f MB (gridmap.tif %.2f MB, candidates.gpkg %.2f MB)", o.out.c_str(),
-              o.tar ? " (ustar archive)" : "", package_bytes / 1e6,
-              manifest.files.at(0).size_bytes / 1e6, manifest.files.at(1).size_bytes / 1e6);
-  if (km > 0) std::printf(", %.2f MB/km", per_km / 1e6);
+  std::printf("package %s%s (format %u%s): %.3f MB (gridmap.tif %.3f MB, %s %.3f MB)",
+              o.out.c_str(), o.tar ? " (ustar archive)" : "", manifest.format_version,
+              manifest.has_gridmap ? "" : ", landmarks only", package_bytes / 1e6,
+              gridmap_bytes / 1e6, candidates_name.c_str(), candidates_bytes / 1e6);
+  if (km > 0) std::printf(", %.3f MB/km (%.1f kB/km)", per_km / 1e6, per_km / 1e3);
   std::printf("; processing %.1f s\n", st.total_seconds);
 }
 
@@ -154,6 +167,13 @@ void setup(CLI::App& app) {
                   "5e-4 relative precision and shrinks the gridmap)")
       ->check(CLI::Range(1, 23))
       ->capture_default_str();
+  cmd->add_option("--format", opts->format,
+                  "Package format: 2 = compact (gridmap codes + candidates.bin, a few MB/km), "
+                  "1 = Float32 gridmap + GeoPackage (lossless, ~85 MB/km)")
+      ->check(CLI::Range(1, 2))
+      ->capture_default_str();
+  cmd->add_flag("--landmarks-only", opts->landmarks_only,
+                "Format 2 without the gridmap: candidates and trajectory only (~15 kB/km)");
   cmd->add_flag("--tar", opts->tar, "Write the single-file ustar archive instead of a directory");
   cmd->add_flag("--overwrite", opts->overwrite, "Replace an existing package");
   cmd->add_flag("--json", opts->json, "Print the summary as JSON");

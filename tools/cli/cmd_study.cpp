@@ -24,6 +24,7 @@ namespace polmap::cli {
 namespace {
 
 struct StudyOptions {
+  int package_format = 2;
   std::string world = "urban";
   double length_m = 600.0;
   int drives = 3;
@@ -55,6 +56,7 @@ void run(const StudyOptions& o) {
   cfg.drives = o.drives;
   cfg.out_dir = o.out;
   cfg.http = o.http;
+  cfg.package_format = static_cast<std::uint32_t>(o.package_format);
   cfg.keep_packages = o.keep_packages;
   cfg.diagnose = o.diagnose;
   cfg.initial_error_m = o.initial_error_m;
@@ -145,6 +147,10 @@ void setup(CLI::App& app) {
   cmd->add_flag("--keep-packages", opts->keep_packages, "keep the drive package directories");
   cmd->add_flag("--diagnose", opts->diagnose,
                 "per drive: odometry drift, truth-posed candidates vs the map (stage diagnosis)");
+  cmd->add_option("--package-format", opts->package_format,
+                  "drive package format of the mapping uploads (2 compact, 1 lossless)")
+      ->check(CLI::Range(1, 2))
+      ->capture_default_str();
   cmd->add_option("--initial-error-m", opts->initial_error_m,
                   "deliberate position error of the initial (GNSS) pose")
       ->capture_default_str();

@@ -14,6 +14,7 @@
 #include <sstream>
 
 #include "package_internal.hpp"
+#include "polmap/mapping_service/candidates_codec.hpp"
 #include "polmap/mapping_service/ustar.hpp"
 #include "polmap/schema/json.hpp"
 
@@ -89,20 +90,104 @@ util::ScopedTempDir make_package_temp_dir(const fs::path& dir) {
   return util::ScopedTempDir::create(parent_for_temp(dir), hidden_stem(dir, ".tmp"));
 }
 
-/// Shared tail of both writers: the gridmap.tif is already in `tmp`; writes the
+std::vector<std::pair<std::string, std::string>> tiff_metadata(const DriveManifest& m);
+
+/// Format 2 trajectory: greedy simplification — from each kept sample, the next kept one
+/// is the farthest whose linear interpolation reproduces every sample in between within
+/// the position and yaw bounds and which is at most max_gap_s later (first and last kept).
+std::vector<TrajectorySample> simplify_trajectory(const std::vector<TrajectorySample>& t,
+                                                  const tiles::LocalFrame& frame,
+                                                  const PackageWriteOptions& o) {
+  if (t.size() <= 2 || o.trajectory_max_gap_s <= 0.0) return t;
+  std::vector<Eigen::Vector2d> xy(t.size());
+  for (std::size_t i = 0; i < t.size(); ++i) xy[i] = frame.to_local(t[i].lat_deg, t[i].lon_deg);
+  const auto fits = [&](std::size_t a, std::size_t b) {
+    const double span = t[b].time_s - t[a].time_s;
+    if (span > o.trajectory_max_gap_s) return false;
+    double dyaw = std::remainder(t[b].yaw_enu_rad - t[a].yaw_enu_rad, 2.0 * M_PI);
+    for (std::size_t k = a + 1; k < b; ++k) {
+      const double f = (t[k].time_s - t[a].time_s) / span;
+      if ((xy[a] + f * (xy[b] - xy[a]) - xy[k]).norm() > o.trajectory_max_error_m) return false;
+      const double yaw = t[a].yaw_enu_rad + f * dyaw;
+      if (std::abs(std::remainder(yaw - t[k].yaw_enu_rad, 2.0 * M_PI)) >
+          o.trajectory_max_yaw_error_rad) {
+        return false;
+      }
+    }
+    return true;
+  };
+  std::vector<TrajectorySample> out{t.front()};
+  std::size_t a = 0;
+  while (a + 1 < t.size()) {
+    std::size_t b = a + 1;
+    while (b + 1 < t.size() && fits(a, b + 1)) ++b;
+    out.push_back(t[b]);
+    a = b;
+  }
+  return out;
+}
+
+/// Shared tail of both writers: the gridmap.tif (if any) is already in `tmp`; writes the
 /// candidates, the manifest, validates, and moves `tmp` into place.
 DriveManifest finish_package(DriveManifest m, const DrivePackage& values, const fs::path& tmp,
                              const fs::path& dir, const PackageWriteOptions& options) {
   const tiles::LocalFrame frame(m.origin);
-  write_candidates_gpkg((tmp / kCandidatesFileName).string(), frame, values.points, values.lines,
-                        values.trajectory);
-  m.format_version = kDrivePackageFormatVersion;
-  m.counts = {values.points.size(), values.lines.size(), values.trajectory.size()};
-  m.files = {file_entry(tmp, kGridmapFileName), file_entry(tmp, kCandidatesFileName)};
+  m.format_version = options.format_version;
+  m.files.clear();
+  if (m.has_gridmap) m.files.push_back(file_entry(tmp, kGridmapFileName));
+  if (options.format_version >= 2) {
+    CandidatesContent c{values.points, values.lines,
+                        simplify_trajectory(values.trajectory, frame, options)};
+    m.counts = {c.points.size(), c.lines.size(), c.trajectory.size()};
+    write_file_bytes(tmp / kCandidatesBinFileName, encode_candidates(c));
+    m.files.push_back(file_entry(tmp, kCandidatesBinFileName));
+  } else {
+    write_candidates_gpkg((tmp / kCandidatesFileName).string(), frame, values.points, values.lines,
+                          values.trajectory);
+    m.counts = {values.points.size(), values.lines.size(), values.trajectory.size()};
+    m.files.push_back(file_entry(tmp, kCandidatesFileName));
+  }
   write_file_bytes(tmp / kManifestFileName, manifest_to_json(m).dump(2) + "\n");
   if (options.validate_after_write) (void)read_and_validate_package(tmp);
   commit_dir(tmp, dir);
   return m;
+}
+
+/// The manifest's gridmap description for a raster of the given geometry.
+GridmapInfo gridmap_info(int width, int height, double origin_x_m, double origin_y_m, int q,
+                         double noise_power, const PackageWriteOptions& options) {
+  GridmapInfo g;
+  g.width = width;
+  g.height = height;
+  g.origin_x_m = origin_x_m;
+  g.origin_y_m = origin_y_m;
+  g.block_size = kGridmapBlockSize;
+  g.compact = options.format_version >= 2;
+  g.num_bands = (g.compact ? 3 : 1) + q * q;
+  g.mantissa_bits = g.compact ? 23 : std::clamp(options.mantissa_bits, 1, 23);
+  if (g.compact) {
+    // An empty drive has no noise figure; any positive σ² decodes its all-zero codes.
+    g.noise_power = noise_power > 0.0 ? noise_power : 1.0;
+    g.codec = options.codec;
+  }
+  return g;
+}
+
+GridmapTiffSpec tiff_spec(const DriveManifest& m, const PackageWriteOptions& options) {
+  GridmapTiffSpec spec;
+  spec.width = m.gridmap.width;
+  spec.height = m.gridmap.height;
+  spec.origin_x_m = m.gridmap.origin_x_m;
+  spec.origin_y_m = m.gridmap.origin_y_m;
+  spec.cell_size_m = m.cell_size_m;
+  spec.level = m.pol_level;
+  spec.crs_proj = m.crs_proj;
+  spec.deflate_level = options.deflate_level;
+  spec.mantissa_bits = m.gridmap.mantissa_bits;
+  spec.compact = m.gridmap.compact;
+  spec.zstd_level = options.zstd_level;
+  spec.metadata = tiff_metadata(m);
+  return spec;
 }
 
 /// Common manifest preparation of both writers (drive metadata, CRS, producer).
@@ -119,8 +204,17 @@ DriveManifest prepare_manifest(DriveManifest m, const PackageWriteOptions& optio
 }
 
 std::vector<std::pair<std::string, std::string>> tiff_metadata(const DriveManifest& m) {
+  if (m.gridmap.compact) {
+    return {{"POLMAP_FORMAT", "polmap.drive_package gridmap"},
+            {"POLMAP_FORMAT_VERSION", "2"},
+            {"POLMAP_DRIVE_ID", m.drive_id},
+            {"POLMAP_POL_LEVEL", std::string(to_string(m.pol_level))},
+            {"POLMAP_ENCODING",
+             "compact codes (schema/drive_package.md): N, hits, P = power code, U = Cholesky "
+             "factor codes; decode with the manifest's gridmap.codec and noise_power"}};
+  }
   return {{"POLMAP_FORMAT", "polmap.drive_package gridmap"},
-          {"POLMAP_FORMAT_VERSION", std::to_string(kDrivePackageFormatVersion)},
+          {"POLMAP_FORMAT_VERSION", "1"},
           {"POLMAP_DRIVE_ID", m.drive_id},
           {"POLMAP_POL_LEVEL", std::string(to_string(m.pol_level))},
           {"POLMAP_BAND_1", "N: observation count (0 = no data)"},
@@ -164,38 +258,76 @@ DriveManifest write_drive_package(const DrivePackage& pkg, const GridmapRaster& 
     empty.layers.assign(static_cast<std::size_t>(raster.num_layers()), std::vector<cdouble>(1));
     r = &empty;
   }
-  m.gridmap = {r->width,
-               r->height,
-               r->origin_x_m,
-               r->origin_y_m,
-               1 + q * q,
-               detail::kGridmapBlockSize,
-               std::clamp(options.mantissa_bits, 1, 23)};
-
+  const bool compact = options.format_version >= 2;
+  if (compact && !options.landmarks_only && !(raster.noise_power > 0.0) && cells > 0) {
+    throw ValidationError("write_drive_package: format 2 needs the raster's noise_power (> 0)");
+  }
+  if (!raster.hits.empty() && raster.hits.size() != cells) {
+    throw ValidationError("write_drive_package: raster hits do not match width x height");
+  }
+  m.has_gridmap = !(compact && options.landmarks_only);
+  m.gridmap = detail::gridmap_info(r->width, r->height, r->origin_x_m, r->origin_y_m, q,
+                                   raster.noise_power, options);
   const util::ScopedTempDir staging = detail::make_package_temp_dir(dir);
   const fs::path& tmp = staging.path();
-  {
-    GridmapTiffSpec spec;
-    spec.width = r->width;
-    spec.height = r->height;
-    spec.origin_x_m = r->origin_x_m;
-    spec.origin_y_m = r->origin_y_m;
-    spec.cell_size_m = m.cell_size_m;
-    spec.level = m.pol_level;
-    spec.crs_proj = m.crs_proj;
-    spec.deflate_level = options.deflate_level;
-    spec.mantissa_bits = std::clamp(options.mantissa_bits, 1, 23);
-    spec.metadata = detail::tiff_metadata(m);
-    detail::write_gridmap_tiff(*r, spec, (tmp / kGridmapFileName).string());
-    return detail::finish_package(std::move(m), pkg, tmp, dir, options);  // renames tmp
+  if (m.has_gridmap) {
+    const GridmapTiffSpec spec = detail::tiff_spec(m, options);
+    if (compact) {
+      const GridmapCodec codec(q, m.gridmap.noise_power, m.gridmap.codec);
+      detail::GridmapTiffWriter writer((tmp / kGridmapFileName).string(), spec);
+      detail::GridmapBlockBuffer block(writer.num_bands());
+      std::vector<std::uint16_t> codes(static_cast<std::size_t>(codec.codes_per_cell()));
+      std::vector<std::complex<float>> layers(static_cast<std::size_t>(r->num_layers()));
+      const int bs = detail::kGridmapBlockSize;
+      for (int by = 0; by < writer.blocks_y(); ++by) {
+        for (int bx = 0; bx < writer.blocks_x(); ++bx) {
+          block.clear();
+          for (int rr = 0; rr < std::min(bs, r->height - by * bs); ++rr) {
+            for (int cc = 0; cc < std::min(bs, r->width - bx * bs); ++cc) {
+              const std::size_t src =
+                  static_cast<std::size_t>(by * bs + rr) * r->width + bx * bs + cc;
+              for (int l = 0; l < r->num_layers(); ++l) {
+                layers[l] = std::complex<float>(r->layers[l][src]);
+              }
+              const std::uint32_t n = r->count[src];
+              codec.encode_cell(n, raster.hits.empty() ? n : raster.hits[src], layers, codes);
+              for (int b = 0; b < codec.codes_per_cell(); ++b) {
+                block.band(b)[static_cast<std::size_t>(rr) * bs + cc] = codes[b];
+              }
+            }
+          }
+          writer.write_block(bx, by, block);
+        }
+      }
+      writer.close();
+    } else {
+      detail::write_gridmap_tiff(*r, spec, (tmp / kGridmapFileName).string());
+    }
   }
+  return detail::finish_package(std::move(m), pkg, tmp, dir, options);  // renames tmp
 }
 
 // ------------------------------------------------------------------------ archive
 
+namespace {
+/// Archive members of a package directory: the manifest, then its listed files in order.
+std::vector<std::string> member_names(const fs::path& dir) {
+  const std::string text = detail::read_file_bytes(dir / kManifestFileName);
+  json j;
+  try {
+    j = json::parse(text);
+  } catch (const json::exception& e) {
+    throw PackageFormatError(kManifestFileName, "", std::string("not valid JSON: ") + e.what());
+  }
+  std::vector<std::string> names{kManifestFileName};
+  for (const auto& f : detail::manifest_from_json(j).files) names.push_back(f.name);
+  return names;
+}
+}  // namespace
+
 std::string pack_drive_package(const fs::path& dir) {
   std::vector<TarMember> members;
-  for (const char* name : {kManifestFileName, kGridmapFileName, kCandidatesFileName}) {
+  for (const std::string& name : member_names(dir)) {
     members.push_back({name, detail::read_file_bytes(dir / name)});
   }
   return write_ustar(members);
@@ -210,7 +342,7 @@ void write_drive_package_archive(const fs::path& dir, const fs::path& tar_path) 
     std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
     if (!out) throw IoError(tmp.string() + ": cannot open for writing");
     std::string buf(1 << 20, '\0');
-    for (const char* name : {kManifestFileName, kGridmapFileName, kCandidatesFileName}) {
+    for (const std::string& name : member_names(dir)) {
       const fs::path src = dir / name;
       const auto size = fs::file_size(src, ec);
       if (ec) throw IoError(src.string() + ": " + ec.message());
@@ -254,17 +386,18 @@ std::vector<TarMemberView> read_package_members(std::string_view tar_bytes) {
     if (msg.starts_with(prefix)) msg = msg.substr(prefix.size());
     throw PackageFormatError("archive", "", msg + " (at byte " + std::to_string(e.offset()) + ")");
   }
-  const std::vector<std::string> expected{kManifestFileName, kGridmapFileName, kCandidatesFileName};
+  // Which members a package has depends on its manifest (format 1: gridmap.tif and
+  // candidates.gpkg; format 2: candidates.bin and, unless landmarks-only, gridmap.tif);
+  // validation checks the set against the manifest. Here: only known names, manifest first.
+  const std::vector<std::string> known{kManifestFileName, kGridmapFileName, kCandidatesFileName,
+                                       kCandidatesBinFileName};
   for (const auto& mb : members) {
-    if (std::find(expected.begin(), expected.end(), mb.name) == expected.end()) {
+    if (std::find(known.begin(), known.end(), mb.name) == known.end()) {
       throw PackageValidationError("archive", "", "unexpected member '" + mb.name + "'");
     }
   }
-  for (const auto& name : expected) {
-    if (std::none_of(members.begin(), members.end(),
-                     [&](const TarMemberView& mb) { return mb.name == name; })) {
-      throw PackageValidationError(name, "", "missing from the archive");
-    }
+  if (members.empty() || members.front().name != kManifestFileName) {
+    throw PackageValidationError(kManifestFileName, "", "missing from the archive (or not first)");
   }
   return members;
 }

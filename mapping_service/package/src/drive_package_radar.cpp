@@ -1,5 +1,7 @@
 // Drive package writer fed by the radar front end (CovarianceGridmap tiles, processed drives).
 #include <algorithm>
+#include <cmath>
+#include <optional>
 #include <set>
 
 #include "package_internal.hpp"
@@ -16,6 +18,9 @@ DriveManifest prepare_manifest(DriveManifest m, const PackageWriteOptions& optio
 DriveManifest finish_package(DriveManifest m, const DrivePackage& values, const fs::path& tmp,
                              const fs::path& dir, const PackageWriteOptions& options);
 std::vector<std::pair<std::string, std::string>> tiff_metadata(const DriveManifest& m);
+GridmapInfo gridmap_info(int width, int height, double origin_x_m, double origin_y_m, int q,
+                         double noise_power, const PackageWriteOptions& options);
+GridmapTiffSpec tiff_spec(const DriveManifest& m, const PackageWriteOptions& options);
 void check_package_destination(const fs::path& dir, bool overwrite);
 util::ScopedTempDir make_package_temp_dir(const fs::path& dir);
 }  // namespace detail
@@ -41,13 +46,9 @@ DriveManifest write_drive_package(const DrivePackage& pkg, const radar::Covarian
   if (bounds.empty()) bounds = {0, 0, 1, 1};  // an empty drive: one empty cell at the origin
   const int width = bounds.width();
   const int height = bounds.height();
-  m.gridmap = {width,
-               height,
-               bounds.min_ix * cs,
-               bounds.max_iy * cs,
-               1 + q * q,
-               detail::kGridmapBlockSize,
-               std::clamp(options.mantissa_bits, 1, 23)};
+  m.has_gridmap = !(options.format_version >= 2 && options.landmarks_only);
+  m.gridmap = detail::gridmap_info(width, height, bounds.min_ix * cs, bounds.max_iy * cs, q,
+                                   gridmap.noise_power(), options);
 
   // GeoTIFF blocks touched by allocated tiles, in row-major block order (deterministic).
   std::set<std::pair<int, int>> blocks;  // (by, bx)
@@ -64,20 +65,16 @@ DriveManifest write_drive_package(const DrivePackage& pkg, const radar::Covarian
 
   const util::ScopedTempDir staging = detail::make_package_temp_dir(dir);
   const fs::path& tmp = staging.path();
+  if (!m.has_gridmap) return detail::finish_package(std::move(m), pkg, tmp, dir, options);
   {
-    detail::GridmapTiffSpec spec;
-    spec.width = width;
-    spec.height = height;
-    spec.origin_x_m = m.gridmap.origin_x_m;
-    spec.origin_y_m = m.gridmap.origin_y_m;
-    spec.cell_size_m = cs;
-    spec.level = m.pol_level;
-    spec.crs_proj = m.crs_proj;
-    spec.deflate_level = options.deflate_level;
-    spec.mantissa_bits = std::clamp(options.mantissa_bits, 1, 23);
-    spec.metadata = detail::tiff_metadata(m);
+    const detail::GridmapTiffSpec spec = detail::tiff_spec(m, options);
     detail::GridmapTiffWriter writer((tmp / kGridmapFileName).string(), spec);
     detail::GridmapBlockBuffer block(writer.num_bands());
+    std::optional<GridmapCodec> codec;
+    if (m.gridmap.compact) codec.emplace(q, m.gridmap.noise_power, m.gridmap.codec);
+    const int L = q * (q + 1) / 2;
+    std::vector<std::uint16_t> codes(static_cast<std::size_t>(2 + 1 + q * q));
+    std::vector<std::complex<float>> cell(static_cast<std::size_t>(L));
     for (const auto& [by, bx] : blocks) {
       // Cell box of this block (north-up rows: row r <-> iy = max_iy - 1 - r).
       radar::CellBox box;
@@ -96,6 +93,12 @@ DriveManifest write_drive_package(const DrivePackage& pkg, const radar::Covarian
           const std::size_t dst = static_cast<std::size_t>(row) * bs + (ix - box.min_ix);
           const std::uint32_t n = r.count[src];
           if (n == 0) continue;
+          if (codec) {
+            for (int l = 0; l < L; ++l) cell[l] = r.layers[l * plane + src];
+            codec->encode_cell(n, r.hits[src], cell, codes);
+            for (int b = 0; b < codec->codes_per_cell(); ++b) block.band(b)[dst] = codes[b];
+            continue;
+          }
           block.band(0)[dst] = static_cast<float>(std::min(n, detail::kMaxExactCount));
           int band = 1;
           int layer = 0;
@@ -147,6 +150,74 @@ DriveManifest write_drive_package(const radar::DriveProcessingResult& result, co
     m.start_time_s = m.end_time_s = h.start_time_s;
   }
   return write_drive_package(pkg, result.gridmap, dir, options);
+}
+
+radar::CovarianceGridmap read_covariance_gridmap(const DrivePackage& pkg) {
+  if (!pkg.manifest.has_gridmap) {
+    throw NotFoundError("read_covariance_gridmap: the package has no gridmap (landmarks only)");
+  }
+  radar::GridmapConfig cfg;
+  cfg.cell_size_m = pkg.manifest.cell_size_m;
+  cfg.level = pkg.manifest.pol_level;
+  radar::CovarianceGridmap map(cfg);
+  if (pkg.manifest.gridmap.compact) map.set_noise_power(pkg.manifest.gridmap.noise_power);
+  const int q = pol_dimension(cfg.level);
+  const int L = q * (q + 1) / 2;
+  const double cs = cfg.cell_size_m;
+  constexpr int ts = radar::kTileSizeCells;
+  std::vector<std::uint32_t> count(ts * ts), hits(ts * ts);
+  std::vector<std::complex<float>> layers(static_cast<std::size_t>(L) * ts * ts);
+  for_each_gridmap_block(pkg, [&](const GridmapRaster& b) {
+    // Block cell (col, row) is map cell (ix0 + col, iy_top - row); the raster is aligned to
+    // the map's cell grid (schema/drive_package.md), so the indices are exact integers.
+    const int ix0 = static_cast<int>(std::lround(b.origin_x_m / cs));
+    const int iy_top = static_cast<int>(std::lround(b.origin_y_m / cs)) - 1;
+    const int iy_bottom = iy_top - b.height + 1;
+    const auto floor_div = [](int a, int d) { return a >= 0 ? a / d : -((-a + d - 1) / d); };
+    for (int ty = floor_div(iy_bottom, ts); ty <= floor_div(iy_top, ts); ++ty) {
+      for (int tx = floor_div(ix0, ts); tx <= floor_div(ix0 + b.width - 1, ts); ++tx) {
+        std::fill(count.begin(), count.end(), 0U);
+        std::fill(hits.begin(), hits.end(), 0U);
+        std::fill(layers.begin(), layers.end(), std::complex<float>{});
+        bool any = false;
+        for (int r = 0; r < ts; ++r) {
+          const int iy = ty * ts + r;
+          const int row = iy_top - iy;
+          if (row < 0 || row >= b.height) continue;
+          for (int c = 0; c < ts; ++c) {
+            const int col = tx * ts + c - ix0;
+            if (col < 0 || col >= b.width) continue;
+            const std::size_t src = static_cast<std::size_t>(row) * b.width + col;
+            if (b.count[src] == 0) continue;
+            any = true;
+            const std::size_t dst = static_cast<std::size_t>(r) * ts + c;
+            count[dst] = b.count[src];
+            hits[dst] = b.hits.empty() ? b.count[src] : b.hits[src];
+            for (int l = 0; l < L; ++l) {
+              layers[static_cast<std::size_t>(l) * ts * ts + dst] =
+                  std::complex<float>(b.layers[l][src]);
+            }
+          }
+        }
+        if (!any) continue;
+        radar::CovarianceTileView v;
+        v.tile_x = tx;
+        v.tile_y = ty;
+        v.size_cells = ts;
+        v.origin_x_m = tx * ts * cs;
+        v.origin_y_m = ty * ts * cs;
+        v.cell_size_m = cs;
+        v.level = cfg.level;
+        v.q = q;
+        v.num_layers = L;
+        v.count = count;
+        v.layers = layers;
+        v.hits = hits;
+        map.merge_tile(v);
+      }
+    }
+  });
+  return map;
 }
 
 }  // namespace polmap::mapping

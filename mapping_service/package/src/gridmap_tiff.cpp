@@ -51,6 +51,13 @@ std::vector<std::string> gridmap_band_names(PolLevel level) {
   return names;
 }
 
+std::vector<std::string> compact_gridmap_band_names(PolLevel level) {
+  std::vector<std::string> names = gridmap_band_names(level);
+  for (std::size_t i = 1; i < names.size(); ++i) names[i][0] = 'U';  // C_A_B -> U_A_B
+  names.insert(names.begin() + 1, {"hits", "P"});
+  return names;
+}
+
 namespace detail {
 
 void ensure_gdal() {
@@ -142,8 +149,9 @@ GridmapTiffWriter::GridmapTiffWriter(const std::string& path, const GridmapTiffS
   ensure_gdal();
   POLMAP_EXPECT(spec.width > 0 && spec.height > 0 && spec.cell_size_m > 0);
   const int q = pol_dimension(spec.level);
-  num_bands_ = 1 + q * q;
-  const auto names = gridmap_band_names(spec.level);
+  num_bands_ = (spec.compact ? 3 : 1) + q * q;
+  const auto names =
+      spec.compact ? compact_gridmap_band_names(spec.level) : gridmap_band_names(spec.level);
   POLMAP_EXPECT(static_cast<int>(names.size()) == num_bands_);
 
   GdalErrorCapture capture;
@@ -154,12 +162,18 @@ GridmapTiffWriter::GridmapTiffWriter(const std::string& path, const GridmapTiffS
   const std::string zlevel = "ZLEVEL=" + std::to_string(std::clamp(spec.deflate_level, 1, 9));
   const std::string bx = "BLOCKXSIZE=" + std::to_string(kGridmapBlockSize);
   const std::string by = "BLOCKYSIZE=" + std::to_string(kGridmapBlockSize);
-  const char* opts[] = {"TILED=YES",           bx.c_str(),       by.c_str(),
-                        "COMPRESS=DEFLATE",    zlevel.c_str(),   "PREDICTOR=3",
-                        "INTERLEAVE=BAND",     "SPARSE_OK=TRUE", "BIGTIFF=IF_SAFER",
-                        "GEOTIFF_VERSION=1.1", nullptr};
-  ds_ = drv->Create(path.c_str(), spec.width, spec.height, num_bands_, GDT_Float32,
-                    const_cast<char**>(opts));
+  const std::string zstd = "ZSTD_LEVEL=" + std::to_string(std::clamp(spec.zstd_level, 1, 22));
+  const char* float_opts[] = {"TILED=YES",           bx.c_str(),       by.c_str(),
+                              "COMPRESS=DEFLATE",    zlevel.c_str(),   "PREDICTOR=3",
+                              "INTERLEAVE=BAND",     "SPARSE_OK=TRUE", "BIGTIFF=IF_SAFER",
+                              "GEOTIFF_VERSION=1.1", nullptr};
+  const char* code_opts[] = {"TILED=YES",           bx.c_str(),       by.c_str(),
+                             "COMPRESS=ZSTD",       zstd.c_str(),     "PREDICTOR=2",
+                             "INTERLEAVE=BAND",     "SPARSE_OK=TRUE", "BIGTIFF=IF_SAFER",
+                             "GEOTIFF_VERSION=1.1", nullptr};
+  ds_ = drv->Create(path.c_str(), spec.width, spec.height, num_bands_,
+                    spec.compact ? GDT_UInt16 : GDT_Float32,
+                    const_cast<char**>(spec.compact ? code_opts : float_opts));
   if (ds_ == nullptr) {
     throw IoError(path + ": cannot create GeoTIFF: " + capture.last_message());
   }
@@ -211,7 +225,7 @@ void GridmapTiffWriter::write_block(int bx, int by, GridmapBlockBuffer& block) {
   const float* n = block.band(0);
   constexpr std::size_t kCells = static_cast<std::size_t>(kGridmapBlockSize) * kGridmapBlockSize;
   if (std::all_of(n, n + kCells, [](float v) { return v == 0.0F; })) return;
-  if (spec_.mantissa_bits < 23) {
+  if (spec_.mantissa_bits < 23 && !spec_.compact) {
     const int bits = std::max(1, spec_.mantissa_bits);
     for (int b = 1; b < num_bands_; ++b) {
       float* d = block.band(b);
@@ -219,8 +233,15 @@ void GridmapTiffWriter::write_block(int bx, int by, GridmapBlockBuffer& block) {
     }
   }
   GdalErrorCapture capture;
+  std::vector<std::uint16_t> codes(spec_.compact ? kCells : 0);
   for (int b = 0; b < num_bands_; ++b) {
-    if (ds_->GetRasterBand(b + 1)->WriteBlock(bx, by, block.band(b)) != CE_None) {
+    void* data = block.band(b);
+    if (spec_.compact) {  // the buffer holds integer codes 0..65535
+      const float* f = block.band(b);
+      for (std::size_t k = 0; k < kCells; ++k) codes[k] = static_cast<std::uint16_t>(f[k]);
+      data = codes.data();
+    }
+    if (ds_->GetRasterBand(b + 1)->WriteBlock(bx, by, data) != CE_None) {
       throw IoError(path_ + ": cannot write block (" + std::to_string(bx) + ", " +
                     std::to_string(by) + ") of band " + std::to_string(b + 1) + ": " +
                     capture.last_message());

@@ -42,36 +42,47 @@ json manifest_to_json(const DriveManifest& m) {
     files.push_back({{"name", f.name}, {"size_bytes", f.size_bytes}, {"sha256", f.sha256}});
   }
   const int q = pol_dimension(m.pol_level);
-  return json{{"format", "polmap.drive_package"},
-              {"format_version", m.format_version},
-              {"drive_id", m.drive_id},
-              {"vehicle_id", m.vehicle_id},
-              {"world", m.world},
-              {"producer", m.producer},
-              {"start_time_s", m.start_time_s},
-              {"end_time_s", m.end_time_s},
-              {"distance_m", m.distance_m},
-              {"origin", m.origin},
-              {"crs_proj", m.crs_proj},
-              {"sensors", m.sensors},
-              {"pol_level", std::string(to_string(m.pol_level))},
-              {"q", q},
-              {"cell_size_m", m.cell_size_m},
-              {"gridmap",
-               {{"file", kGridmapFileName},
-                {"width", m.gridmap.width},
-                {"height", m.gridmap.height},
-                {"origin_x_m", m.gridmap.origin_x_m},
-                {"origin_y_m", m.gridmap.origin_y_m},
-                {"num_bands", m.gridmap.num_bands},
-                {"block_size", m.gridmap.block_size},
-                {"mantissa_bits", m.gridmap.mantissa_bits},
-                {"bands", gridmap_band_names(m.pol_level)}}},
-              {"counts",
-               {{"points", m.counts.points},
-                {"lines", m.counts.lines},
-                {"trajectory_samples", m.counts.trajectory_samples}}},
-              {"files", files}};
+  json j{{"format", "polmap.drive_package"},
+         {"format_version", m.format_version},
+         {"drive_id", m.drive_id},
+         {"vehicle_id", m.vehicle_id},
+         {"world", m.world},
+         {"producer", m.producer},
+         {"start_time_s", m.start_time_s},
+         {"end_time_s", m.end_time_s},
+         {"distance_m", m.distance_m},
+         {"origin", m.origin},
+         {"crs_proj", m.crs_proj},
+         {"sensors", m.sensors},
+         {"pol_level", std::string(to_string(m.pol_level))},
+         {"q", q},
+         {"cell_size_m", m.cell_size_m},
+         {"counts",
+          {{"points", m.counts.points},
+           {"lines", m.counts.lines},
+           {"trajectory_samples", m.counts.trajectory_samples}}},
+         {"files", files}};
+  if (m.has_gridmap) {
+    json g{{"file", kGridmapFileName},           {"width", m.gridmap.width},
+           {"height", m.gridmap.height},         {"origin_x_m", m.gridmap.origin_x_m},
+           {"origin_y_m", m.gridmap.origin_y_m}, {"num_bands", m.gridmap.num_bands},
+           {"block_size", m.gridmap.block_size}};
+    if (m.gridmap.compact) {
+      const GridmapCodecConfig& c = m.gridmap.codec;
+      g["encoding"] = "compact";
+      g["noise_power"] = m.gridmap.noise_power;
+      g["codec"] = {
+          {"relative_step", c.relative_step}, {"zero_step_noise", c.zero_step_noise},
+          {"power_step", c.power_step},       {"offdiag_min_snr_db", c.offdiag_min_snr_db},
+          {"floor_snr_db", c.floor_snr_db},   {"empty_count_bits", c.empty_count_bits}};
+      g["bands"] = compact_gridmap_band_names(m.pol_level);
+    } else {
+      g["mantissa_bits"] = m.gridmap.mantissa_bits;
+      g["bands"] = gridmap_band_names(m.pol_level);
+    }
+    j["gridmap"] = std::move(g);
+  }
+  return j;
 }
 
 namespace {
@@ -175,11 +186,10 @@ DriveManifest manifest_from_json(const json& j) {
     }
   }
   const std::int64_t version = f.integer("format_version");
-  if (version != kDrivePackageFormatVersion) {
-    throw PackageValidationError(kManifest, "format_version",
-                                 "unsupported version " + std::to_string(version) +
-                                     " (this build reads " +
-                                     std::to_string(kDrivePackageFormatVersion) + ")");
+  if (version != 1 && version != 2) {
+    throw PackageValidationError(
+        kManifest, "format_version",
+        "unsupported version " + std::to_string(version) + " (this build reads 1 and 2)");
   }
   m.format_version = static_cast<std::uint32_t>(version);
   m.drive_id = f.string("drive_id");
@@ -275,8 +285,12 @@ DriveManifest manifest_from_json(const json& j) {
     throw PackageValidationError(kManifest, "cell_size_m", "outside [0.01, 10] m");
   }
 
-  {
+  // Format 2 may leave the gridmap out (a landmarks-only package).
+  m.has_gridmap = version == 1 || f.find("gridmap") != nullptr;
+  if (m.has_gridmap) {
     const Fields g(f.object("gridmap"), "gridmap");
+    const bool compact = version >= 2;
+    m.gridmap.compact = compact;
     if (g.string("file") != kGridmapFileName) {
       throw PackageValidationError(kManifest, "gridmap.file",
                                    std::string("expected '") + kGridmapFileName + "'");
@@ -294,11 +308,12 @@ DriveManifest manifest_from_json(const json& j) {
     m.gridmap.origin_y_m = g.number("origin_y_m");
     const auto bands = g.integer("num_bands");
     const int q = pol_dimension(m.pol_level);
-    if (bands != 1 + q * q) {
+    const int want_bands = (compact ? 3 : 1) + q * q;
+    if (bands != want_bands) {
       throw PackageValidationError(kManifest, "gridmap.num_bands",
                                    std::to_string(bands) + " bands, pol_level '" +
                                        std::string(to_string(m.pol_level)) + "' needs " +
-                                       std::to_string(1 + q * q));
+                                       std::to_string(want_bands));
     }
     m.gridmap.num_bands = static_cast<int>(bands);
     const auto block = g.integer("block_size");
@@ -307,8 +322,39 @@ DriveManifest manifest_from_json(const json& j) {
                                    "expected " + std::to_string(kGridmapBlockSize));
     }
     m.gridmap.block_size = static_cast<int>(block);
+    if (compact) {
+      if (g.string("encoding") != "compact") {
+        throw PackageValidationError(kManifest, "gridmap.encoding", "expected 'compact'");
+      }
+      m.gridmap.noise_power = g.number("noise_power");
+      if (!(m.gridmap.noise_power > 0.0 && m.gridmap.noise_power < 1e30)) {
+        throw PackageValidationError(kManifest, "gridmap.noise_power", "not in (0, 1e30)");
+      }
+      const Fields c(g.object("codec"), "gridmap.codec");
+      GridmapCodecConfig& cc = m.gridmap.codec;
+      const auto ranged = [&](const char* key, double lo, double hi) {
+        const double v = c.number(key);
+        if (!(v >= lo && v <= hi)) {
+          throw PackageValidationError(
+              kManifest, std::string("gridmap.codec.") + key,
+              "outside [" + json(lo).dump() + ", " + json(hi).dump() + "]");
+        }
+        return v;
+      };
+      cc.relative_step = ranged("relative_step", 0.001, 0.05);
+      cc.zero_step_noise = ranged("zero_step_noise", 0.001, 1.0);
+      cc.power_step = ranged("power_step", 1e-4, 0.05);
+      cc.offdiag_min_snr_db = ranged("offdiag_min_snr_db", -100.0, 100.0);
+      cc.floor_snr_db = ranged("floor_snr_db", -100.0, 100.0);
+      const auto bits = c.integer("empty_count_bits");
+      if (bits < 1 || bits > 16) {
+        throw PackageValidationError(kManifest, "gridmap.codec.empty_count_bits",
+                                     "outside [1, 16]");
+      }
+      cc.empty_count_bits = static_cast<int>(bits);
+    }
     // Optional (absent in packages written before it existed: lossless).
-    if (g.find("mantissa_bits") != nullptr) {
+    if (!compact && g.find("mantissa_bits") != nullptr) {
       const auto bits = g.integer("mantissa_bits");
       if (bits < 1 || bits > 23) {
         throw PackageValidationError(kManifest, "gridmap.mantissa_bits", "outside [1, 23]");
@@ -316,7 +362,8 @@ DriveManifest manifest_from_json(const json& j) {
       m.gridmap.mantissa_bits = static_cast<int>(bits);
     }
     const json& names = g.array("bands");
-    if (names != json(gridmap_band_names(m.pol_level))) {
+    if (names !=
+        json(compact ? compact_gridmap_band_names(m.pol_level) : gridmap_band_names(m.pol_level))) {
       throw PackageValidationError(
           kManifest, "gridmap.bands",
           "band names do not match pol_level '" + std::string(to_string(m.pol_level)) + "'");
@@ -330,7 +377,9 @@ DriveManifest manifest_from_json(const json& j) {
   }
   {
     const json& files = f.array("files");
-    const std::vector<std::string> expected{kGridmapFileName, kCandidatesFileName};
+    std::vector<std::string> expected;
+    if (m.has_gridmap) expected.push_back(kGridmapFileName);
+    expected.push_back(version >= 2 ? kCandidatesBinFileName : kCandidatesFileName);
     for (std::size_t i = 0; i < files.size(); ++i) {
       const std::string p = "files[" + std::to_string(i) + "]";
       if (!files[i].is_object()) {

@@ -15,6 +15,7 @@
 #include "candidates_schema.hpp"
 #include "gpkg_screen.hpp"
 #include "package_internal.hpp"
+#include "polmap/mapping_service/candidates_codec.hpp"
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/mapping_service/ustar.hpp"
 #include "polmap/schema/json.hpp"
@@ -48,6 +49,8 @@ class PackageSource {
   virtual void for_each_chunk(const std::string& name,
                               const std::function<void(std::string_view)>& fn) const = 0;
   [[nodiscard]] virtual std::string gdal_path(const std::string& name) const = 0;
+  /// Members that must all be accounted for (archives); directories may hold other files.
+  [[nodiscard]] virtual std::vector<std::string> names() const { return {}; }
 };
 
 class DirSource final : public PackageSource {
@@ -128,6 +131,11 @@ class MemSource final : public PackageSource {
   [[nodiscard]] std::string gdal_path(const std::string& name) const override {
     return prefix_ + name;
   }
+  [[nodiscard]] std::vector<std::string> names() const override {
+    std::vector<std::string> out;
+    for (const auto& m : members_) out.push_back(m.name);
+    return out;
+  }
 
  private:
   [[nodiscard]] const TarMemberView* find(const std::string& name) const {
@@ -183,11 +191,13 @@ GDALDatasetUniquePtr open_raster(const std::string& path, const std::string& fil
 
 /// Blocks are read into fixed 256 × 256 float buffers (detail::GridmapBlockBuffer): a band
 /// must be Float32 in such tiles, checked by validation and again wherever blocks are read.
-void check_band_storage(GDALRasterBand& band, const std::string& file, const std::string& bname) {
-  if (band.GetRasterDataType() != GDT_Float32) {
+void check_band_storage(GDALRasterBand& band, const std::string& file, const std::string& bname,
+                        bool compact) {
+  const GDALDataType want = compact ? GDT_UInt16 : GDT_Float32;
+  if (band.GetRasterDataType() != want) {
     invalid(file, bname,
             std::string("data type ") + GDALGetDataTypeName(band.GetRasterDataType()) +
-                ", expected Float32");
+                ", expected " + GDALGetDataTypeName(want));
   }
   int bx = 0, by = 0;
   band.GetBlockSize(&bx, &by);
@@ -196,6 +206,17 @@ void check_band_storage(GDALRasterBand& band, const std::string& file, const std
         file, bname,
         "block size " + std::to_string(bx) + "x" + std::to_string(by) + ", expected 256x256 tiles");
   }
+}
+
+/// Reads block (bx, by) of a band into a float buffer (UInt16 codes convert exactly);
+/// the band's type and block size were checked by check_band_storage.
+CPLErr read_band_block(GDALRasterBand& band, int bx, int by, float* out, bool compact) {
+  if (!compact) return band.ReadBlock(bx, by, out);
+  constexpr std::size_t kCells = std::size_t{detail::kGridmapBlockSize} * detail::kGridmapBlockSize;
+  std::vector<std::uint16_t> codes(kCells);
+  const CPLErr e = band.ReadBlock(bx, by, codes.data());
+  for (std::size_t k = 0; k < kCells; ++k) out[k] = codes[k];
+  return e;
 }
 
 GridmapScan validate_gridmap(const std::string& path, const DriveManifest& m,
@@ -217,7 +238,9 @@ GridmapScan validate_gridmap(const std::string& path, const DriveManifest& m,
             "raster of " + std::to_string(g.width) + " x " + std::to_string(g.height) +
                 " cells exceeds the limit");
   }
-  const auto names = gridmap_band_names(m.pol_level);
+  const bool compact = g.compact;
+  const auto names =
+      compact ? compact_gridmap_band_names(m.pol_level) : gridmap_band_names(m.pol_level);
   if (ds->GetRasterCount() != static_cast<int>(names.size())) {
     invalid(kTif, "bands",
             "has " + std::to_string(ds->GetRasterCount()) + " bands, pol_level '" +
@@ -226,7 +249,7 @@ GridmapScan validate_gridmap(const std::string& path, const DriveManifest& m,
   for (int b = 0; b < ds->GetRasterCount(); ++b) {
     GDALRasterBand* band = ds->GetRasterBand(b + 1);
     const std::string bname = "band " + std::to_string(b + 1);
-    check_band_storage(*band, kTif, bname);
+    check_band_storage(*band, kTif, bname, compact);
     if (names[b] != band->GetDescription()) {
       invalid(
           kTif, bname,
@@ -294,6 +317,9 @@ GridmapScan validate_gridmap(const std::string& path, const DriveManifest& m,
       }
     }
   }
+  std::optional<GridmapCodec> codec;
+  if (compact) codec.emplace(q, g.noise_power, g.codec);
+  std::vector<std::uint16_t> cell_codes(static_cast<std::size_t>(nb));
   // Float rounding of the sums, plus the writer's mantissa rounding of each factor.
   const double cs_tolerance = 1.0 + 1e-3 + 8.0 * std::ldexp(1.0, -g.mantissa_bits);
   for (int by = 0; by < nby; ++by) {
@@ -301,7 +327,7 @@ GridmapScan validate_gridmap(const std::string& path, const DriveManifest& m,
       if (deadline.expired()) detail::budget_exceeded(kTif, deadline.budget_s());
       if (block_unwritten(*ds, bx, by)) continue;
       for (int b = 0; b < nb; ++b) {
-        if (ds->GetRasterBand(b + 1)->ReadBlock(bx, by, block.band(b)) != CE_None) {
+        if (read_band_block(*ds->GetRasterBand(b + 1), bx, by, block.band(b), compact) != CE_None) {
           throw PackageFormatError(kTif, names[b],
                                    "cannot read block (" + std::to_string(bx) + ", " +
                                        std::to_string(by) + "): " + capture.last_message());
@@ -309,6 +335,23 @@ GridmapScan validate_gridmap(const std::string& path, const DriveManifest& m,
       }
       const int cols = std::min(bs, g.width - bx * bs);
       const int rows = std::min(bs, g.height - by * bs);
+      if (compact) {
+        for (int r = 0; r < rows; ++r) {
+          for (int c = 0; c < cols; ++c) {
+            const std::size_t k = static_cast<std::size_t>(r) * bs + c;
+            for (int b = 0; b < nb; ++b)
+              cell_codes[b] = static_cast<std::uint16_t>(block.band(b)[k]);
+            if (!codec->valid_codes(cell_codes)) {
+              invalid(kTif, "codes",
+                      "inconsistent cell codes at column " + std::to_string(bx * bs + c) + " row " +
+                          std::to_string(by * bs + r) +
+                          " (N = 0 with data, hits > N, or a code out of range)");
+            }
+            if (cell_codes[0] > 0) ++scan.observed_cells;
+          }
+        }
+        continue;
+      }
       for (int r = 0; r < rows; ++r) {
         for (int c = 0; c < cols; ++c) {
           const std::size_t k = static_cast<std::size_t>(r) * bs + c;
@@ -627,6 +670,82 @@ void read_candidates(const std::string& path, const DriveManifest& m,
   }
 }
 
+/// Format 2: decodes candidates.bin and applies the rules of the GeoPackage reader to the
+/// values (counts, plausible coordinates, extent, trajectory order and span).
+void read_candidates_bin(std::string_view bytes, const DriveManifest& m,
+                         const PackageValidationConfig& cfg, const GridmapScan& scan,
+                         DrivePackage& out) {
+  constexpr const char* kBin = "candidates.bin";
+  CandidatesDecodeLimits lim;
+  lim.max_points = cfg.max_points;
+  if (m.has_gridmap && cfg.check_gridmap_values) {
+    lim.max_points = std::min(lim.max_points, scan.observed_cells);
+  }
+  lim.max_lines = cfg.max_lines;
+  lim.max_trajectory_samples = cfg.max_trajectory_samples;
+  CandidatesContent c = decode_candidates(bytes, lim);
+  const auto count = [&](const char* layer, std::size_t got, std::uint64_t want) {
+    if (got != want) {
+      invalid(kBin, layer,
+              std::to_string(got) + " features, manifest.json counts say " + std::to_string(want));
+    }
+  };
+  count("points", c.points.size(), m.counts.points);
+  count("lines", c.lines.size(), m.counts.lines);
+  count("trajectory", c.trajectory.size(), m.counts.trajectory_samples);
+  if (c.trajectory.size() < 2) invalid(kBin, "trajectory", "fewer than 2 samples");
+  const double lim_m = cfg.max_abs_coordinate_m;
+  const GridmapInfo& g = m.gridmap;
+  const double margin = cfg.extent_margin_m;
+  const auto check_xy = [&](const Eigen::Vector2d& p, const char* field, std::size_t i) {
+    if (!(std::abs(p.x()) <= lim_m && std::abs(p.y()) <= lim_m)) {
+      invalid(kBin, field,
+              "feature " + std::to_string(i) + ": farther than " + fmt(lim_m) +
+                  " m from the drive origin");
+    }
+    if (m.has_gridmap && !(p.x() >= g.origin_x_m - margin &&
+                           p.x() <= g.origin_x_m + g.width * m.cell_size_m + margin &&
+                           p.y() <= g.origin_y_m + margin &&
+                           p.y() >= g.origin_y_m - g.height * m.cell_size_m - margin)) {
+      invalid(kBin, field, "feature " + std::to_string(i) + ": outside the gridmap extent");
+    }
+  };
+  for (std::size_t i = 0; i < c.points.size(); ++i) {
+    check_xy(c.points[i].position_m, "points.x", i);
+    if (c.points[i].num_cells > 100'000'000) invalid(kBin, "points.num_cells", "out of range");
+  }
+  for (std::size_t i = 0; i < c.lines.size(); ++i) {
+    check_xy(c.lines[i].start_m, "lines.x0", i);
+    check_xy(c.lines[i].end_m, "lines.x1", i);
+  }
+  const tiles::LocalFrame frame(m.origin);
+  for (std::size_t i = 0; i < c.trajectory.size(); ++i) {
+    const TrajectorySample& s = c.trajectory[i];
+    const std::string where = "sample " + std::to_string(i);
+    if (!(std::abs(s.lat_deg) <= 90.0 && std::abs(s.lon_deg) <= 180.0)) {
+      invalid(kBin, "trajectory.lat", where + ": not a WGS84 position");
+    }
+    const Eigen::Vector2d xy = frame.to_local(s.lat_deg, s.lon_deg);
+    if (!(xy.norm() <= lim_m)) {
+      invalid(kBin, "trajectory.lat",
+              where + ": farther than " + fmt(lim_m) + " m from the origin");
+    }
+    if (std::abs(s.speed_mps) > cfg.max_speed_mps) {
+      invalid(kBin, "trajectory.speed", where + ": " + fmt(s.speed_mps) + " m/s implausible");
+    }
+    if (i > 0 && !(s.time_s > c.trajectory[i - 1].time_s)) {
+      invalid(kBin, "trajectory.time", where + ": not after the previous sample");
+    }
+    if (s.time_s < m.start_time_s - cfg.time_span_tolerance_s ||
+        s.time_s > m.end_time_s + cfg.time_span_tolerance_s) {
+      invalid(kBin, "trajectory.time", where + ": outside the manifest time span");
+    }
+  }
+  out.points = std::move(c.points);
+  out.lines = std::move(c.lines);
+  out.trajectory = std::move(c.trajectory);
+}
+
 // ------------------------------------------------------------------------ whole package
 
 /// Validates everything; if `archive_hash` is given, feeds it the canonical archive
@@ -691,7 +810,18 @@ DrivePackage validate(const PackageSource& src, const PackageValidationConfig& c
   storage.clear();
   storage.shrink_to_fit();
   if (archive_hash != nullptr) archive_hash->update(std::string(kUstarEndBytes, '\0'));
-  const GridmapScan scan = validate_gridmap(src.gdal_path(kTif), m, cfg, deadline);
+  for (const std::string& name : src.names()) {
+    if (name != kManifestFileName && std::none_of(m.files.begin(), m.files.end(),
+                                                  [&](const auto& f) { return f.name == name; })) {
+      invalid("archive", "", "member '" + name + "' is not listed in manifest.json files");
+    }
+  }
+  GridmapScan scan;
+  if (m.has_gridmap) scan = validate_gridmap(src.gdal_path(kTif), m, cfg, deadline);
+  if (m.format_version >= 2) {
+    read_candidates_bin(src.bytes(kCandidatesBinFileName, storage), m, cfg, scan, pkg);
+    return pkg;
+  }
   // SQLite screens the GeoPackage before GDAL may open it.
   detail::screen_candidates_gpkg(src.bytes(kGpkg, storage), deadline);
   storage.clear();
@@ -765,30 +895,59 @@ namespace {
 struct RasterLayout {
   int q = 0;
   double gt[6] = {0, 1, 0, 0, 0, -1};
+  std::optional<GridmapCodec> codec;  ///< set for a compact (format 2) gridmap
+  double noise_power = 0.0;
 };
 
-RasterLayout raster_layout(GDALDataset& ds, const std::string& file) {
+/// The layout of an opened gridmap; `info` (the validated manifest's) says whether it is
+/// compact and how to decode it. Without it only format 1 files are read.
+RasterLayout raster_layout(GDALDataset& ds, const std::string& file, const GridmapInfo* info) {
   RasterLayout l;
+  const bool compact = info != nullptr && info->compact;
+  const int fixed = compact ? 3 : 1;
   const int nb = ds.GetRasterCount();
-  const int q = static_cast<int>(std::lround(std::sqrt(std::max(nb - 1, 0))));
-  if (q < 1 || 1 + q * q != nb) {
-    invalid(file, "bands", std::to_string(nb) + " bands is not 1 + q^2 for q in 1..4");
+  const int q = static_cast<int>(std::lround(std::sqrt(std::max(nb - fixed, 0))));
+  if (q < 1 || q > 3 || fixed + q * q != nb) {
+    invalid(file, "bands",
+            std::to_string(nb) + " bands is not " + std::to_string(fixed) + " + q^2 for q in 1..3");
   }
   l.q = q;
   // Re-checked where the blocks are read, not only by the validation that admitted the file.
   for (int b = 1; b <= nb; ++b)
-    check_band_storage(*ds.GetRasterBand(b), file, "band " + std::to_string(b));
+    check_band_storage(*ds.GetRasterBand(b), file, "band " + std::to_string(b), compact);
   if (ds.GetGeoTransform(l.gt) != CE_None) invalid(file, "geotransform", "missing");
+  if (compact) {
+    l.codec.emplace(q, info->noise_power, info->codec);
+    l.noise_power = info->noise_power;
+  }
   return l;
 }
 
-void block_to_raster(detail::GridmapBlockBuffer& block, int q, int cols, int rows,
+void block_to_raster(detail::GridmapBlockBuffer& block, const RasterLayout& l, int cols, int rows,
                      GridmapRaster& out, int col0, int row0) {
   const int bs = detail::kGridmapBlockSize;
+  const int q = l.q;
+  std::vector<std::uint16_t> codes(l.codec ? static_cast<std::size_t>(l.codec->codes_per_cell())
+                                           : 0);
   for (int r = 0; r < rows; ++r) {
     for (int c = 0; c < cols; ++c) {
       const std::size_t k = static_cast<std::size_t>(r) * bs + c;
       const std::size_t dst = static_cast<std::size_t>(row0 + r) * out.width + (col0 + c);
+      if (l.codec) {
+        for (std::size_t b = 0; b < codes.size(); ++b) {
+          codes[b] = static_cast<std::uint16_t>(block.band(static_cast<int>(b))[k]);
+        }
+        // Re-checked here too: what is decoded is what validation admitted.
+        if (!l.codec->valid_codes(codes)) {
+          invalid(kTif, "codes", "inconsistent cell codes (the file changed after validation?)");
+        }
+        const GridmapCodec::Cell cell = l.codec->decode_cell(codes);
+        out.count[dst] = cell.n;
+        out.hits[dst] = cell.hits;
+        for (int layer = 0; layer < q * (q + 1) / 2; ++layer)
+          out.layers[layer][dst] = cell.layers[layer];
+        continue;
+      }
       out.count[dst] = static_cast<std::uint32_t>(std::max(0.0F, block.band(0)[k]));
       int band = 1;
       for (int i = 0; i < q; ++i) {
@@ -808,10 +967,10 @@ void block_to_raster(detail::GridmapBlockBuffer& block, int q, int cols, int row
 
 /// Reads all bands of block (bx, by); returns false if the N band is all zero.
 bool read_block(GDALDataset& ds, int bx, int by, detail::GridmapBlockBuffer& block,
-                const std::string& file) {
+                const std::string& file, bool compact) {
   if (block_unwritten(ds, bx, by)) return false;
   detail::GdalErrorCapture capture;
-  if (ds.GetRasterBand(1)->ReadBlock(bx, by, block.band(0)) != CE_None) {
+  if (read_band_block(*ds.GetRasterBand(1), bx, by, block.band(0), compact) != CE_None) {
     throw PackageFormatError(file, "N", "cannot read block: " + capture.last_message());
   }
   const float* n = block.band(0);
@@ -820,7 +979,7 @@ bool read_block(GDALDataset& ds, int bx, int by, detail::GridmapBlockBuffer& blo
     return false;
   }
   for (int b = 1; b < ds.GetRasterCount(); ++b) {
-    if (ds.GetRasterBand(b + 1)->ReadBlock(bx, by, block.band(b)) != CE_None) {
+    if (read_band_block(*ds.GetRasterBand(b + 1), bx, by, block.band(b), compact) != CE_None) {
       throw PackageFormatError(file, "band " + std::to_string(b + 1),
                                "cannot read block: " + capture.last_message());
     }
@@ -828,44 +987,57 @@ bool read_block(GDALDataset& ds, int bx, int by, detail::GridmapBlockBuffer& blo
   return true;
 }
 
-GridmapRaster empty_raster(int q, int w, int h, double x0, double y0, double cs) {
+GridmapRaster empty_raster(const RasterLayout& l, int w, int h, double x0, double y0, double cs) {
   GridmapRaster r;
-  r.q = q;
+  r.q = l.q;
   r.width = w;
   r.height = h;
   r.origin_x_m = x0;
   r.origin_y_m = y0;
   r.cell_size_m = cs;
+  r.noise_power = l.noise_power;
   const std::size_t cells = static_cast<std::size_t>(w) * h;
   r.count.assign(cells, 0);
-  r.layers.assign(static_cast<std::size_t>(q * (q + 1) / 2), std::vector<cdouble>(cells));
+  if (l.codec) r.hits.assign(cells, 0);
+  r.layers.assign(static_cast<std::size_t>(l.q * (l.q + 1) / 2), std::vector<cdouble>(cells));
   return r;
 }
 
-}  // namespace
-
-GridmapRaster read_gridmap(const std::string& gdal_path) {
+GridmapRaster read_gridmap_file(const std::string& gdal_path, const GridmapInfo* info) {
   auto ds = open_raster(gdal_path, kTif);
-  const RasterLayout l = raster_layout(*ds, kTif);
+  const RasterLayout l = raster_layout(*ds, kTif, info);
   GridmapRaster out =
-      empty_raster(l.q, ds->GetRasterXSize(), ds->GetRasterYSize(), l.gt[0], l.gt[3], l.gt[1]);
+      empty_raster(l, ds->GetRasterXSize(), ds->GetRasterYSize(), l.gt[0], l.gt[3], l.gt[1]);
   const int bs = detail::kGridmapBlockSize;
   detail::GridmapBlockBuffer block(ds->GetRasterCount());
   for (int by = 0; by * bs < out.height; ++by) {
     for (int bx = 0; bx * bs < out.width; ++bx) {
-      if (!read_block(*ds, bx, by, block, kTif)) continue;
-      block_to_raster(block, l.q, std::min(bs, out.width - bx * bs),
+      if (!read_block(*ds, bx, by, block, kTif, l.codec.has_value())) continue;
+      block_to_raster(block, l, std::min(bs, out.width - bx * bs),
                       std::min(bs, out.height - by * bs), out, bx * bs, by * bs);
     }
   }
   return out;
 }
 
-GridmapRaster read_gridmap(const DrivePackage& pkg) {
+void require_gridmap(const DrivePackage& pkg, const char* what) {
   if (pkg.location.empty()) {
-    throw NotFoundError("read_gridmap: the package has no location (validated from bytes)");
+    throw NotFoundError(std::string(what) + ": the package has no location (validated from bytes)");
   }
-  return read_gridmap(package_member_gdal_path(pkg.location, kTif));
+  if (!pkg.manifest.has_gridmap) {
+    throw NotFoundError(std::string(what) + ": the package has no gridmap (landmarks only)");
+  }
+}
+
+}  // namespace
+
+GridmapRaster read_gridmap(const std::string& gdal_path) {
+  return read_gridmap_file(gdal_path, nullptr);
+}
+
+GridmapRaster read_gridmap(const DrivePackage& pkg) {
+  require_gridmap(pkg, "read_gridmap");
+  return read_gridmap_file(package_member_gdal_path(pkg.location, kTif), &pkg.manifest.gridmap);
 }
 
 void for_each_gridmap_block(const DrivePackage& pkg,
@@ -873,8 +1045,9 @@ void for_each_gridmap_block(const DrivePackage& pkg,
   if (pkg.location.empty()) {
     throw NotFoundError("for_each_gridmap_block: the package has no location");
   }
+  if (!pkg.manifest.has_gridmap) return;  // landmarks only: no blocks
   auto ds = open_raster(package_member_gdal_path(pkg.location, kTif), kTif);
-  const RasterLayout l = raster_layout(*ds, kTif);
+  const RasterLayout l = raster_layout(*ds, kTif, &pkg.manifest.gridmap);
   const int w = ds->GetRasterXSize();
   const int h = ds->GetRasterYSize();
   const int bs = detail::kGridmapBlockSize;
@@ -882,12 +1055,12 @@ void for_each_gridmap_block(const DrivePackage& pkg,
   detail::GridmapBlockBuffer block(ds->GetRasterCount());
   for (int by = 0; by * bs < h; ++by) {
     for (int bx = 0; bx * bs < w; ++bx) {
-      if (!read_block(*ds, bx, by, block, kTif)) continue;
+      if (!read_block(*ds, bx, by, block, kTif, l.codec.has_value())) continue;
       const int cols = std::min(bs, w - bx * bs);
       const int rows = std::min(bs, h - by * bs);
       GridmapRaster r =
-          empty_raster(l.q, cols, rows, l.gt[0] + bx * bs * cs, l.gt[3] - by * bs * cs, cs);
-      block_to_raster(block, l.q, cols, rows, r, 0, 0);
+          empty_raster(l, cols, rows, l.gt[0] + bx * bs * cs, l.gt[3] - by * bs * cs, cs);
+      block_to_raster(block, l, cols, rows, r, 0, 0);
       fn(r);
     }
   }

@@ -142,8 +142,8 @@ TEST_F(PackageValidationTest, UnknownPolLevel) {
 }
 
 TEST_F(PackageValidationTest, UnsupportedFormatVersion) {
-  edit_manifest([](json& j) { j["format_version"] = 2; });
-  expect_error<PackageValidationError>("manifest.json", "format_version", "unsupported version 2",
+  edit_manifest([](json& j) { j["format_version"] = 3; });
+  expect_error<PackageValidationError>("manifest.json", "format_version", "unsupported version 3",
                                        422);
 }
 

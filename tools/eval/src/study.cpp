@@ -71,6 +71,7 @@ ProcessedDrive process_to_package(RecordSource& source, const StudyConfig& cfg, 
   const radar::DriveProcessingResult r = radar::process_drive(source, pcfg, progress);
   mapping::PackageWriteOptions wo;
   wo.overwrite = true;
+  wo.format_version = cfg.package_format;
   mapping::write_drive_package(r, dir, wo);
   return {r.header.drive_id, dir, static_cast<std::int64_t>(r.points.size()),
           static_cast<std::int64_t>(r.lines.size())};

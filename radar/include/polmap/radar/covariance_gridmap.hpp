@@ -178,6 +178,9 @@ class CovarianceGridmap {
   /// Mean noise σ² per level-vector component over the frames in the map
   /// (PolSpectrum::noise_sigma²); 0 before any frame.
   [[nodiscard]] double noise_power() const;
+  /// Noise power of a map rebuilt from stored cells (merge_tile; no frames added), e.g.
+  /// a drive package's decoded gridmap: what noise_power() returns while num_frames() = 0.
+  void set_noise_power(double noise_power);
   /// Frames currently accumulated (in window mode: inside the window).
   [[nodiscard]] std::size_t num_frames() const;
   [[nodiscard]] std::size_t num_tiles() const;

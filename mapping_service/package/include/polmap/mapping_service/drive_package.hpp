@@ -20,6 +20,7 @@
 #include <string>
 #include <vector>
 
+#include "polmap/mapping_service/gridmap_codec.hpp"
 #include "polmap/schema/geo.hpp"
 #include "polmap/schema/landmark.hpp"
 #include "polmap/schema/polarimetry.hpp"
@@ -28,12 +29,14 @@
 
 namespace polmap::mapping {
 
-inline constexpr std::uint32_t kDrivePackageFormatVersion = 1;
+/// The newest format this build reads and writes by default (1 is still read and written).
+inline constexpr std::uint32_t kDrivePackageFormatVersion = 2;
 
 /// Member file names of a package (directory entries and archive members, in archive order).
 inline constexpr const char* kManifestFileName = "manifest.json";
 inline constexpr const char* kGridmapFileName = "gridmap.tif";
-inline constexpr const char* kCandidatesFileName = "candidates.gpkg";
+inline constexpr const char* kCandidatesFileName = "candidates.gpkg";    ///< format 1
+inline constexpr const char* kCandidatesBinFileName = "candidates.bin";  ///< format 2
 
 /// One data file of a package as listed in the manifest (manifest.json itself is not listed).
 struct PackageFileEntry {
@@ -51,6 +54,11 @@ struct GridmapInfo {
   int num_bands = 0;        ///< 1 + q^2
   int block_size = 256;     ///< GeoTIFF tile edge in cells
   int mantissa_bits = 23;   ///< Float32 mantissa bits kept in the covariance bands (23 = all)
+  /// Format 2: the compact encoding (gridmap_codec.hpp), 3 + q^2 UInt16 bands; its
+  /// parameters and the drive's noise power σ² (> 0) decode the codes.
+  bool compact = false;
+  double noise_power = 0.0;
+  GridmapCodecConfig codec;
 };
 
 /// Feature counts of candidates.gpkg (checked against the layers on validation).
@@ -75,10 +83,13 @@ struct DriveManifest {
   double cell_size_m = 0.1;
   double distance_m = 0.0;
   std::string producer;
+  /// False for a landmarks-only package (format 2, no gridmap.tif).
+  bool has_gridmap = true;
   // Filled in by the writer (inputs to write_drive_package may leave them default):
   GridmapInfo gridmap;
   PackageCounts counts;
-  std::vector<PackageFileEntry> files;  ///< gridmap.tif, candidates.gpkg (in that order)
+  /// Format 1: gridmap.tif, candidates.gpkg; format 2: [gridmap.tif,] candidates.bin.
+  std::vector<PackageFileEntry> files;
 };
 
 /// Dense covariance raster of a drive (north-up; row 0 is the northern edge).
@@ -89,7 +100,11 @@ struct GridmapRaster {
   int width = 0;
   int height = 0;
   int q = 0;
-  std::vector<std::uint32_t> count;          ///< N per cell, row-major
+  std::vector<std::uint32_t> count;  ///< N per cell, row-major
+  /// Looks with a stored bin per cell (persistence hits/N); empty when the source does not
+  /// carry them (format 1 packages).
+  std::vector<std::uint32_t> hits;
+  double noise_power = 0.0;                  ///< σ² per component; 0 when unknown (format 1)
   std::vector<std::vector<cdouble>> layers;  ///< q(q+1)/2 layers, upper triangle row-major
 
   /// Number of covariance layers q(q+1)/2.

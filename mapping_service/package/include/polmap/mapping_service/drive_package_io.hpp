@@ -43,6 +43,23 @@ struct PackageWriteOptions {
   /// estimate from N looks uncertain by ~1/sqrt(N), so 10 bits (5e-4) lose nothing
   /// physical. Measured sizes: schema/drive_package.md "Size".
   int mantissa_bits = 23;
+  /// Package format to write: 2 (compact: gridmap codes, candidates.bin; what `polmap
+  /// process` writes) or 1 (Float32 gridmap and GeoPackage: lossless, GIS-readable, for
+  /// mapping vehicles and consumers of the old format; the library default so that
+  /// existing callers keep their bytes). schema/drive_package.md.
+  std::uint32_t format_version = 1;
+  /// Format 2 only: no gridmap.tif (candidates and trajectory only, ~15 kB/km).
+  bool landmarks_only = false;
+  /// Format 2 gridmap encoding.
+  GridmapCodecConfig codec;
+  /// ZSTD level of the format 2 gridmap tiles (1..22).
+  int zstd_level = 19;
+  /// Format 2 trajectory: samples are dropped while linear interpolation between the kept
+  /// ones stays within this distance and yaw error and the kept ones are at most
+  /// trajectory_max_gap_s apart (0 keeps every sample).
+  double trajectory_max_error_m = 0.02;
+  double trajectory_max_yaw_error_rad = 0.002;
+  double trajectory_max_gap_s = 1.0;
   /// Re-read and fully validate the written package before it replaces `dir`, so a writer
   /// bug can never produce a package the server would reject.
   bool validate_after_write = true;
@@ -110,6 +127,9 @@ class PackageValidationError : public ValidationError {
 /// "C_A_A" (diagonal) or "C_A_B.re", "C_A_B.im" (off-diagonal), A/B the level's
 /// components (full: LL, LR, RR; ll-lr: LL, LR; hh-vv: HH, VV; lr; rr; hh).
 [[nodiscard]] std::vector<std::string> gridmap_band_names(PolLevel level);
+/// Band descriptions of a format 2 (compact) gridmap.tif: "N", "hits", "P", then per
+/// upper-triangle element of the Cholesky factor "U_A_A" or "U_A_B.re", "U_A_B.im".
+[[nodiscard]] std::vector<std::string> compact_gridmap_band_names(PolLevel level);
 /// Component names of a level's scattering vector, e.g. {"LL", "LR", "RR"} for full.
 [[nodiscard]] std::vector<std::string> pol_component_names(PolLevel level);
 
@@ -194,6 +214,12 @@ void unpack_drive_package(std::string_view tar_bytes, const std::filesystem::pat
 /// are skipped. Memory: one block.
 void for_each_gridmap_block(const DrivePackage& pkg,
                             const std::function<void(const GridmapRaster& block)>& fn);
+
+/// The package's gridmap as a mapping-mode radar::CovarianceGridmap (tiles rebuilt by
+/// merge_tile, hits and the noise power of a format 2 package set), so the vehicle's
+/// detectors can be re-run on what was uploaded. Format 1 packages carry no hits (every
+/// look counts as a hit) and no noise power (0). Throws NotFoundError without a gridmap.
+[[nodiscard]] radar::CovarianceGridmap read_covariance_gridmap(const DrivePackage& pkg);
 
 /// GDAL path of a package member: DIR/NAME for a directory, /vsitar/TAR/NAME for an archive.
 [[nodiscard]] std::string package_member_gdal_path(const std::filesystem::path& location,

@@ -84,6 +84,9 @@ struct StudyConfig {
   std::vector<PolLevel> levels{PolLevel::Full};
   /// Study directory (created). Stores, packages, figures and CSVs go here.
   std::filesystem::path out_dir;
+  /// Drive package format the mapping drives are uploaded in (2: compact, what vehicles
+  /// send; 1: lossless Float32 + GeoPackage).
+  std::uint32_t package_format = 2;
   /// Tiles through a real Server on loopback + TileFetcher instead of the store.
   bool http = false;
   /// Deliberate error of the initial pose (see file comment).

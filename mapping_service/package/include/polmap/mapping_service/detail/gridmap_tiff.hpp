@@ -28,6 +28,10 @@ struct GridmapTiffSpec {
   int deflate_level = 6;
   /// Mantissa bits kept in the covariance bands (23 = lossless); see PackageWriteOptions.
   int mantissa_bits = 23;
+  /// Format 2: 3 + q^2 UInt16 code bands (compact_gridmap_band_names), ZSTD + horizontal
+  /// differencing; block buffers then hold the integer codes.
+  bool compact = false;
+  int zstd_level = 19;
   /// Dataset metadata items (domain ""), e.g. POLMAP_DRIVE_ID.
   std::vector<std::pair<std::string, std::string>> metadata;
 };

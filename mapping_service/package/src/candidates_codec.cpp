@@ -27,10 +27,18 @@ constexpr std::size_t kHeaderBytes = 32;
 constexpr std::uint64_t kPointColumns = 6, kLineColumns = 5, kTrajectoryColumns = 10;
 // Bounds of decoded quantized values (|x| ≤ 1e5 km in mm, lat/lon in 1e-8°, ...).
 constexpr std::int64_t kMaxAbs = std::int64_t{1} << 50;
+constexpr std::uint64_t kMaxStrengthCode = 200 * 50;  // strength ≤ e^50
 
 [[noreturn]] void bad(const std::string& field, const std::string& msg) {
   throw PackageFormatError(kFile, field, msg);
 }
+
+/// Strength (a Wishart distance or ridgeness, 0 .. ~1e7) to 0.5 % relative: round(200·ln(1+s)).
+std::uint64_t strength_code(double v) {
+  POLMAP_EXPECT(std::isfinite(v));
+  return static_cast<std::uint64_t>(std::llround(200.0 * std::log1p(std::max(0.0, v))));
+}
+double strength_value(std::uint64_t k) { return std::expm1(double(k) / 200.0); }
 
 std::int64_t q(double v, double unit) {
   POLMAP_EXPECT(std::isfinite(v) && std::abs(v / unit) < double(kMaxAbs));
@@ -47,7 +55,9 @@ struct Writer {
     }
     out.push_back(static_cast<char>(v));
   }
-  void s(std::int64_t v) { u((static_cast<std::uint64_t>(v) << 1) ^ static_cast<std::uint64_t>(v >> 63)); }
+  void s(std::int64_t v) {
+    u((static_cast<std::uint64_t>(v) << 1) ^ static_cast<std::uint64_t>(v >> 63));
+  }
 };
 
 /// Column of deltas (order 1) or second differences (order 2).
@@ -99,7 +109,8 @@ void read_column(Reader& r, std::size_t n, int order, const char* field,
   std::int64_t prev = 0, prev_delta = 0;
   for (std::size_t i = 0; i < n; ++i) {
     const std::int64_t x = r.s(field);
-    if (x > kMaxAbs || x < -kMaxAbs) bad(field, "value out of range at element " + std::to_string(i));
+    if (x > kMaxAbs || x < -kMaxAbs)
+      bad(field, "value out of range at element " + std::to_string(i));
     const std::int64_t d = order == 1 ? x : prev_delta + x;
     const std::int64_t v = prev + d;
     if (d > kMaxAbs || d < -kMaxAbs || v > kMaxAbs || v < -kMaxAbs) {
@@ -116,7 +127,9 @@ std::vector<std::uint64_t> read_unsigned(Reader& r, std::size_t n, const char* f
   std::vector<std::uint64_t> out(n);
   for (std::size_t i = 0; i < n; ++i) {
     out[i] = r.u(field);
-    if (out[i] > max) bad(field, "value " + std::to_string(out[i]) + " out of range at element " + std::to_string(i));
+    if (out[i] > max)
+      bad(field,
+          "value " + std::to_string(out[i]) + " out of range at element " + std::to_string(i));
   }
   return out;
 }
@@ -134,31 +147,34 @@ std::string encode_candidates(const CandidatesContent& c) {
   const auto& T = c.trajectory;
   column(w, P.size(), 1, [&](std::size_t i) { return q(P[i].position_m.x(), 1e-3); });
   column(w, P.size(), 1, [&](std::size_t i) { return q(P[i].position_m.y(), 1e-3); });
-  for (const auto& p : P) w.u(static_cast<std::uint64_t>(std::max<std::int64_t>(0, q(p.strength, 1e-3))));
-  column(w, P.size(), 0 + 1, [&](std::size_t i) { return q(P[i].power_db, 1e-2); });
+  for (const auto& p : P) w.u(strength_code(p.strength));
+  for (const auto& p : P) w.s(q(p.power_db, 0.05));
   for (const auto& p : P) w.u(static_cast<std::uint64_t>(p.scattering));
   for (const auto& p : P) w.u(p.num_cells);
-  column(w, L.size(), 1, [&](std::size_t i) { return q(L[i].start_m.x(), 1e-3); });
-  column(w, L.size(), 1, [&](std::size_t i) { return q(L[i].start_m.y(), 1e-3); });
-  for (const auto& l : L) w.s(q(l.end_m.x(), 1e-3) - q(l.start_m.x(), 1e-3));
-  for (const auto& l : L) w.s(q(l.end_m.y(), 1e-3) - q(l.start_m.y(), 1e-3));
-  for (const auto& l : L) w.u(static_cast<std::uint64_t>(std::max<std::int64_t>(0, q(l.strength, 1e-3))));
+  column(w, L.size(), 1, [&](std::size_t i) { return q(L[i].start_m.x(), 1e-2); });
+  column(w, L.size(), 1, [&](std::size_t i) { return q(L[i].start_m.y(), 1e-2); });
+  for (const auto& l : L) w.s(q(l.end_m.x(), 1e-2) - q(l.start_m.x(), 1e-2));
+  for (const auto& l : L) w.s(q(l.end_m.y(), 1e-2) - q(l.start_m.y(), 1e-2));
+  for (const auto& l : L) w.u(strength_code(l.strength));
   column(w, T.size(), 2, [&](std::size_t i) { return q(T[i].time_s, 1e-6); });
   column(w, T.size(), 2, [&](std::size_t i) { return q(T[i].lat_deg, 1e-8); });
   column(w, T.size(), 2, [&](std::size_t i) { return q(T[i].lon_deg, 1e-8); });
   column(w, T.size(), 1, [&](std::size_t i) { return q(T[i].yaw_enu_rad, 1e-6); });
   column(w, T.size(), 1, [&](std::size_t i) { return q(T[i].speed_mps, 1e-3); });
   column(w, T.size(), 1, [&](std::size_t i) { return q(T[i].yaw_rate_rps, 1e-6); });
-  for (const auto& t : T) w.u(static_cast<std::uint64_t>(std::max<std::int64_t>(0, q(t.std_east_m, 1e-3))));
-  for (const auto& t : T) w.u(static_cast<std::uint64_t>(std::max<std::int64_t>(0, q(t.std_north_m, 1e-3))));
-  for (const auto& t : T) w.u(static_cast<std::uint64_t>(std::max<std::int64_t>(0, q(t.std_yaw_rad, 1e-6))));
+  for (const auto& t : T)
+    w.u(static_cast<std::uint64_t>(std::max<std::int64_t>(0, q(t.std_east_m, 1e-3))));
+  for (const auto& t : T)
+    w.u(static_cast<std::uint64_t>(std::max<std::int64_t>(0, q(t.std_north_m, 1e-3))));
+  for (const auto& t : T)
+    w.u(static_cast<std::uint64_t>(std::max<std::int64_t>(0, q(t.std_yaw_rad, 1e-6))));
   for (const auto& t : T) w.u(static_cast<std::uint64_t>(t.solution));
 
   uLongf packed_len = compressBound(static_cast<uLong>(w.out.size()));
   std::string packed(packed_len, '\0');
-  const int rc = compress2(reinterpret_cast<Bytef*>(packed.data()), &packed_len,
-                           reinterpret_cast<const Bytef*>(w.out.data()),
-                           static_cast<uLong>(w.out.size()), 9);
+  const int rc =
+      compress2(reinterpret_cast<Bytef*>(packed.data()), &packed_len,
+                reinterpret_cast<const Bytef*>(w.out.data()), static_cast<uLong>(w.out.size()), 9);
   if (rc != Z_OK) throw IoError("candidates.bin: zlib compress failed");
   packed.resize(packed_len);
 
@@ -175,8 +191,10 @@ std::string encode_candidates(const CandidatesContent& c) {
 }
 
 CandidatesContent decode_candidates(std::string_view bytes, const CandidatesDecodeLimits& lim) {
-  if (bytes.size() < kHeaderBytes) bad("header", "truncated (" + std::to_string(bytes.size()) + " bytes)");
-  if (std::memcmp(bytes.data(), kMagic.data(), kMagic.size()) != 0) bad("header", "not a candidates.bin file (magic)");
+  if (bytes.size() < kHeaderBytes)
+    bad("header", "truncated (" + std::to_string(bytes.size()) + " bytes)");
+  if (std::memcmp(bytes.data(), kMagic.data(), kMagic.size()) != 0)
+    bad("header", "not a candidates.bin file (magic)");
   const std::uint32_t version = get_u32(bytes, 4);
   if (version != kVersion) {
     bad("version", "unsupported version " + std::to_string(version) + " (this build reads 1)");
@@ -187,7 +205,8 @@ CandidatesContent decode_candidates(std::string_view bytes, const CandidatesDeco
   if (get_u32(bytes, 28) != 0) bad("header", "reserved field not zero");
   if (np > lim.max_points) bad("points", std::to_string(np) + " points exceed the limit");
   if (nl > lim.max_lines) bad("lines", std::to_string(nl) + " lines exceed the limit");
-  if (nt > lim.max_trajectory_samples) bad("trajectory", std::to_string(nt) + " samples exceed the limit");
+  if (nt > lim.max_trajectory_samples)
+    bad("trajectory", std::to_string(nt) + " samples exceed the limit");
   const std::uint64_t packed_len = bytes.size() - kHeaderBytes;
   if (body_len > lim.max_body_bytes || body_len > lim.max_inflation_ratio * packed_len + 64) {
     bad("header", "inflated size " + std::to_string(body_len) + " is implausible for " +
@@ -207,7 +226,8 @@ CandidatesContent decode_candidates(std::string_view bytes, const CandidatesDeco
     const int rc = inflate(&z, Z_FINISH);
     const bool exact = rc == Z_STREAM_END && z.avail_out == 0 && z.avail_in == 0;
     inflateEnd(&z);
-    if (!exact) bad("body", "zlib stream corrupt, truncated or of another size than the header says");
+    if (!exact)
+      bad("body", "zlib stream corrupt, truncated or of another size than the header says");
   }
   if (static_cast<std::uint32_t>(crc32(0L, reinterpret_cast<const Bytef*>(body.data()),
                                        static_cast<uInt>(body.size()))) != crc) {
@@ -221,32 +241,39 @@ CandidatesContent decode_candidates(std::string_view bytes, const CandidatesDeco
   read_column(r, np, 1, "points.y", b);
   for (std::size_t i = 0; i < np; ++i) c.points[i].position_m = {a[i] * 1e-3, b[i] * 1e-3};
   {
-    const auto st = read_unsigned(r, np, "points.strength", kMaxAbs);
-    for (std::size_t i = 0; i < np; ++i) c.points[i].strength = double(st[i]) * 1e-3;
+    const auto st = read_unsigned(r, np, "points.strength", kMaxStrengthCode);
+    for (std::size_t i = 0; i < np; ++i) c.points[i].strength = strength_value(st[i]);
   }
-  read_column(r, np, 1, "points.power_db", a);
-  for (std::size_t i = 0; i < np; ++i) c.points[i].power_db = a[i] * 1e-2;
+  for (std::size_t i = 0; i < np; ++i) {
+    const std::int64_t v = r.s("points.power_db");
+    if (v > 100'000 || v < -100'000)
+      bad("points.power_db", "out of range at element " + std::to_string(i));
+    c.points[i].power_db = double(v) * 0.05;
+  }
   {
     const auto sc = read_unsigned(r, np, "points.scattering", 3);
-    for (std::size_t i = 0; i < np; ++i) c.points[i].scattering = static_cast<ScatteringClass>(sc[i]);
-    const auto nc = read_unsigned(r, np, "points.num_cells", std::numeric_limits<std::uint32_t>::max());
+    for (std::size_t i = 0; i < np; ++i)
+      c.points[i].scattering = static_cast<ScatteringClass>(sc[i]);
+    const auto nc =
+        read_unsigned(r, np, "points.num_cells", std::numeric_limits<std::uint32_t>::max());
     for (std::size_t i = 0; i < np; ++i) c.points[i].num_cells = static_cast<std::uint32_t>(nc[i]);
   }
   c.lines.resize(nl);
   read_column(r, nl, 1, "lines.x0", a);
   read_column(r, nl, 1, "lines.y0", b);
-  for (std::size_t i = 0; i < nl; ++i) c.lines[i].start_m = {a[i] * 1e-3, b[i] * 1e-3};
+  for (std::size_t i = 0; i < nl; ++i) c.lines[i].start_m = {a[i] * 1e-2, b[i] * 1e-2};
   for (int axis = 0; axis < 2; ++axis) {
     const char* field = axis == 0 ? "lines.dx" : "lines.dy";
     for (std::size_t i = 0; i < nl; ++i) {
       const std::int64_t d = r.s(field);
-      if (d > kMaxAbs || d < -kMaxAbs) bad(field, "value out of range at element " + std::to_string(i));
-      c.lines[i].end_m[axis] = c.lines[i].start_m[axis] + d * 1e-3;
+      if (d > kMaxAbs || d < -kMaxAbs)
+        bad(field, "value out of range at element " + std::to_string(i));
+      c.lines[i].end_m[axis] = c.lines[i].start_m[axis] + double(d) * 1e-2;
     }
   }
   {
-    const auto st = read_unsigned(r, nl, "lines.strength", kMaxAbs);
-    for (std::size_t i = 0; i < nl; ++i) c.lines[i].strength = double(st[i]) * 1e-3;
+    const auto st = read_unsigned(r, nl, "lines.strength", kMaxStrengthCode);
+    for (std::size_t i = 0; i < nl; ++i) c.lines[i].strength = strength_value(st[i]);
   }
   c.trajectory.resize(nt);
   auto& T = c.trajectory;

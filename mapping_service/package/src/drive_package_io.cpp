@@ -6,6 +6,7 @@
 #include <ogrsf_frmts.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <array>
 #include <atomic>
 #include <cmath>
@@ -138,6 +139,16 @@ DriveManifest finish_package(DriveManifest m, const DrivePackage& values, const 
   if (options.format_version >= 2) {
     CandidatesContent c{values.points, values.lines,
                         simplify_trajectory(values.trajectory, frame, options)};
+    // Sorted by position, the delta-coded columns stay small (consensus ignores order).
+    const auto by_position = [](const Eigen::Vector2d& a, const Eigen::Vector2d& b) {
+      return a.y() != b.y() ? a.y() < b.y() : a.x() < b.x();
+    };
+    std::stable_sort(c.points.begin(), c.points.end(), [&](const auto& a, const auto& b) {
+      return by_position(a.position_m, b.position_m);
+    });
+    std::stable_sort(c.lines.begin(), c.lines.end(), [&](const auto& a, const auto& b) {
+      return by_position(a.start_m, b.start_m);
+    });
     m.counts = {c.points.size(), c.lines.size(), c.trajectory.size()};
     write_file_bytes(tmp / kCandidatesBinFileName, encode_candidates(c));
     m.files.push_back(file_entry(tmp, kCandidatesBinFileName));
@@ -147,7 +158,10 @@ DriveManifest finish_package(DriveManifest m, const DrivePackage& values, const 
     m.counts = {values.points.size(), values.lines.size(), values.trajectory.size()};
     m.files.push_back(file_entry(tmp, kCandidatesFileName));
   }
-  write_file_bytes(tmp / kManifestFileName, manifest_to_json(m).dump(2) + "\n");
+  // Format 2 manifests are one line (a landmarks-only package is ~15 kB; indentation
+  // would be a tenth of it); format 1 keeps its indented bytes.
+  write_file_bytes(tmp / kManifestFileName,
+                   manifest_to_json(m).dump(options.format_version >= 2 ? -1 : 2) + "\n");
   if (options.validate_after_write) (void)read_and_validate_package(tmp);
   commit_dir(tmp, dir);
   return m;

@@ -12,7 +12,9 @@ namespace polmap::mapping {
 namespace {
 /// Off-diagonal codes are zigzag-coded (0, -1, 1, -2, ... -> 0, 1, 2, 3, ...) so that an
 /// empty cell is all zeros in every band (sparse blocks stay zero).
-std::uint16_t zigzag(std::int32_t k) { return static_cast<std::uint16_t>(k >= 0 ? 2 * k : -2 * k - 1); }
+std::uint16_t zigzag(std::int32_t k) {
+  return static_cast<std::uint16_t>(k >= 0 ? 2 * k : -2 * k - 1);
+}
 std::int32_t unzigzag(std::uint16_t z) { return (z & 1) != 0 ? -(std::int32_t(z) + 1) / 2 : z / 2; }
 int layer_of(int q, int i, int j) { return i * q - i * (i - 1) / 2 + (j - i); }
 

@@ -77,14 +77,15 @@ TEST(GridmapCodec, StrongCellsKeepPowerComponentsAndPhases) {
         const cdouble x(c[layer_of(i, j)]);
         const double vj = c[layer_of(j, j)].real();
         if (vj < 9.0 * noise || std::abs(x) < 0.3 * std::sqrt(v * vj)) continue;
-        worst_phase = std::max(worst_phase, std::abs(std::arg(d.layers[layer_of(i, j)] * std::conj(x))));
+        worst_phase =
+            std::max(worst_phase, std::abs(std::arg(d.layers[layer_of(i, j)] * std::conj(x))));
       }
     }
   }
-  EXPECT_LT(worst_power, cfg.power_step);             // trace coded on its own
-  EXPECT_LT(worst_component_db, 0.5);                 // the format's bound
-  EXPECT_LT(worst_phase * 180.0 / M_PI, 5.0);         // the format's bound
-  EXPECT_GT(worst_component_db, 0.0);                 // it is lossy, not a copy
+  EXPECT_LT(worst_power, cfg.power_step);      // trace coded on its own
+  EXPECT_LT(worst_component_db, 0.5);          // the format's bound
+  EXPECT_LT(worst_phase * 180.0 / M_PI, 5.0);  // the format's bound
+  EXPECT_GT(worst_component_db, 0.0);          // it is lossy, not a copy
 }
 
 TEST(GridmapCodec, DecodedCovarianceIsPositiveSemiDefiniteEvenForRankOneCells) {

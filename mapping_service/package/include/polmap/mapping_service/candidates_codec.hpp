@@ -6,9 +6,9 @@
 /// feature instead of the GeoPackage's ~400 (and no ~100 kB fixed structure), so a
 /// landmarks-only package of an urban kilometre is ~15 kB. Pure: bytes in, values out.
 ///
-/// Quantization (stated in the format document): drive-frame positions 1 mm, strength
-/// 0.001, power 0.01 dB, trajectory time 1 µs, lat/lon 1e-8° (1.1 mm), yaw and yaw rate
-/// 1 µrad(/s), speed 1 mm/s, standard deviations 1 mm / 1 µrad.
+/// Quantization (stated in the format document): drive-frame point positions 1 mm, line
+/// ends 1 cm, strength 0.5 % relative (200·ln(1 + s)), power 0.05 dB, trajectory time 1 µs, lat/lon
+/// 1e-8° (1.1 mm), yaw and yaw rate 1 µrad(/s), speed 1 mm/s, standard deviations 1 mm / 1 µrad.
 #include <cstdint>
 #include <string>
 #include <string_view>

@@ -57,9 +57,11 @@ struct PackageWriteOptions {
   /// Format 2 trajectory: samples are dropped while linear interpolation between the kept
   /// ones stays within this distance and yaw error and the kept ones are at most
   /// trajectory_max_gap_s apart (0 keeps every sample).
-  double trajectory_max_error_m = 0.02;
-  double trajectory_max_yaw_error_rad = 0.002;
-  double trajectory_max_gap_s = 1.0;
+  /// (The server uses the trajectory for coverage, distance and display; the drive's
+  /// poses at full rate stay on the vehicle.)
+  double trajectory_max_error_m = 0.05;
+  double trajectory_max_yaw_error_rad = 0.005;
+  double trajectory_max_gap_s = 2.0;
   /// Re-read and fully validate the written package before it replaces `dir`, so a writer
   /// bug can never produce a package the server would reject.
   bool validate_after_write = true;

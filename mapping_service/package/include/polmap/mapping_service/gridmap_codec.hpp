@@ -11,11 +11,12 @@
 /// values are kept to a fraction of the noise); for |v| ≫ b the step is relative, s, so
 /// a strong return keeps its power to ±s/2 (±0.043 dB at s = 0.02) and its polarimetric
 /// phases to about ±s/2 rad. Diagonal codes are stored as k (v ≥ 0), off-diagonal ones
-/// zigzag-coded (0, −1, 1, … → 0, 1, 2, …). A cell whose codes are all zero is stored as observed-but-empty (hits = 0):
-/// the noise-floor mask. N and hits are exact up to 65535 (above, both are scaled so that
-/// N = 65535 and hits/N is kept); N of an empty cell keeps `empty_count_bits` significant
-/// bits (it only weights the cell's zero in fleet means). Off-diagonals of cells whose
-/// trace is below offdiag_min_snr_db over q·σ² are dropped (their phase is noise).
+/// zigzag-coded (0, −1, 1, … → 0, 1, 2, …). A cell whose codes are all zero is stored as
+/// observed-but-empty (hits = 0): the noise-floor mask. N and hits are exact up to 65535 (above,
+/// both are scaled so that N = 65535 and hits/N is kept); N of an empty cell keeps
+/// `empty_count_bits` significant bits (it only weights the cell's zero in fleet means).
+/// Off-diagonals of cells whose trace is below offdiag_min_snr_db over q·σ² are dropped (their
+/// phase is noise).
 #include <array>
 #include <complex>
 #include <cstdint>

@@ -82,9 +82,17 @@ void check_accepted(const DrivePackage& pkg, std::string_view bytes) {
   FUZZ_CHECK(pkg.content_sha256 == openssl_sha256(bytes));
   // Every listed file is a member with the listed size and hash.
   const auto members = read_ustar_views(bytes, "accepted");
-  FUZZ_CHECK(m.files.size() == 2 && m.files[0].name == kGridmapFileName &&
-             m.files[1].name == kCandidatesFileName);
-  FUZZ_CHECK(members.size() == 3);
+  // Format 1: gridmap.tif + candidates.gpkg; format 2: [gridmap.tif +] candidates.bin.
+  if (m.format_version == 1) {
+    FUZZ_CHECK(m.has_gridmap && m.files.size() == 2 && m.files[0].name == kGridmapFileName &&
+               m.files[1].name == kCandidatesFileName);
+  } else {
+    FUZZ_CHECK(m.format_version == 2);
+    FUZZ_CHECK(m.files.size() == (m.has_gridmap ? 2U : 1U));
+    FUZZ_CHECK(m.files.back().name == kCandidatesBinFileName);
+    FUZZ_CHECK(!m.has_gridmap || (m.files[0].name == kGridmapFileName && m.gridmap.compact));
+  }
+  FUZZ_CHECK(members.size() == m.files.size() + 1);
   for (const auto& f : m.files) {
     bool found = false;
     for (const auto& mem : members) {
@@ -103,13 +111,14 @@ void check_accepted(const DrivePackage& pkg, std::string_view bytes) {
   FUZZ_CHECK(pkg.lines.size() <= kCfg.max_lines);
   FUZZ_CHECK(pkg.trajectory.size() >= 2 && pkg.trajectory.size() <= kCfg.max_trajectory_samples);
   const GridmapInfo& g = m.gridmap;
-  FUZZ_CHECK(g.width > 0 && g.height > 0);
+  FUZZ_CHECK(!m.has_gridmap || (g.width > 0 && g.height > 0));
   FUZZ_CHECK(static_cast<std::int64_t>(g.width) * g.height <= kCfg.max_raster_cells);
   FUZZ_CHECK(std::isfinite(m.cell_size_m) && m.cell_size_m > 0.0);
   // Coordinates: finite, within the bound, inside the gridmap extent plus the margin.
   const double lim = kCfg.max_abs_coordinate_m;
   const double margin = kCfg.extent_margin_m + 1e-9;
   const auto bounded = [&](const Eigen::Vector2d& p) {
+    if (!m.has_gridmap) return finite(p) && std::abs(p.x()) <= lim && std::abs(p.y()) <= lim;
     return finite(p) && std::abs(p.x()) <= lim && std::abs(p.y()) <= lim &&
            p.x() >= g.origin_x_m - margin &&
            p.x() <= g.origin_x_m + g.width * m.cell_size_m + margin &&
@@ -198,11 +207,16 @@ std::string with_correct_hashes(std::string_view bytes) {
 /// 4096-byte pages make 140 kB of mostly empty pages) and the manifest's hash updated, so
 /// the whole package is ~25 kB and fuzzing spends its mutations on content.
 std::string seed_package(const std::filesystem::path& scratch, const std::string& name,
-                         PolLevel level, int num_points, int num_lines, bool compact) {
+                         PolLevel level, int num_points, int num_lines, bool compact,
+                         std::uint32_t format = 1, bool landmarks_only = false) {
   auto d = testing::make_synthetic_drive(name, level, 24, 24, 11, num_points, num_lines, 12);
+  d.raster.noise_power = 1e-6;
   const auto dir = scratch / name;
   PackageWriteOptions opt;
   opt.mantissa_bits = 10;
+  opt.format_version = format;
+  opt.landmarks_only = landmarks_only;
+  if (format >= 2) compact = false;  // no GeoPackage to re-page
   (void)write_drive_package(d.pkg, d.raster, dir, opt);
   std::string tar = pack_drive_package(dir);
   if (compact) {
@@ -240,6 +254,10 @@ extern "C" int LLVMFuzzerInitialize(int*, char***) {
                      seed_package(scratch, "drive_dual", PolLevel::DualHHVV, 3, 1, true));
     fuzz::write_seed(dir, "lr.tar",
                      seed_package(scratch, "drive_lr", PolLevel::SingleLR, 1, 0, true));
+    fuzz::write_seed(dir, "v2_full.tar",
+                     seed_package(scratch, "drive_v2", PolLevel::Full, 4, 2, false, 2));
+    fuzz::write_seed(dir, "v2_landmarks.tar",
+                     seed_package(scratch, "drive_v2l", PolLevel::Full, 4, 2, false, 2, true));
     std::filesystem::remove_all(scratch);
   }
   return 0;

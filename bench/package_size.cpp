@@ -26,7 +26,8 @@ namespace fs = std::filesystem;
 
 namespace {
 
-double point_recall(const std::vector<PointCandidate>& want, const std::vector<PointCandidate>& got) {
+double point_recall(const std::vector<PointCandidate>& want,
+                    const std::vector<PointCandidate>& got) {
   std::size_t hit = 0;
   for (const auto& p : want) {
     for (const auto& g : got) {
@@ -148,8 +149,7 @@ int main(int argc, char** argv) {
       (void)mapping::write_drive_package(r, dir, o);
       bytes[v] = static_cast<std::uint64_t>(mapping::pack_drive_package(dir).size());
     }
-    const mapping::DrivePackage pkg =
-        mapping::read_and_validate_package(tmp.path() / (pol + "1"));
+    const mapping::DrivePackage pkg = mapping::read_and_validate_package(tmp.path() / (pol + "1"));
     const radar::CovarianceGridmap dec = mapping::read_covariance_gridmap(pkg);
     const auto pts = radar::extract_points(dec, pcfg.points);
     const auto lines = radar::extract_lines(dec, pcfg.lines);

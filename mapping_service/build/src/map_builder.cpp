@@ -5,6 +5,8 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <fstream>
+#include <iterator>
 #include <map>
 #include <set>
 #include <unordered_map>
@@ -465,7 +467,19 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version, const MapB
         try {
           DrivePackage pkg;
           pkg.location = d.package_path;
-          pkg.manifest.origin = d.manifest.at("origin").get<GeoPoint>();
+          // The stored package's manifest.json (validated at upload; the canonical copy)
+          // says whether there is a gridmap and how it is encoded (format 2: codes, codec,
+          // noise power).
+          {
+            const std::filesystem::path mf =
+                std::filesystem::path(d.package_path) / kManifestFileName;
+            std::ifstream in(mf, std::ios::binary);
+            if (!in) throw IoError(mf.string() + ": cannot open for reading");
+            const std::string text((std::istreambuf_iterator<char>(in)),
+                                   std::istreambuf_iterator<char>());
+            pkg.manifest = parse_manifest(text);
+          }
+          if (!pkg.manifest.has_gridmap) continue;  // landmarks only: candidates, no gridmap
           const tiles::LocalFrame drive_frame(pkg.manifest.origin);
           for_each_gridmap_block(pkg,
                                  [&](const GridmapRaster& block) { acc.add(block, drive_frame); });

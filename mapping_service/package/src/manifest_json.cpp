@@ -413,4 +413,15 @@ DriveManifest manifest_from_json(const json& j) {
 }
 
 }  // namespace detail
+
+DriveManifest parse_manifest(std::string_view json_text) {
+  json j;
+  try {
+    j = json::parse(json_text);
+  } catch (const json::exception& e) {
+    throw PackageFormatError(kManifestFileName, "", std::string("not valid JSON: ") + e.what());
+  }
+  return detail::manifest_from_json(j);
+}
+
 }  // namespace polmap::mapping

@@ -384,6 +384,64 @@ TEST(MapBuilder, RealPackagesBuildTheFleetGridmap) {
   for (std::size_t i = 0; i < grid.size(); ++i) EXPECT_EQ(grid2[i].etag, grid[i].etag);
 }
 
+TEST(MapBuilder, CompactAndLandmarksOnlyPackagesContributeWhatTheyContain) {
+  TempDir tmp;
+  SqliteMapStore store(tmp.path() / "map.db");
+  const World w = make_world(4, 50, 50.0);
+  for (int d = 0; d < 2; ++d) {
+    DrivePackage pkg =
+        observe(w, "v2_" + std::to_string(d), d == 0 ? 45 : 51, {-25, -25}, {25, 25}, 0);
+    pkg.manifest.start_time_s = 0.0;
+    pkg.manifest.end_time_s = 1.0;
+    pkg.manifest.pol_level = PolLevel::SingleLR;
+    pkg.manifest.sensors = default_front_mounts();
+    const tiles::LocalFrame drive_frame(pkg.manifest.origin);
+    for (int k = 0; k <= 10; ++k) {
+      const GeoPoint g = drive_frame.to_geo(Eigen::Vector2d(-25.0 + 5.0 * k, 0.0));
+      TrajectorySample t;
+      t.time_s = 0.1 * k;
+      t.lat_deg = g.lat_deg;
+      t.lon_deg = g.lon_deg;
+      t.speed_mps = 10.0;
+      pkg.trajectory.push_back(t);
+    }
+    // Drive 0: compact gridmap (format 2); drive 1: landmarks only.
+    GridmapRaster raster = make_raster(1);
+    raster.noise_power = 1.0;
+    PackageWriteOptions o;
+    o.format_version = 2;
+    o.landmarks_only = d == 1;
+    const fs::path dir = tmp.path() / ("pkg" + std::to_string(d));
+    (void)write_drive_package(pkg, raster, dir, o);
+    const fs::path tar = tmp.path() / ("pkg" + std::to_string(d) + ".tar");
+    write_drive_package_archive(dir, tar);
+    const DrivePackage valid = read_and_validate_package(tar);
+    std::ifstream f(tar, std::ios::binary);
+    const std::string bytes((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+    ASSERT_EQ(store.put_drive(valid, tar, package_content_hash(bytes)).status,
+              PutDriveResult::Status::Inserted);
+  }
+  const auto r = MapBuilder{}.build(store, {});
+  ASSERT_EQ(r.status, MapBuildResult::Status::Published) << r.error;
+  EXPECT_EQ(r.stats.point_landmarks, 50);  // both drives' candidates agree
+  EXPECT_EQ(r.stats.gridmap_drives, 1) << store.get_map_version(r.version)->statistics.dump();
+  const FleetGridmapConfig cfg;
+  int observed = 0;
+  for (const auto& t : store.list_tiles(r.version, TileLayer::Gridmap)) {
+    if (t.key.z != cfg.base_zoom) continue;
+    const auto png = store.get_tile(r.version, TileLayer::Gridmap, t.key);
+    ASSERT_TRUE(png);
+    for (float db : decode_gridmap_png_db(png->payload, cfg)) {
+      if (std::isnan(db)) continue;
+      ++observed;
+      EXPECT_NEAR(db, 30.0, 0.11);  // the decoded power (±0.002 dB) at the PNG's 0.2 dB steps
+    }
+  }
+  // One drive's 100 m x 20 m strip at ~0.39 m pixels.
+  EXPECT_GT(observed, 100 * 20 / (0.39 * 0.39) * 0.9);
+  EXPECT_LT(observed, 100 * 20 / (0.39 * 0.39) * 1.1);
+}
+
 TEST(FleetGridmap, AccumulatesPowerAndCountsIntoWebMercatorPixels) {
   const tiles::LocalFrame frame(kWorldOrigin);
   GridmapRaster r = unobserved_raster(2, 300, 200, -15.0, 10.0);

@@ -223,6 +223,10 @@ void for_each_gridmap_block(const DrivePackage& pkg,
 /// look counts as a hit) and no noise power (0). Throws NotFoundError without a gridmap.
 [[nodiscard]] radar::CovarianceGridmap read_covariance_gridmap(const DrivePackage& pkg);
 
+/// Parses manifest.json text with the validator's strict parser (e.g. the copy a store
+/// kept of a validated package). Throws PackageFormatError / PackageValidationError.
+[[nodiscard]] DriveManifest parse_manifest(std::string_view json_text);
+
 /// GDAL path of a package member: DIR/NAME for a directory, /vsitar/TAR/NAME for an archive.
 [[nodiscard]] std::string package_member_gdal_path(const std::filesystem::path& location,
                                                    const std::string& name);

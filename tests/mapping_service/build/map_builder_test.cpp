@@ -322,38 +322,45 @@ GridmapRaster make_raster(int q) {
   return r;
 }
 
+/// Writes drive d (0 or 1) of world w as a real package with make_raster(1) in the given
+/// format, validates its archive and puts it into the store.
+void put_real_package(SqliteMapStore& store, const fs::path& tmp, const World& w, int d,
+                      const std::string& name, const PackageWriteOptions& options) {
+  // Seeds 45 and 51: drive frames at (0, 0) and (37, 0) m from the world origin.
+  DrivePackage pkg = observe(w, name, d == 0 ? 45 : 51, {-25, -25}, {25, 25}, 0);
+  pkg.manifest.start_time_s = 0.0;
+  pkg.manifest.end_time_s = 1.0;
+  pkg.manifest.pol_level = PolLevel::SingleLR;
+  pkg.manifest.sensors = default_front_mounts();
+  const tiles::LocalFrame drive_frame(pkg.manifest.origin);
+  for (int k = 0; k <= 10; ++k) {
+    const GeoPoint g = drive_frame.to_geo(Eigen::Vector2d(-25.0 + 5.0 * k, 0.0));
+    TrajectorySample t;
+    t.time_s = 0.1 * k;
+    t.lat_deg = g.lat_deg;
+    t.lon_deg = g.lon_deg;
+    t.speed_mps = 10.0;
+    pkg.trajectory.push_back(t);
+  }
+  GridmapRaster raster = make_raster(1);
+  raster.noise_power = 1.0;  // format 2 needs the noise figure; format 1 ignores it
+  const fs::path dir = tmp / ("pkg" + std::to_string(d));
+  (void)write_drive_package(pkg, raster, dir, options);
+  const fs::path tar = tmp / ("pkg" + std::to_string(d) + ".tar");
+  write_drive_package_archive(dir, tar);
+  const DrivePackage valid = read_and_validate_package(tar);
+  std::ifstream f(tar, std::ios::binary);
+  const std::string bytes((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+  ASSERT_EQ(store.put_drive(valid, tar, package_content_hash(bytes)).status,
+            PutDriveResult::Status::Inserted);
+}
+
 TEST(MapBuilder, RealPackagesBuildTheFleetGridmap) {
   TempDir tmp;
   SqliteMapStore store(tmp.path() / "map.db");
   const World w = make_world(4, 50, 50.0);
-  for (int d = 0; d < 2; ++d) {
-    // Seeds 45 and 51: drive frames at (0, 0) and (37, 0) m from the world origin.
-    DrivePackage pkg =
-        observe(w, "real" + std::to_string(d), d == 0 ? 45 : 51, {-25, -25}, {25, 25}, 0);
-    pkg.manifest.start_time_s = 0.0;
-    pkg.manifest.end_time_s = 1.0;
-    pkg.manifest.pol_level = PolLevel::SingleLR;
-    pkg.manifest.sensors = default_front_mounts();
-    const tiles::LocalFrame drive_frame(pkg.manifest.origin);
-    for (int k = 0; k <= 10; ++k) {
-      const GeoPoint g = drive_frame.to_geo(Eigen::Vector2d(-25.0 + 5.0 * k, 0.0));
-      TrajectorySample t;
-      t.time_s = 0.1 * k;
-      t.lat_deg = g.lat_deg;
-      t.lon_deg = g.lon_deg;
-      t.speed_mps = 10.0;
-      pkg.trajectory.push_back(t);
-    }
-    const fs::path dir = tmp.path() / ("pkg" + std::to_string(d));
-    (void)write_drive_package(pkg, make_raster(1), dir);
-    const fs::path tar = tmp.path() / ("pkg" + std::to_string(d) + ".tar");
-    write_drive_package_archive(dir, tar);
-    const DrivePackage valid = read_and_validate_package(tar);
-    std::ifstream f(tar, std::ios::binary);
-    const std::string bytes((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
-    ASSERT_EQ(store.put_drive(valid, tar, package_content_hash(bytes)).status,
-              PutDriveResult::Status::Inserted);
-  }
+  for (int d = 0; d < 2; ++d)
+    put_real_package(store, tmp.path(), w, d, "real" + std::to_string(d), {});
   const auto r = MapBuilder{}.build(store, {});
   ASSERT_EQ(r.status, MapBuildResult::Status::Published) << r.error;
   EXPECT_EQ(r.stats.gridmap_drives, 2);
@@ -389,37 +396,11 @@ TEST(MapBuilder, CompactAndLandmarksOnlyPackagesContributeWhatTheyContain) {
   SqliteMapStore store(tmp.path() / "map.db");
   const World w = make_world(4, 50, 50.0);
   for (int d = 0; d < 2; ++d) {
-    DrivePackage pkg =
-        observe(w, "v2_" + std::to_string(d), d == 0 ? 45 : 51, {-25, -25}, {25, 25}, 0);
-    pkg.manifest.start_time_s = 0.0;
-    pkg.manifest.end_time_s = 1.0;
-    pkg.manifest.pol_level = PolLevel::SingleLR;
-    pkg.manifest.sensors = default_front_mounts();
-    const tiles::LocalFrame drive_frame(pkg.manifest.origin);
-    for (int k = 0; k <= 10; ++k) {
-      const GeoPoint g = drive_frame.to_geo(Eigen::Vector2d(-25.0 + 5.0 * k, 0.0));
-      TrajectorySample t;
-      t.time_s = 0.1 * k;
-      t.lat_deg = g.lat_deg;
-      t.lon_deg = g.lon_deg;
-      t.speed_mps = 10.0;
-      pkg.trajectory.push_back(t);
-    }
     // Drive 0: compact gridmap (format 2); drive 1: landmarks only.
-    GridmapRaster raster = make_raster(1);
-    raster.noise_power = 1.0;
     PackageWriteOptions o;
     o.format_version = 2;
     o.landmarks_only = d == 1;
-    const fs::path dir = tmp.path() / ("pkg" + std::to_string(d));
-    (void)write_drive_package(pkg, raster, dir, o);
-    const fs::path tar = tmp.path() / ("pkg" + std::to_string(d) + ".tar");
-    write_drive_package_archive(dir, tar);
-    const DrivePackage valid = read_and_validate_package(tar);
-    std::ifstream f(tar, std::ios::binary);
-    const std::string bytes((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
-    ASSERT_EQ(store.put_drive(valid, tar, package_content_hash(bytes)).status,
-              PutDriveResult::Status::Inserted);
+    put_real_package(store, tmp.path(), w, d, "v2_" + std::to_string(d), o);
   }
   const auto r = MapBuilder{}.build(store, {});
   ASSERT_EQ(r.status, MapBuildResult::Status::Published) << r.error;

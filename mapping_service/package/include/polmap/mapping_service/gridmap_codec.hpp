@@ -1,22 +1,26 @@
 #pragma once
 /// @file gridmap_codec.hpp
 /// The compact gridmap encoding of drive package format 2 (schema/drive_package.md,
-/// "Compact gridmap"): per cell 16-bit codes of N, hits and the covariance layers,
-/// quantized relative to the drive's noise power so that a 1 km drive at full
-/// polarimetry fits in a few MB instead of ~85 MB. Pure values in, values out.
+/// "Compact gridmap"): per cell 16-bit codes of N, hits, the total power and the upper
+/// Cholesky factor of the covariance, quantized relative to the drive's noise power, so
+/// that a 1 km drive at full polarimetry takes ~5 MB instead of ~95 MB. Pure values in,
+/// values out.
 ///
-/// Value code (each real scalar v of C: a diagonal C_ii, or Re/Im of an off-diagonal):
-///     k = round(asinh(v / b) / s),  v̂ = b · sinh(k · s),  b = zero_step_noise · σ² / s
-/// (σ² = noise power per component). Near zero the step is zero_step_noise·σ² (noise-level
-/// values are kept to a fraction of the noise); for |v| ≫ b the step is relative, s, so
-/// a strong return keeps its power to ±s/2 (±0.043 dB at s = 0.02) and its polarimetric
-/// phases to about ±s/2 rad. Diagonal codes are stored as k (v ≥ 0), off-diagonal ones
-/// zigzag-coded (0, −1, 1, … → 0, 1, 2, …). A cell whose codes are all zero is stored as
-/// observed-but-empty (hits = 0): the noise-floor mask. N and hits are exact up to 65535 (above,
-/// both are scaled so that N = 65535 and hits/N is kept); N of an empty cell keeps
-/// `empty_count_bits` significant bits (it only weights the cell's zero in fleet means).
-/// Off-diagonals of cells whose trace is below offdiag_min_snr_db over q·σ² are dropped (their
-/// phase is noise).
+/// Power: P = tr C in log steps, k = 1 + round(ln(P / P_floor) / power_step) (0 = empty).
+/// Shape: C = Uᴴ U (U upper triangular, U_ii ≥ 0); every real scalar u of U (a diagonal
+/// U_ii, or Re/Im of an off-diagonal) is companded,
+///     k = round(asinh(u / b) / s),  û = b · sinh(k · s),  b = zero_step_noise · σ / s
+/// (σ² = noise power per component): near zero the step is zero_step_noise·σ, for |u| ≫ b
+/// it is relative, s. Decoded C = Ûᴴ Û scaled to the coded power: positive semi-definite
+/// whatever the rounding (rounding C itself makes the rank-one covariance of a strong
+/// return seen in few looks indefinite, and pCFAR's Cholesky then fails), and its power
+/// is kept to ±power_step/2 (the line extractor needs the power image nearly exact).
+/// Diagonal codes are stored as k, off-diagonal ones zigzag-coded (0, −1, 1, … → 0, 1, 2, …).
+/// Cells below floor_snr_db over q·σ² are stored empty (P = 0, hits = 0: the noise-floor
+/// mask); N and hits are exact up to 65535 (above, both are scaled so that N = 65535 and
+/// hits/N is kept); N of an empty cell keeps `empty_count_bits` significant bits (it only
+/// weights the cell's zero in fleet means). Cells below offdiag_min_snr_db keep only the
+/// diagonal of U (their phases are noise).
 #include <array>
 #include <complex>
 #include <cstdint>

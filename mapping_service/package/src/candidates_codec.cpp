@@ -136,10 +136,6 @@ std::vector<std::uint64_t> read_unsigned(Reader& r, std::size_t n, const char* f
 
 }  // namespace
 
-CandidatesContent quantize_candidates(const CandidatesContent& c) {
-  return decode_candidates(encode_candidates(c));
-}
-
 std::string encode_candidates(const CandidatesContent& c) {
   Writer w;
   const auto& P = c.points;

@@ -213,7 +213,8 @@ void check_band_storage(GDALRasterBand& band, const std::string& file, const std
 CPLErr read_band_block(GDALRasterBand& band, int bx, int by, float* out, bool compact) {
   if (!compact) return band.ReadBlock(bx, by, out);
   constexpr std::size_t kCells = std::size_t{detail::kGridmapBlockSize} * detail::kGridmapBlockSize;
-  std::vector<std::uint16_t> codes(kCells);
+  // One buffer per thread: this runs for every band of every block (validation, builds).
+  thread_local std::vector<std::uint16_t> codes(kCells);
   const CPLErr e = band.ReadBlock(bx, by, codes.data());
   for (std::size_t k = 0; k < kCells; ++k) out[k] = codes[k];
   return e;

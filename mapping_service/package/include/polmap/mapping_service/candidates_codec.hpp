@@ -46,8 +46,4 @@ struct CandidatesDecodeLimits {
 [[nodiscard]] CandidatesContent decode_candidates(std::string_view bytes,
                                                   const CandidatesDecodeLimits& limits = {});
 
-/// The quantized image of values (what decode(encode(v)) returns), for writers that
-/// want to keep exactly what they send.
-[[nodiscard]] CandidatesContent quantize_candidates(const CandidatesContent& content);
-
 }  // namespace polmap::mapping

@@ -9,14 +9,30 @@
 // the real path: put_drive into a SqliteMapStore (temp dir), MapBuilder::build
 // (consensus, landmarks, tiles, atomic publish), then one more drive and an
 // incremental build. The fleet gridmap is not part of this benchmark (the
-// synthetic packages have no gridmap.tif).
+// synthetic packages have no gridmap.tif). Each drive carries its trajectory
+// (the route with a lateral offset of up to ±0.5 m, one drive per hour), so the
+// builder judges support against the drives that passed with a place in view.
+//
+// Accuracy against the route's truth: a point landmark is correct when it is
+// within --radius-m of a permanent object not matched by a nearer landmark
+// (one-to-one, nearest first); precision = correct / landmarks, recall = matched
+// objects / objects, RMSE over the matched pairs. Lines by length: precision =
+// share of landmark length (sampled every 0.25 m) within --radius-m of a wall,
+// recall = share of wall length within --radius-m of a line landmark.
 //
 //   bench_map_build [--drives 2,4,8,16] [--length-km 2] [--seed 1] [--keep DIR]
+//                   [--view-fraction F] (default: the builder's; 0 = fixed count only)
+#include <sys/resource.h>
+
 #include <CLI/CLI.hpp>
+#include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <map>
+#include <optional>
 #include <random>
 #include <sstream>
 
@@ -73,9 +89,29 @@ DrivePackage drive(const Route& r, const GeoPoint& world_origin, int k, double t
   std::uniform_real_distribution<double> u01(0.0, 1.0);
   DrivePackage pkg;
   pkg.manifest.drive_id = "drive_" + std::to_string(k);
-  pkg.manifest.vehicle_id = "bench";
+  pkg.manifest.vehicle_id = "bench_" + std::to_string(k % 16);
   pkg.manifest.origin = origin;
   pkg.manifest.distance_m = r.length_m;
+  pkg.manifest.start_time_s = 1.7e9 + 3600.0 * k;
+  {
+    const double lane = 1.0 * u01(rng) - 0.5;
+    const double speed_mps = 10.0;
+    for (double s = 0.0; s <= r.length_m; s += 1.0) {
+      const double half = r.length_m / 2;
+      const Eigen::Vector2d p =
+          s < half ? Eigen::Vector2d(s - half, lane) : Eigen::Vector2d(0.0 - lane, s - half);
+      if (p.x() > max_x) break;
+      const GeoPoint g = world.to_geo(p);
+      TrajectorySample t;
+      t.time_s = pkg.manifest.start_time_s + s / speed_mps;
+      t.lat_deg = g.lat_deg;
+      t.lon_deg = g.lon_deg;
+      t.yaw_enu_rad = s < half ? 0.0 : M_PI / 2;
+      t.speed_mps = speed_mps;
+      pkg.trajectory.push_back(t);
+    }
+    pkg.manifest.end_time_s = pkg.trajectory.back().time_s;
+  }
   for (const auto& o : r.objects) {
     if (u01(rng) > 0.9 || o.x() > max_x) continue;
     PointCandidate c;
@@ -108,6 +144,113 @@ DrivePackage drive(const Route& r, const GeoPoint& world_origin, int k, double t
   return pkg;
 }
 
+double point_segment_distance(const Eigen::Vector2d& p, const Eigen::Vector2d& a,
+                              const Eigen::Vector2d& b) {
+  const Eigen::Vector2d ab = b - a;
+  const double l2 = ab.squaredNorm();
+  const double t = l2 > 0 ? std::clamp((p - a).dot(ab) / l2, 0.0, 1.0) : 0.0;
+  return (p - (a + t * ab)).norm();
+}
+
+/// Samples every `step` along a polyline (end points included).
+std::vector<Eigen::Vector2d> samples(const std::vector<Eigen::Vector2d>& pl, double step) {
+  std::vector<Eigen::Vector2d> out;
+  for (std::size_t i = 0; i + 1 < pl.size(); ++i) {
+    const int n = std::max(1, static_cast<int>(std::ceil((pl[i + 1] - pl[i]).norm() / step)));
+    for (int k = 0; k < n; ++k) out.push_back(pl[i] + (pl[i + 1] - pl[i]) * (double(k) / n));
+  }
+  if (!pl.empty()) out.push_back(pl.back());
+  return out;
+}
+
+struct Accuracy {
+  double point_precision = 0, point_recall = 0, point_rmse_m = 0;
+  double line_precision = 0, line_recall = 0;
+};
+
+/// The map against the route's truth (see the file comment).
+Accuracy accuracy(const MapStore& store, std::int64_t version, const Route& route,
+                  const GeoPoint& world_origin, double radius_m) {
+  const tiles::LocalFrame world(world_origin);
+  const LandmarkSet lms = store.landmarks_in(version, std::nullopt, false);
+  Accuracy a;
+  // Points: all (landmark, object) pairs within the radius, nearest first, one-to-one.
+  std::vector<Eigen::Vector2d> lp;
+  for (const auto& p : lms.points) lp.push_back(world.to_local(p.position));
+  struct Pair {
+    double d;
+    std::size_t l, o;
+  };
+  std::vector<Pair> pairs;
+  {
+    std::map<std::pair<long, long>, std::vector<std::size_t>> grid;
+    for (std::size_t o = 0; o < route.objects.size(); ++o) {
+      grid[{std::lround(std::floor(route.objects[o].x())),
+            std::lround(std::floor(route.objects[o].y()))}]
+          .push_back(o);
+    }
+    for (std::size_t l = 0; l < lp.size(); ++l) {
+      const long cx = std::lround(std::floor(lp[l].x())), cy = std::lround(std::floor(lp[l].y()));
+      for (long dx = -1; dx <= 1; ++dx) {
+        for (long dy = -1; dy <= 1; ++dy) {
+          auto it = grid.find({cx + dx, cy + dy});
+          if (it == grid.end()) continue;
+          for (std::size_t o : it->second) {
+            const double d = (lp[l] - route.objects[o]).norm();
+            if (d <= radius_m) pairs.push_back({d, l, o});
+          }
+        }
+      }
+    }
+  }
+  std::sort(pairs.begin(), pairs.end(), [](const Pair& x, const Pair& y) {
+    return std::tie(x.d, x.l, x.o) < std::tie(y.d, y.l, y.o);
+  });
+  std::vector<char> lu(lp.size(), 0), ou(route.objects.size(), 0);
+  std::size_t matched = 0;
+  double ss = 0;
+  for (const Pair& p : pairs) {
+    if (lu[p.l] || ou[p.o]) continue;
+    lu[p.l] = ou[p.o] = 1;
+    ++matched;
+    ss += p.d * p.d;
+  }
+  a.point_precision = lp.empty() ? 0.0 : double(matched) / double(lp.size());
+  a.point_recall = route.objects.empty() ? 0.0 : double(matched) / double(route.objects.size());
+  a.point_rmse_m = matched ? std::sqrt(ss / double(matched)) : 0.0;
+  // Lines, by length.
+  std::vector<std::vector<Eigen::Vector2d>> ll;
+  for (const auto& l : lms.lines) {
+    std::vector<Eigen::Vector2d> pl;
+    for (const auto& g : l.polyline) pl.push_back(world.to_local(g));
+    ll.push_back(std::move(pl));
+  }
+  auto near_wall = [&](const Eigen::Vector2d& p) {
+    for (const auto& [wa, wb] : route.walls) {
+      if (point_segment_distance(p, wa, wb) <= radius_m) return true;
+    }
+    return false;
+  };
+  auto near_landmark = [&](const Eigen::Vector2d& p) {
+    for (const auto& pl : ll) {
+      for (std::size_t i = 0; i + 1 < pl.size(); ++i) {
+        if (point_segment_distance(p, pl[i], pl[i + 1]) <= radius_m) return true;
+      }
+    }
+    return false;
+  };
+  std::size_t ln = 0, lok = 0, wn = 0, wok = 0;
+  for (const auto& pl : ll) {
+    for (const auto& p : samples(pl, 0.25)) ++ln, lok += near_wall(p) ? 1 : 0;
+  }
+  for (const auto& [wa, wb] : route.walls) {
+    for (const auto& p : samples({wa, wb}, 0.25)) ++wn, wok += near_landmark(p) ? 1 : 0;
+  }
+  a.line_precision = ln ? double(lok) / double(ln) : 0.0;
+  a.line_recall = wn ? double(wok) / double(wn) : 0.0;
+  return a;
+}
+
 double seconds_since(std::chrono::steady_clock::time_point t) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
 }
@@ -121,6 +264,11 @@ int main(int argc, char** argv) {
   double points_per_km = 600.0, walls_per_km = 60.0, temporaries_per_km = 100.0;
   unsigned seed = 1;
   std::string keep;
+  double radius_m = 0.3;
+  std::optional<double> view_fraction;
+  app.add_option("--radius-m", radius_m, "truth matching radius");
+  app.add_option("--view-fraction", view_fraction,
+                 "min share of in-view drives supporting a landmark (0: fixed count only)");
   app.add_option("--drives", counts, "drive counts to build maps from")->delimiter(',');
   app.add_option("--length-km", length_km, "route length");
   app.add_option("--points-per-km", points_per_km, "permanent point objects per km");
@@ -145,10 +293,12 @@ int main(int argc, char** argv) {
       "candidates\n",
       length_km, route.objects.size(), route.walls.size(),
       0.9 * route.objects.size() + temporaries_per_km * length_km, 0.9 * 2 * route.walls.size());
-  std::printf("%6s %10s %10s %9s %8s %6s | %9s %9s %9s %9s | %9s %7s %7s | %8s %7s %7s\n", "drives",
-              "cand_pts", "cand_lines", "lm_pts", "lm_lines", "tiles", "ingest_s", "cand/s",
-              "build_s", "consens_s", "incr_s", "written", "reused", "short_s", "written",
-              "reused");
+  std::printf(
+      "%6s %9s %9s %7s %7s | %6s %6s %7s %6s %6s | %6s | %8s %8s %9s %8s | %8s %7s %7s | %8s %7s "
+      "%7s %8s\n",
+      "drives", "cand_pts", "cand_lin", "lm_pts", "lm_lin", "P_pts", "R_pts", "rmse_cm", "P_lin",
+      "R_lin", "tiles", "ingest_s", "cand/s", "build_s", "consns_s", "incr_s", "written", "reused",
+      "short_s", "written", "reused", "maxrss_MB");
   for (int n : counts) {
     const fs::path dir = root / ("n" + std::to_string(n));
     fs::create_directories(dir);
@@ -174,6 +324,8 @@ int main(int argc, char** argv) {
     const double ingest_s = seconds_since(t0);
     MapBuildRequest req;
     req.build_gridmap = false;
+    if (view_fraction)
+      req.points.support.min_view_fraction = req.lines.support.min_view_fraction = *view_fraction;
     const MapBuilder builder;
     const auto r = builder.build(store, req);
     if (r.status != MapBuildResult::Status::Published) {
@@ -184,25 +336,32 @@ int main(int argc, char** argv) {
     const auto inc = builder.build(store, req);
     ingest(pkgs[static_cast<std::size_t>(n + 1)]);
     const auto part = builder.build(store, req);
+    const Accuracy acc = accuracy(store, r.version, route, origin, radius_m);
+    rusage ru{};
+    getrusage(RUSAGE_SELF, &ru);
     std::printf(
-        "%6d %10lld %10lld %9lld %8lld %6lld | %9.3f %9.0f %9.3f %9.3f | %9.3f %7lld %7lld | %8.3f "
-        "%7lld %7lld\n",
+        "%6d %9lld %9lld %7lld %7lld | %6.3f %6.3f %7.2f %6.3f %6.3f | %6lld | %8.3f %8.0f %9.3f "
+        "%8.3f | %8.3f %7lld %7lld | %8.3f %7lld %7lld %8.0f\n",
         n, static_cast<long long>(r.stats.point_candidates),
         static_cast<long long>(r.stats.line_candidates),
         static_cast<long long>(r.stats.point_landmarks),
-        static_cast<long long>(r.stats.line_landmarks), static_cast<long long>(r.stats.tiles_total),
-        ingest_s, static_cast<double>(cand) / ingest_s, r.stats.seconds_total,
-        r.stats.seconds_consensus, inc.stats.seconds_total,
+        static_cast<long long>(r.stats.line_landmarks), acc.point_precision, acc.point_recall,
+        100.0 * acc.point_rmse_m, acc.line_precision, acc.line_recall,
+        static_cast<long long>(r.stats.tiles_total), ingest_s, static_cast<double>(cand) / ingest_s,
+        r.stats.seconds_total, r.stats.seconds_consensus, inc.stats.seconds_total,
         static_cast<long long>(inc.stats.tiles_written),
         static_cast<long long>(inc.stats.tiles_reused), part.stats.seconds_total,
         static_cast<long long>(part.stats.tiles_written),
-        static_cast<long long>(part.stats.tiles_reused));
+        static_cast<long long>(part.stats.tiles_reused),
+        static_cast<double>(ru.ru_maxrss) / 1024.0);
     std::fflush(stdout);
   }
   std::printf(
       "build_s = load + consensus + landmarks + tiles + publish of a fresh version; incr_s = the\n"
       "same after one more full drive, short_s after one more 300 m drive (tiles whose bytes did\n"
-      "not change are reused, not rewritten). Store: SQLite WAL in %s\n",
+      "not change are reused, not rewritten); P/R: precision and recall against the route's\n"
+      "permanent objects and walls (file comment), maxrss_MB: peak resident memory of the process\n"
+      "so far. Store: SQLite WAL in %s\n",
       root.c_str());
   if (keep.empty()) fs::remove_all(root);
   return 0;

@@ -191,3 +191,19 @@ CREATE TABLE drive_trajectories (
   min_spacing_m REAL NOT NULL,
   samples_json  TEXT NOT NULL
 );
+
+-- migration 3: landmark changes recorded per map version (added, moved, retired, with reasons)
+CREATE TABLE landmark_changes (
+  version                INTEGER NOT NULL REFERENCES map_versions(version) ON DELETE CASCADE,
+  seq                    INTEGER NOT NULL,
+  change                 TEXT NOT NULL CHECK (change IN ('added', 'moved', 'retired')),
+  kind                   INTEGER NOT NULL CHECK (kind IN (0, 1)),
+  key                    INTEGER NOT NULL,
+  previous_key           INTEGER NOT NULL,
+  distance_m             REAL NOT NULL,
+  geometry_json          TEXT NOT NULL,
+  previous_geometry_json TEXT NOT NULL,
+  reason_json            TEXT NOT NULL,
+  PRIMARY KEY (version, seq)
+) WITHOUT ROWID;
+CREATE INDEX landmark_changes_key ON landmark_changes(key);

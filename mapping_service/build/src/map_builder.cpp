@@ -12,6 +12,7 @@
 #include <unordered_map>
 
 #include "polmap/mapping_service/drive_package_io.hpp"
+#include "polmap/mapping_service/landmark_diff.hpp"
 #include "polmap/schema/json.hpp"
 #include "polmap/tiles/local_frame.hpp"
 
@@ -55,6 +56,14 @@ nlohmann::json box_json(const tiles::GeoBox& b) {
           {"max_lon_deg", b.max_lon_deg}};
 }
 
+nlohmann::json support_json(const SupportRule& s) {
+  return {{"min_drives", s.min_drives},
+          {"min_view_fraction", s.min_view_fraction},
+          {"recent_passes", s.recent_passes},
+          {"retire_min_misses", s.retire_min_misses},
+          {"retire_min_vehicles", s.retire_min_vehicles}};
+}
+
 nlohmann::json request_json(const MapBuildRequest& r, const MapBuilderConfig& c) {
   nlohmann::json j;
   j["region"] = r.region ? box_json(*r.region) : nlohmann::json();
@@ -64,12 +73,16 @@ nlohmann::json request_json(const MapBuildRequest& r, const MapBuilderConfig& c)
   j["incremental"] = r.incremental;
   j["build_gridmap"] = r.build_gridmap;
   j["points"] = {{"max_pair_distance_m", r.points.max_pair_distance_m},
-                 {"min_drives", r.points.min_drives}};
+                 {"support", support_json(r.points.support)}};
   j["lines"] = {{"max_hull_distance_m", r.lines.max_hull_distance_m},
                 {"max_projection_distance_m", r.lines.max_projection_distance_m},
-                {"min_drives", r.lines.min_drives},
+                {"support", support_json(r.lines.support)},
                 {"polyline_max_error_m", r.lines.polyline_max_error_m},
                 {"snap_max_gap_m", r.lines.snap_max_gap_m}};
+  j["visibility"] = {{"default_view_range_m", r.visibility.default_view_range_m},
+                     {"min_view_range_m", r.visibility.min_view_range_m},
+                     {"max_view_range_m", r.visibility.max_view_range_m},
+                     {"range_quantile", r.visibility.range_quantile}};
   j["tile_zoom"] = c.tile_zoom;
   j["tile_quantum_m"] = c.encode.quantum_m;
   return j;
@@ -132,6 +145,7 @@ std::string_view to_string(MapBuildResult::Status s) {
 nlohmann::json to_json(const MapBuildStats& s) {
   nlohmann::json j;
   j["drives_used"] = s.drives_used;
+  j["drives_passing"] = s.drives_passing;
   j["point_candidates"] = s.point_candidates;
   j["line_candidates"] = s.line_candidates;
   j["point_landmarks"] = s.point_landmarks;
@@ -145,15 +159,22 @@ nlohmann::json to_json(const MapBuildStats& s) {
   j["gridmap_drives"] = s.gridmap_drives;
   j["previous_version"] =
       s.previous_version ? nlohmann::json(*s.previous_version) : nlohmann::json();
+  j["changes"] = {{"against_version",
+                   s.changes_against ? nlohmann::json(*s.changes_against) : nlohmann::json()},
+                  {"added", s.landmarks_added},
+                  {"moved", s.landmarks_moved},
+                  {"retired", s.landmarks_retired}};
   j["point_consensus"] = {{"candidates", s.point_consensus.candidates},
                           {"pairs", s.point_consensus.pairs},
                           {"groups", s.point_consensus.groups},
                           {"rejected_groups", s.point_consensus.rejected_groups},
+                          {"retired_groups", s.point_consensus.retired_groups},
                           {"largest_group", s.point_consensus.largest_group}};
   j["line_consensus"] = {{"candidates", s.line_consensus.candidates},
                          {"pairs", s.line_consensus.pairs},
                          {"groups", s.line_consensus.groups},
                          {"rejected_groups", s.line_consensus.rejected_groups},
+                         {"retired_groups", s.line_consensus.retired_groups},
                          {"polylines", s.line_consensus.polylines},
                          {"snapped_ends", s.line_consensus.snapped_ends}};
   j["seconds"] = {{"load", s.seconds_load},           {"consensus", s.seconds_consensus},
@@ -214,6 +235,44 @@ std::vector<TaggedLineCandidate> tagged_lines(const CandidateSet& cands,
   return tl;
 }
 
+/// The passes of the drives that may have had the region in view: every included drive
+/// whose box meets the query box (also those without candidates there: a pass that saw
+/// nothing is evidence too), with its trajectory in the build frame and its view range
+/// estimated from its own candidates.
+std::vector<DrivePass> drive_passes(const MapStore& store, const std::optional<GeoBox>& query,
+                                    const std::vector<std::string>& excluded,
+                                    const std::vector<TaggedPointCandidate>& tp,
+                                    const std::vector<TaggedLineCandidate>& tl,
+                                    const tiles::LocalFrame& frame, const VisibilityConfig& vcfg) {
+  const std::set<std::string> skip(excluded.begin(), excluded.end());
+  std::unordered_map<std::int64_t, std::vector<Eigen::Vector2d>> cand_of_drive;
+  for (const auto& p : tp) cand_of_drive[p.drive].push_back(p.candidate.position_m);
+  for (const auto& l : tl) {
+    cand_of_drive[l.drive].push_back(l.candidate.start_m);
+    cand_of_drive[l.drive].push_back(l.candidate.end_m);
+  }
+  std::map<std::string, std::int64_t> vehicles;
+  std::vector<DrivePass> passes;
+  for (const DriveRecord& d : query ? store.drives_in(*query) : store.list_drives()) {
+    if (skip.contains(d.drive_id)) continue;
+    DrivePass pass;
+    pass.drive = d.row;
+    pass.start_time_s = d.start_time_s;
+    pass.vehicle =
+        vehicles.emplace(d.vehicle_id, static_cast<std::int64_t>(vehicles.size())).first->second;
+    for (const TrajectorySample& s : store.drive_trajectory(d.drive_id)) {
+      pass.path_m.push_back(frame.to_local(GeoPoint{s.lat_deg, s.lon_deg, 0.0}));
+    }
+    if (pass.path_m.empty()) continue;  // no trajectory: judged by its candidates alone
+    const auto it = cand_of_drive.find(d.row);
+    pass.view_range_m = it == cand_of_drive.end()
+                            ? vcfg.default_view_range_m
+                            : estimate_view_range_m(pass.path_m, it->second, vcfg);
+    passes.push_back(std::move(pass));
+  }
+  return passes;
+}
+
 /// The frame position as a geodetic point quantized to 1e-8 degrees (stable keys).
 GeoPoint to_geo_quantized(const tiles::LocalFrame& frame, const Eigen::Vector2d& xy) {
   const GeoPoint g = frame.to_geo(xy);
@@ -221,15 +280,20 @@ GeoPoint to_geo_quantized(const tiles::LocalFrame& frame, const Eigen::Vector2d&
 }
 
 /// Consensus point landmarks as stored rows (inside the region, if one is given).
-std::vector<StoredPointLandmark> stored_points(const PointConsensusResult& pc,
-                                               const tiles::LocalFrame& frame,
-                                               const std::optional<tiles::GeoBox>& region) {
+/// `verdicts` receives the verdict of each row, keyed by the row's stable key.
+std::vector<StoredPointLandmark> stored_points(
+    const PointConsensusResult& pc, const tiles::LocalFrame& frame,
+    const std::optional<tiles::GeoBox>& region,
+    std::unordered_map<std::int64_t, SupportVerdict>& verdicts) {
   std::vector<StoredPointLandmark> points;
   for (std::size_t i = 0; i < pc.landmarks.size(); ++i) {
     const auto& lm = pc.landmarks[i];
     StoredPointLandmark s;
     s.position = to_geo_quantized(frame, lm.position_m);
     if (region && !region->contains(s.position.lat_deg, s.position.lon_deg)) continue;
+    if (i < pc.verdicts.size()) {
+      verdicts[landmark_key(false, std::span<const GeoPoint>(&s.position, 1))] = pc.verdicts[i];
+    }
     s.key = landmark_key(false, std::span<const GeoPoint>(&s.position, 1));
     s.scattering = lm.scattering;
     s.support_drives = lm.support_drives;
@@ -241,9 +305,10 @@ std::vector<StoredPointLandmark> stored_points(const PointConsensusResult& pc,
 }
 
 /// Consensus line landmarks as stored rows (touching the region, if one is given).
-std::vector<StoredLineLandmark> stored_lines(const LineConsensusResult& lc,
-                                             const tiles::LocalFrame& frame,
-                                             const std::optional<tiles::GeoBox>& region) {
+std::vector<StoredLineLandmark> stored_lines(
+    const LineConsensusResult& lc, const tiles::LocalFrame& frame,
+    const std::optional<tiles::GeoBox>& region,
+    std::unordered_map<std::int64_t, SupportVerdict>& verdicts) {
   std::vector<StoredLineLandmark> lines;
   for (std::size_t i = 0; i < lc.landmarks.size(); ++i) {
     const auto& lm = lc.landmarks[i];
@@ -255,12 +320,74 @@ std::vector<StoredLineLandmark> stored_lines(const LineConsensusResult& lc,
       if (!inside) continue;
     }
     s.key = landmark_key(true, s.polyline);
+    if (i < lc.verdicts.size()) verdicts[s.key] = lc.verdicts[i];
     s.support_drives = lm.support_drives;
     s.spread_m = lm.spread_m;
     s.support = lc.support[i];
     lines.push_back(std::move(s));
   }
   return lines;
+}
+
+nlohmann::json verdict_json(const SupportVerdict& v) {
+  nlohmann::json j{
+      {"support_drives", v.support_drives}, {"drives_in_view", v.drives_in_view},
+      {"recent_passes", v.recent_passes},   {"recent_support", v.recent_support},
+      {"miss_streak", v.miss_streak},       {"miss_streak_vehicles", v.miss_streak_vehicles}};
+  if (v.last_support_time_s > 0.0) j["last_support_time_s"] = v.last_support_time_s;
+  return j;
+}
+
+/// The changes against the previous version, each with the builder's reason: the
+/// support verdict of an added or moved landmark, the miss streak of a retired one (or
+/// "unsupported" when no retired group explains it: its candidates are gone, e.g. a
+/// deleted drive, or the consensus no longer groups them).
+std::vector<LandmarkChange> changes_with_reasons(
+    const LandmarkSet& previous, const std::vector<StoredPointLandmark>& points,
+    const std::vector<StoredLineLandmark>& lines,
+    const std::unordered_map<std::int64_t, SupportVerdict>& verdicts,
+    const PointConsensusResult& pc, const LineConsensusResult& lc, const tiles::LocalFrame& frame,
+    const LandmarkDiffConfig& dcfg) {
+  LandmarkSet now;
+  now.points = points;
+  now.lines = lines;
+  LandmarkDiff diff = diff_landmarks(previous, now, dcfg);
+  for (LandmarkChange& c : diff.changes) {
+    if (c.change != LandmarkChangeKind::Retired) {
+      const auto it = verdicts.find(c.key);
+      c.reason =
+          it == verdicts.end() ? nlohmann::json{{"rule", "support"}} : verdict_json(it->second);
+      c.reason["rule"] = "support";
+      continue;
+    }
+    // The retired group nearest to the old landmark (points: position; lines: midpoint).
+    auto mid = [&](const std::vector<Eigen::Vector2d>& pl) {
+      return Eigen::Vector2d(0.5 * (pl.front() + pl.back()));
+    };
+    std::vector<Eigen::Vector2d> old_m;
+    for (const auto& g : c.geometry) old_m.push_back(frame.to_local(g));
+    const Eigen::Vector2d at = old_m.size() == 1 ? old_m[0] : mid(old_m);
+    const SupportVerdict* best = nullptr;
+    double best_d = c.is_line ? 2.0 : dcfg.match_radius_m;
+    if (c.is_line) {
+      for (std::size_t i = 0; i < lc.retired.size(); ++i) {
+        const double d = (mid(lc.retired[i].polyline_m) - at).norm();
+        if (d <= best_d) best_d = d, best = &lc.retired_verdicts[i];
+      }
+    } else {
+      for (std::size_t i = 0; i < pc.retired.size(); ++i) {
+        const double d = (pc.retired[i].position_m - at).norm();
+        if (d <= best_d) best_d = d, best = &pc.retired_verdicts[i];
+      }
+    }
+    if (best != nullptr) {
+      c.reason = verdict_json(*best);
+      c.reason["rule"] = "missed";
+    } else {
+      c.reason = {{"rule", "unsupported"}};
+    }
+  }
+  return std::move(diff.changes);
 }
 
 /// The landmarks cut into localization tiles of zoom z (each in its tile's frame; a line
@@ -348,6 +475,9 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version, const MapB
                        req.lines.max_projection_distance_m + req.lines.max_hull_distance_m);
     std::optional<tiles::GeoBox> query;
     if (req.region) query = grow_box(*req.region, margin_m);
+    // The version this build follows: tiles are reused from it and changes recorded
+    // against it (read once, so both refer to the same version).
+    const std::optional<std::int64_t> current = store.current_map_version();
     const CandidateSet cands = store.candidates_in(query, req.excluded_drive_ids);
     st.point_candidates = static_cast<std::int64_t>(cands.points.size());
     st.line_candidates = static_cast<std::int64_t>(cands.lines.size());
@@ -360,20 +490,25 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version, const MapB
     const tiles::LocalFrame frame(region_centre(req.region, cands));
     const std::vector<TaggedPointCandidate> tp = tagged_points(cands, frame);
     const std::vector<TaggedLineCandidate> tl = tagged_lines(cands, frame);
+    const VisibilityIndex view(
+        drive_passes(store, query, req.excluded_drive_ids, tp, tl, frame, req.visibility),
+        req.visibility);
+    st.drives_passing = static_cast<std::int64_t>(view.passes().size());
     st.seconds_load = clock.lap();
 
     // ---------------------------------------------------------------- consensus
     stage("consensus", 0.1);
-    const PointConsensusResult pc = consensus_points(tp, req.points);
-    const LineConsensusResult lc = consensus_lines(tl, req.lines);
+    const PointConsensusResult pc = consensus_points(tp, req.points, &view);
+    const LineConsensusResult lc = consensus_lines(tl, req.lines, &view);
     st.point_consensus = pc.stats;
     st.line_consensus = lc.stats;
     st.seconds_consensus = clock.lap();
 
     // ---------------------------------------------------------------- landmarks
     stage("landmarks", 0.4);
-    const std::vector<StoredPointLandmark> points = stored_points(pc, frame, req.region);
-    const std::vector<StoredLineLandmark> lines = stored_lines(lc, frame, req.region);
+    std::unordered_map<std::int64_t, SupportVerdict> verdicts;
+    const std::vector<StoredPointLandmark> points = stored_points(pc, frame, req.region, verdicts);
+    const std::vector<StoredLineLandmark> lines = stored_lines(lc, frame, req.region, verdicts);
     st.point_landmarks = static_cast<std::int64_t>(points.size());
     st.line_landmarks = static_cast<std::int64_t>(lines.size());
     for (std::size_t b = 0; b < points.size(); b += cfg_.write_batch) {
@@ -386,6 +521,24 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version, const MapB
       const std::size_t e = std::min(lines.size(), b + cfg_.write_batch);
       store.put_landmarks(version, {}, std::span(lines).subspan(b, e - b));
     }
+    // What changed against the current version (recorded with this version; the
+    // diff endpoint reads the reasons from here).
+    if (const auto& prev = current) {
+      const LandmarkSet previous = store.landmarks_in(*prev, req.region, false);
+      const std::vector<LandmarkChange> changes =
+          changes_with_reasons(previous, points, lines, verdicts, pc, lc, frame, cfg_.diff);
+      for (const auto& ch : changes) {
+        (ch.change == LandmarkChangeKind::Added   ? st.landmarks_added
+         : ch.change == LandmarkChangeKind::Moved ? st.landmarks_moved
+                                                  : st.landmarks_retired) += 1;
+      }
+      for (std::size_t b = 0; b < changes.size(); b += cfg_.write_batch) {
+        stage("landmarks", 0.47);
+        const std::size_t e = std::min(changes.size(), b + cfg_.write_batch);
+        store.put_landmark_changes(version, std::span(changes).subspan(b, e - b));
+      }
+      st.changes_against = *prev;
+    }
     st.seconds_landmarks = clock.lap();
 
     // ---------------------------------------------------------------- tiles
@@ -395,7 +548,7 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version, const MapB
         localization_tile_content(points, lines, frame, z, cfg_.line_tile_sample_m);
     std::map<tiles::TileKey, std::string> prev_etags;
     if (req.incremental) {
-      st.previous_version = store.current_map_version();
+      st.previous_version = current;
       if (st.previous_version) {
         for (const auto& t : store.list_tiles(*st.previous_version, TileLayer::Localization)) {
           prev_etags.emplace(t.key, t.etag);

@@ -14,6 +14,7 @@
 #include <map>
 #include <nanoflann.hpp>
 #include <numeric>
+#include <set>
 #include <unordered_map>
 
 #include "polmap/schema/errors.hpp"
@@ -107,9 +108,21 @@ ScatteringClass majority_class(const std::vector<TaggedPointCandidate>& pts,
   return winners == 1 ? static_cast<ScatteringClass>(winner) : ScatteringClass::Mixed;
 }
 
+/// Distinct drives of a group, ascending.
+template <typename T>
+std::vector<std::int64_t> group_drives(const std::vector<T>& items,
+                                       const std::vector<std::size_t>& group) {
+  std::vector<std::int64_t> drives;
+  drives.reserve(group.size());
+  for (std::size_t i : group) drives.push_back(items[i].drive);
+  std::sort(drives.begin(), drives.end());
+  drives.erase(std::unique(drives.begin(), drives.end()), drives.end());
+  return drives;
+}
+
 PointConsensusResult finish_points(const std::vector<TaggedPointCandidate>& pts,
                                    const std::vector<std::pair<std::size_t, std::size_t>>& edges,
-                                   const PointConsensusConfig& cfg) {
+                                   const PointConsensusConfig& cfg, const VisibilityIndex* view) {
   PointConsensusResult out;
   out.stats.candidates = pts.size();
   out.stats.pairs = edges.size();
@@ -118,18 +131,19 @@ PointConsensusResult finish_points(const std::vector<TaggedPointCandidate>& pts,
   const auto groups = components(uf, pts.size());
   out.stats.groups = groups.size();
   for (const auto& g : groups) {
-    std::vector<std::int64_t> drives;
-    drives.reserve(g.size());
-    for (std::size_t i : g) drives.push_back(pts[i].drive);
-    std::sort(drives.begin(), drives.end());
-    drives.erase(std::unique(drives.begin(), drives.end()), drives.end());
-    if (static_cast<int>(drives.size()) < cfg.min_drives) {
+    const std::vector<std::int64_t> drives = group_drives(pts, g);
+    if (static_cast<int>(drives.size()) < cfg.support.min_drives) {
       ++out.stats.rejected_groups;
       continue;
     }
     Eigen::Vector2d mean = Eigen::Vector2d::Zero();
     for (std::size_t i : g) mean += pts[i].candidate.position_m;
     mean /= static_cast<double>(g.size());
+    const SupportVerdict verdict = judge_support(view, std::span(&mean, 1), drives, cfg.support);
+    if (verdict.status == SupportVerdict::Status::Rejected) {
+      ++out.stats.rejected_groups;
+      continue;
+    }
     double ss = 0.0;
     for (std::size_t i : g) ss += (pts[i].candidate.position_m - mean).squaredNorm();
     PointLandmark lm;
@@ -138,11 +152,19 @@ PointConsensusResult finish_points(const std::vector<TaggedPointCandidate>& pts,
     lm.scattering = majority_class(pts, g);
     lm.support_drives = static_cast<std::uint32_t>(drives.size());
     lm.spread_m = std::sqrt(ss / static_cast<double>(g.size()));
+    if (verdict.status == SupportVerdict::Status::Retired) {
+      ++out.stats.retired_groups;
+      lm.id = static_cast<std::int64_t>(out.retired.size());
+      out.retired.push_back(lm);
+      out.retired_verdicts.push_back(verdict);
+      continue;
+    }
     out.landmarks.push_back(lm);
     std::vector<std::int64_t> support;
     support.reserve(g.size());
     for (std::size_t i : g) support.push_back(pts[i].candidate_id);
     out.support.push_back(std::move(support));
+    out.verdicts.push_back(verdict);
     out.stats.largest_group = std::max(out.stats.largest_group, g.size());
   }
   return out;
@@ -402,8 +424,90 @@ std::size_t snap_ends(std::vector<LineLandmark>& lines, const LineConsensusConfi
 
 // ---------------------------------------------------------------- public
 
+int required_support(int min_drives, double min_view_fraction, std::size_t passes_in_view) {
+  // The small epsilon keeps e.g. 0.5 * 4 at 2 against rounding.
+  const double share = std::ceil(min_view_fraction * static_cast<double>(passes_in_view) - 1e-9);
+  return std::max(min_drives, static_cast<int>(share));
+}
+
+SupportVerdict judge_support(const VisibilityIndex* view, std::span<const Eigen::Vector2d> places,
+                             std::span<const std::int64_t> support_drives_sorted,
+                             const SupportRule& rule) {
+  POLMAP_EXPECT(rule.min_drives >= 1 && rule.min_view_fraction >= 0.0 &&
+                rule.min_view_fraction <= 1.0 && rule.recent_passes >= 1);
+  SupportVerdict v;
+  v.support_drives = static_cast<std::uint32_t>(support_drives_sorted.size());
+  v.drives_in_view = v.support_drives;
+  const auto supported = [&](std::int64_t drive) {
+    return std::binary_search(support_drives_sorted.begin(), support_drives_sorted.end(), drive);
+  };
+  if (view == nullptr) {
+    v.status = static_cast<int>(v.support_drives) >= rule.min_drives
+                   ? SupportVerdict::Status::Accepted
+                   : SupportVerdict::Status::Rejected;
+    return v;
+  }
+  // Passes in view, in drive-time order (VisibilityIndex keeps passes sorted by time).
+  std::vector<std::size_t> passes;
+  for (const auto& p : places) {
+    const auto in = view->passes_in_view(p);
+    passes.insert(passes.end(), in.begin(), in.end());
+  }
+  std::sort(passes.begin(), passes.end());
+  passes.erase(std::unique(passes.begin(), passes.end()), passes.end());
+  const auto& all = view->passes();
+  // Supporting drives without a pass in view (no trajectory, or outside the range
+  // model) had it in view all the same; their time is unknown, so they count for the
+  // all-time rule only.
+  std::vector<std::int64_t> seen_drives;
+  for (std::size_t i : passes) seen_drives.push_back(all[i].drive);
+  std::sort(seen_drives.begin(), seen_drives.end());
+  seen_drives.erase(std::unique(seen_drives.begin(), seen_drives.end()), seen_drives.end());
+  std::size_t extra = 0;
+  for (std::int64_t d : support_drives_sorted) {
+    if (!std::binary_search(seen_drives.begin(), seen_drives.end(), d)) ++extra;
+  }
+  v.drives_in_view = static_cast<std::uint32_t>(seen_drives.size() + extra);
+  const bool all_time = static_cast<int>(v.support_drives) >=
+                        required_support(rule.min_drives, rule.min_view_fraction, v.drives_in_view);
+  // Recent window: the latest passes in view (one per drive: a drive's pass appears once).
+  std::vector<std::size_t> recent;
+  std::set<std::int64_t> recent_drives;
+  for (auto it = passes.rbegin(); it != passes.rend(); ++it) {
+    if (static_cast<int>(recent.size()) >= rule.recent_passes) break;
+    if (recent_drives.insert(all[*it].drive).second) recent.push_back(*it);
+  }
+  v.recent_passes = static_cast<std::uint32_t>(recent.size());
+  for (std::size_t i : recent) v.recent_support += supported(all[i].drive) ? 1U : 0U;
+  std::set<std::int64_t> streak_vehicles;
+  for (std::size_t i : recent) {  // latest first
+    if (supported(all[i].drive)) {
+      v.last_support_time_s = all[i].start_time_s;
+      break;
+    }
+    ++v.miss_streak;
+    streak_vehicles.insert(all[i].vehicle);
+  }
+  v.miss_streak_vehicles = static_cast<std::uint32_t>(streak_vehicles.size());
+  const bool recent_ok =
+      extra == 0 ? static_cast<int>(v.recent_support) >=
+                       required_support(rule.min_drives, rule.min_view_fraction, recent.size())
+                 : false;
+  const bool retire = static_cast<int>(v.miss_streak) >= rule.retire_min_misses &&
+                      static_cast<int>(v.miss_streak_vehicles) >= rule.retire_min_vehicles;
+  if (!retire && (recent_ok || all_time)) {
+    v.status = SupportVerdict::Status::Accepted;
+  } else if (retire && (recent_ok || all_time)) {
+    v.status = SupportVerdict::Status::Retired;
+  } else {
+    v.status = SupportVerdict::Status::Rejected;
+  }
+  return v;
+}
+
 PointConsensusResult consensus_points(std::span<const TaggedPointCandidate> candidates,
-                                      const PointConsensusConfig& cfg) {
+                                      const PointConsensusConfig& cfg,
+                                      const VisibilityIndex* view) {
   POLMAP_EXPECT(cfg.max_pair_distance_m > 0.0);
   const auto pts = sorted_by_id(candidates);
   std::vector<std::pair<std::size_t, std::size_t>> edges;
@@ -432,11 +536,12 @@ PointConsensusResult consensus_points(std::span<const TaggedPointCandidate> cand
       }
     }
   }
-  return finish_points(pts, edges, cfg);
+  return finish_points(pts, edges, cfg, view);
 }
 
 PointConsensusResult consensus_points_bruteforce(std::span<const TaggedPointCandidate> candidates,
-                                                 const PointConsensusConfig& cfg) {
+                                                 const PointConsensusConfig& cfg,
+                                                 const VisibilityIndex* view) {
   const auto pts = sorted_by_id(candidates);
   const double r2 = cfg.max_pair_distance_m * cfg.max_pair_distance_m;
   std::vector<std::pair<std::size_t, std::size_t>> edges;
@@ -448,7 +553,7 @@ PointConsensusResult consensus_points_bruteforce(std::span<const TaggedPointCand
       }
     }
   }
-  return finish_points(pts, edges, cfg);
+  return finish_points(pts, edges, cfg, view);
 }
 
 LinePairDistance line_pair_distance(const LineCandidate& a, const LineCandidate& b) {
@@ -488,7 +593,7 @@ LinePairDistance line_pair_distance(const LineCandidate& a, const LineCandidate&
 }
 
 LineConsensusResult consensus_lines(std::span<const TaggedLineCandidate> candidates,
-                                    const LineConsensusConfig& cfg) {
+                                    const LineConsensusConfig& cfg, const VisibilityIndex* view) {
   POLMAP_EXPECT(cfg.max_projection_distance_m >= 0.0 && cfg.max_hull_distance_m > 0.0);
   POLMAP_EXPECT(cfg.curve_sample_spacing_m > 0.0 && cfg.polyline_max_error_m > 0.0);
   const auto lines = sorted_by_id(candidates);
@@ -545,11 +650,8 @@ LineConsensusResult consensus_lines(std::span<const TaggedLineCandidate> candida
   const auto groups = components(uf, lines.size());
   out.stats.groups = groups.size();
   for (const auto& g : groups) {
-    std::vector<std::int64_t> drives;
-    for (std::size_t i : g) drives.push_back(lines[i].drive);
-    std::sort(drives.begin(), drives.end());
-    drives.erase(std::unique(drives.begin(), drives.end()), drives.end());
-    if (static_cast<int>(drives.size()) < cfg.min_drives) {
+    const std::vector<std::int64_t> drives = group_drives(lines, g);
+    if (static_cast<int>(drives.size()) < cfg.support.min_drives) {
       ++out.stats.rejected_groups;
       continue;
     }
@@ -560,14 +662,29 @@ LineConsensusResult consensus_lines(std::span<const TaggedLineCandidate> candida
       support.push_back(lines[i].candidate_id);
     }
     MergedLine merged = merge_group(segs, cfg);
+    std::vector<Eigen::Vector2d> places = merged.polyline;
+    places.push_back(0.5 * (merged.polyline.front() + merged.polyline.back()));
+    const SupportVerdict verdict = judge_support(view, places, drives, cfg.support);
+    if (verdict.status == SupportVerdict::Status::Rejected) {
+      ++out.stats.rejected_groups;
+      continue;
+    }
     LineLandmark lm;
     lm.id = static_cast<std::int64_t>(out.landmarks.size());
     lm.polyline_m = std::move(merged.polyline);
     lm.support_drives = static_cast<std::uint32_t>(drives.size());
     lm.spread_m = merged.spread_m;
+    if (verdict.status == SupportVerdict::Status::Retired) {
+      ++out.stats.retired_groups;
+      lm.id = static_cast<std::int64_t>(out.retired.size());
+      out.retired.push_back(std::move(lm));
+      out.retired_verdicts.push_back(verdict);
+      continue;
+    }
     if (lm.polyline_m.size() > 2) ++out.stats.polylines;
     out.landmarks.push_back(std::move(lm));
     out.support.push_back(std::move(support));
+    out.verdicts.push_back(verdict);
   }
   out.stats.snapped_ends = snap_ends(out.landmarks, cfg);
   return out;

@@ -1,9 +1,13 @@
-// Map version endpoints: POST /v1/maps (build in the background), GET /v1/maps[/{version}].
+// Map version endpoints: POST /v1/maps (build in the background), GET /v1/maps[/{version}],
+// GET /v1/maps/{version}/diff?from=U (landmark changes between two versions).
 #include <cmath>
 #if defined(__GLIBC__)
 #include <malloc.h>
 #endif
 
+#include <map>
+
+#include "polmap/mapping_service/landmark_diff.hpp"
 #include "polmap/schema/errors.hpp"
 #include "server_build.hpp"
 #include "server_impl.hpp"
@@ -48,6 +52,37 @@ std::optional<tiles::GeoBox> parse_region(const nlohmann::json& r) {
         "(antimeridian-crossing regions: build two maps)"};
   }
   return b;
+}
+
+nlohmann::json geo_json_array(const std::vector<GeoPoint>& g) {
+  nlohmann::json a = nlohmann::json::array();
+  for (const auto& p : g) a.push_back({{"lat_deg", p.lat_deg}, {"lon_deg", p.lon_deg}});
+  return a;
+}
+
+nlohmann::json geojson_geometry(const std::vector<GeoPoint>& g, bool is_line) {
+  nlohmann::json coords = nlohmann::json::array();
+  for (const auto& p : g) coords.push_back({p.lon_deg, p.lat_deg});
+  if (!is_line && !g.empty()) return {{"type", "Point"}, {"coordinates", coords[0]}};
+  return {{"type", "LineString"}, {"coordinates", coords}};
+}
+
+/// One change as JSON (keys as decimal strings: they are 63-bit and JavaScript numbers
+/// hold 53).
+nlohmann::json change_json(const LandmarkChange& c, std::optional<std::int64_t> reason_version) {
+  nlohmann::json j{
+      {"change", std::string(to_string(c.change))},
+      {"kind", c.is_line ? "line" : "point"},
+      {"key", std::to_string(c.key)},
+      {"geometry", geo_json_array(c.geometry)},
+      {"reason", c.reason},
+      {"reason_version", reason_version ? nlohmann::json(*reason_version) : nlohmann::json()}};
+  if (c.change == LandmarkChangeKind::Moved) {
+    j["previous_key"] = std::to_string(c.previous_key);
+    j["previous_geometry"] = geo_json_array(c.previous_geometry);
+    j["distance_m"] = c.distance_m;
+  }
+  return j;
 }
 
 }  // namespace
@@ -236,26 +271,123 @@ void Server::Impl::register_map_routes() {
         {{"versions", list}, {"current", cur ? nlohmann::json(*cur) : nlohmann::json(nullptr)}});
   });
 
-  http.Get(R"(/v1/maps/([^/]+))", [this](const httplib::Request& req, httplib::Response& res) {
-    set_route("maps_get");
-    const std::string s = req.matches[1];
-    std::optional<std::int64_t> v;
+  // "current" or a positive integer; replies 400/404 naming `field` and returns nullopt.
+  auto version_param = [this](const std::string& s, httplib::Response& res,
+                              const char* field) -> std::optional<std::int64_t> {
     if (s == "current") {
-      v = store.current_map_version();
-      if (!v) return reply_error(res, 404, "no map version has been published yet", "version");
-    } else {
-      v = http::parse_int(s);
-      if (!v || *v <= 0) {
-        return reply_error(res, 400, "version must be a positive integer or 'current'", "version");
+      const auto v = store.current_map_version();
+      if (!v) reply_error(res, 404, "no map version has been published yet", field);
+      return v;
+    }
+    const auto v = http::parse_int(s);
+    if (!v || *v <= 0) {
+      reply_error(res, 400, std::string(field) + " must be a positive integer or 'current'", field);
+      return std::nullopt;
+    }
+    return v;
+  };
+
+  http.Get(R"(/v1/maps/([^/]+)/diff)", [this, version_param](const httplib::Request& req,
+                                                             httplib::Response& res) {
+    set_route("maps_diff");
+    const auto to = version_param(req.matches[1], res, "version");
+    if (!to) return;
+    if (!req.has_param("from")) {
+      return reply_error(res, 400, "from (the version to compare with) is required", "from");
+    }
+    const auto from = version_param(req.get_param_value("from"), res, "from");
+    if (!from) return;
+    const std::string format = req.has_param("format") ? req.get_param_value("format") : "json";
+    if (format != "json" && format != "geojson") {
+      return reply_error(res, 400, "format must be json or geojson", "format");
+    }
+    std::optional<GeoBox> bbox;
+    if (req.has_param("bbox")) {
+      bbox = http::parse_bbox(req.get_param_value("bbox"));
+      if (!bbox || bbox->crosses_antimeridian()) {
+        return reply_error(res, 400, "bbox must be minlon,minlat,maxlon,maxlat in degrees", "bbox");
       }
     }
-    const auto info = store.get_map_version(*v);
-    if (!info) {
-      return reply_error(res, 404, "map version " + std::to_string(*v) + " does not exist",
-                         "version");
+    for (const auto& [v, field] : {std::pair{*from, "from"}, std::pair{*to, "version"}}) {
+      const auto info = store.get_map_version(v);
+      if (!info || info->status != MapVersionStatus::Published) {
+        return reply_error(res, 404, "map version " + std::to_string(v) + " is not published",
+                           field);
+      }
     }
-    reply_json(res, 200, version_to_json(*info));
+    // Two whole maps are read and compared: bounded like exports.
+    const ConcurrencySlot slot(exports_in_flight, cfg.max_concurrent_exports);
+    if (!slot.acquired()) {
+      res.set_header("Retry-After", "30");
+      return reply_error(res, 503, "too many exports and diffs in progress; retry later");
+    }
+    LandmarkDiff diff = diff_landmarks(store.landmarks_in(*from, bbox, false),
+                                       store.landmarks_in(*to, bbox, false));
+    // Reasons: what the versions after `from` up to `to` recorded when they made the
+    // change (the latest record of a key wins).
+    std::map<std::pair<int, std::int64_t>, std::pair<nlohmann::json, std::int64_t>> reasons;
+    if (*from < *to) {
+      for (const MapVersionInfo& v : store.list_map_versions()) {
+        if (v.version <= *from || v.version > *to || v.status != MapVersionStatus::Published) {
+          continue;
+        }
+        for (const LandmarkChange& c : store.landmark_changes(v.version)) {
+          reasons[{static_cast<int>(c.change), c.key}] = {c.reason, v.version};
+        }
+      }
+    }
+    std::map<std::string, std::int64_t> counts{{"added", 0}, {"moved", 0}, {"retired", 0}};
+    nlohmann::json changes = nlohmann::json::array();
+    nlohmann::json features = nlohmann::json::array();
+    for (LandmarkChange& c : diff.changes) {
+      ++counts[std::string(to_string(c.change))];
+      std::optional<std::int64_t> rv;
+      if (auto it = reasons.find({static_cast<int>(c.change), c.key}); it != reasons.end()) {
+        c.reason = it->second.first;
+        rv = it->second.second;
+      }
+      nlohmann::json j = change_json(c, rv);
+      if (format == "geojson") {
+        nlohmann::json props = j;
+        props.erase("geometry");
+        props.erase("previous_geometry");
+        features.push_back({{"type", "Feature"},
+                            {"geometry", geojson_geometry(c.geometry, c.is_line)},
+                            {"properties", props}});
+      } else {
+        changes.push_back(std::move(j));
+      }
+    }
+    nlohmann::json summary{{"added", counts["added"]},
+                           {"moved", counts["moved"]},
+                           {"retired", counts["retired"]},
+                           {"unchanged", diff.unchanged},
+                           {"refined", diff.refined}};
+    const nlohmann::json body =
+        format == "geojson"
+            ? nlohmann::json{{"type", "FeatureCollection"},
+                             {"features", features},
+                             {"properties", {{"from", *from}, {"to", *to}, {"counts", summary}}}}
+            : nlohmann::json{
+                  {"from", *from}, {"to", *to}, {"counts", summary}, {"changes", changes}};
+    res.status = 200;
+    res.set_content(body.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace),
+                    format == "geojson" ? "application/geo+json" : "application/json");
+    res.set_header("Cache-Control", "public, max-age=3600");  // published versions are immutable
   });
+
+  http.Get(R"(/v1/maps/([^/]+))",
+           [this, version_param](const httplib::Request& req, httplib::Response& res) {
+             set_route("maps_get");
+             const auto v = version_param(req.matches[1], res, "version");
+             if (!v) return;
+             const auto info = store.get_map_version(*v);
+             if (!info) {
+               return reply_error(res, 404, "map version " + std::to_string(*v) + " does not exist",
+                                  "version");
+             }
+             reply_json(res, 200, version_to_json(*info));
+           });
 }
 
 }  // namespace polmap::mapping

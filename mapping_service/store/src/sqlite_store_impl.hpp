@@ -133,6 +133,8 @@ struct SqliteMapStore::Impl {
         "DELETE FROM tiles WHERE version IN (SELECT version FROM map_versions WHERE status = "
         "'failed'); "
         "DELETE FROM gridmap_tiles WHERE version IN (SELECT version FROM map_versions WHERE "
+        "status = 'failed'); "
+        "DELETE FROM landmark_changes WHERE version IN (SELECT version FROM map_versions WHERE "
         "status = 'failed');");
     gc_blobs(c);
   }

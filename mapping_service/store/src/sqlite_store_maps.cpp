@@ -96,6 +96,100 @@ void SqliteMapStore::put_landmarks(std::int64_t version,
   });
 }
 
+namespace {
+nlohmann::json geometry_json(const std::vector<GeoPoint>& g) {
+  nlohmann::json a = nlohmann::json::array();
+  for (const auto& p : g) a.push_back({p.lat_deg, p.lon_deg});
+  return a;
+}
+std::vector<GeoPoint> geometry_from_json(const std::string& text) {
+  std::vector<GeoPoint> out;
+  const auto j = nlohmann::json::parse(text, nullptr, false);
+  if (!j.is_array()) return out;
+  for (const auto& p : j) {
+    if (p.is_array() && p.size() == 2 && p[0].is_number() && p[1].is_number()) {
+      out.push_back({p[0].get<double>(), p[1].get<double>(), 0.0});
+    }
+  }
+  return out;
+}
+}  // namespace
+
+std::string_view to_string(LandmarkChangeKind k) {
+  switch (k) {
+    case LandmarkChangeKind::Moved:
+      return "moved";
+    case LandmarkChangeKind::Retired:
+      return "retired";
+    default:
+      return "added";
+  }
+}
+
+std::optional<LandmarkChangeKind> parse_landmark_change_kind(std::string_view s) {
+  if (s == "added") return LandmarkChangeKind::Added;
+  if (s == "moved") return LandmarkChangeKind::Moved;
+  if (s == "retired") return LandmarkChangeKind::Retired;
+  return std::nullopt;
+}
+
+void SqliteMapStore::put_landmark_changes(std::int64_t version,
+                                          std::span<const LandmarkChange> changes) {
+  impl_->write([&](Connection& c) {
+    Impl::require_building(c, version);
+    std::int64_t seq = 0;
+    {
+      auto s = c.stmt("SELECT COALESCE(MAX(seq), 0) FROM landmark_changes WHERE version = ?1");
+      s.bind(1, version);
+      if (s.step()) seq = s.i64(0);
+    }
+    const std::string ins =
+        "INSERT INTO landmark_changes(version, seq, change, kind, key, previous_key, distance_m, "
+        "geometry_json, previous_geometry_json, reason_json) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, "
+        "?8, ?9, ?10)";
+    for (const LandmarkChange& ch : changes) {
+      c.stmt(ins)
+          .bind(1, version)
+          .bind(2, ++seq)
+          .bind(3, std::string(to_string(ch.change)))
+          .bind(4, ch.is_line ? 1 : 0)
+          .bind(5, ch.key)
+          .bind(6, ch.previous_key)
+          .bind(7, ch.distance_m)
+          .bind(8, geometry_json(ch.geometry).dump())
+          .bind(9, geometry_json(ch.previous_geometry).dump())
+          .bind(10, ch.reason.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace))
+          .run();
+    }
+  });
+}
+
+std::vector<LandmarkChange> SqliteMapStore::landmark_changes(std::int64_t version) const {
+  return impl_->read([&](Connection& c) {
+    Impl::require_published(c, version);
+    std::vector<LandmarkChange> out;
+    auto s = c.stmt(
+        "SELECT change, kind, key, previous_key, distance_m, geometry_json, "
+        "previous_geometry_json, reason_json FROM landmark_changes WHERE version = ?1 ORDER BY "
+        "seq");
+    s.bind(1, version);
+    while (s.step()) {
+      LandmarkChange ch;
+      ch.change = parse_landmark_change_kind(s.text(0)).value_or(LandmarkChangeKind::Added);
+      ch.is_line = s.i64(1) != 0;
+      ch.key = s.i64(2);
+      ch.previous_key = s.i64(3);
+      ch.distance_m = s.f64(4);
+      ch.geometry = geometry_from_json(s.text(5));
+      ch.previous_geometry = geometry_from_json(s.text(6));
+      ch.reason = nlohmann::json::parse(s.text(7), nullptr, false);
+      if (ch.reason.is_discarded()) ch.reason = nullptr;
+      out.push_back(std::move(ch));
+    }
+    return out;
+  });
+}
+
 void SqliteMapStore::put_tiles(std::int64_t version, TileLayer layer,
                                std::span<const TileWrite> tiles_in) {
   impl_->write([&](Connection& c) {

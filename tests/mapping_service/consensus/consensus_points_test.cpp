@@ -77,11 +77,11 @@ TEST(ConsensusPoints, MinDrivesAndMajorityClass) {
       cand(1, 1, 0, 0, ScatteringClass::Even), cand(2, 2, 0.1, 0, ScatteringClass::Even),
       cand(3, 3, 0.1, 0.1, ScatteringClass::Odd), cand(4, 4, 0, 0.1, ScatteringClass::Unknown)};
   PointConsensusConfig three;
-  three.min_drives = 3;
+  three.support.min_drives = 3;
   const auto r = consensus_points(in, three);
   ASSERT_EQ(r.landmarks.size(), 1U);
   EXPECT_EQ(r.landmarks[0].scattering, ScatteringClass::Even);
-  three.min_drives = 5;
+  three.support.min_drives = 5;
   EXPECT_TRUE(consensus_points(in, three).landmarks.empty());
   // Tie between classes -> Mixed.
   const std::vector<TaggedPointCandidate> tie{cand(1, 1, 0, 0, ScatteringClass::Even),

@@ -122,6 +122,13 @@ class WriteTriggerStore final : public MapStore {
     if (before_write) before_write("put_landmarks");
     s_.put_landmarks(v, p, l);
   }
+  void put_landmark_changes(std::int64_t v, std::span<const LandmarkChange> ch) override {
+    if (before_write) before_write("put_landmark_changes");
+    s_.put_landmark_changes(v, ch);
+  }
+  std::vector<LandmarkChange> landmark_changes(std::int64_t v) const override {
+    return s_.landmark_changes(v);
+  }
   void put_tiles(std::int64_t v, TileLayer layer, std::span<const TileWrite> t) override {
     if (before_write) before_write("put_tiles");
     s_.put_tiles(v, layer, t);

@@ -49,6 +49,7 @@
 
 #include "polmap/mapping_service/consensus.hpp"
 #include "polmap/mapping_service/fleet_gridmap.hpp"
+#include "polmap/mapping_service/landmark_diff.hpp"
 #include "polmap/mapping_service/store.hpp"
 #include "polmap/tiles/localization_tile.hpp"
 #include "polmap/tiles/tile_key.hpp"
@@ -71,6 +72,8 @@ struct MapBuildRequest {
   bool build_gridmap = true;
   PointConsensusConfig points;
   LineConsensusConfig lines;
+  /// Which drives had a place in view (support is judged against them).
+  VisibilityConfig visibility;
 };
 
 /// Build controls that are not part of the map's description.
@@ -95,11 +98,14 @@ struct MapBuilderConfig {
   /// Line landmarks are assigned to every tile they cross, found by sampling
   /// the polyline this densely.
   double line_tile_sample_m = 1.0;
+  /// How changes against the current version are found (recorded per version).
+  LandmarkDiffConfig diff;
 };
 
 /// Figures of one build (also stored as the version's statistics JSON).
 struct MapBuildStats {
-  std::int64_t drives_used = 0;
+  std::int64_t drives_used = 0;     ///< drives with candidates in the region
+  std::int64_t drives_passing = 0;  ///< drives with a trajectory through the region
   std::int64_t point_candidates = 0;
   std::int64_t line_candidates = 0;
   std::int64_t point_landmarks = 0;
@@ -112,6 +118,11 @@ struct MapBuildStats {
   std::int64_t gridmap_tiles = 0;
   std::int64_t gridmap_drives = 0;  ///< drives whose gridmap was accumulated
   std::optional<std::int64_t> previous_version;
+  /// Landmark changes recorded against the version current when the build started.
+  std::optional<std::int64_t> changes_against;
+  std::int64_t landmarks_added = 0;
+  std::int64_t landmarks_moved = 0;
+  std::int64_t landmarks_retired = 0;
   PointConsensusResult::Stats point_consensus;
   LineConsensusResult::Stats line_consensus;
   double seconds_load = 0.0;

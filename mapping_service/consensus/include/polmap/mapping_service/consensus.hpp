@@ -13,6 +13,13 @@
 /// seen in one drive only (parked cars, bins: "temporary objects") never
 /// become landmarks.
 ///
+/// Fleet scale: given a VisibilityIndex (visibility.hpp), a group also needs the
+/// support of a share of the drives that passed it with the place in view, and a
+/// landmark that recent passes of several vehicles miss is retired (SupportRule).
+/// With few drives this is the paper's fixed count; with many, chance
+/// coincidences of single-drive clutter (a handful of drives out of hundreds)
+/// stay below it while permanent objects, seen by most passes, stay above.
+///
 /// Usage:
 ///   std::vector<TaggedPointCandidate> pts = ...;   // all drives, region frame
 ///   PointConsensusResult r = consensus_points(pts, PointConsensusConfig{});
@@ -21,6 +28,7 @@
 #include <span>
 #include <vector>
 
+#include "polmap/mapping_service/visibility.hpp"
 #include "polmap/schema/landmark.hpp"
 
 namespace polmap::mapping {
@@ -39,12 +47,67 @@ struct TaggedLineCandidate {
   LineCandidate candidate;  ///< start_m / end_m in the consensus frame
 };
 
+/// When a group of candidates is a landmark (SupportRule, judge_support). The
+/// defaults make a fleet of 2–5 drives behave as the paper (2 distinct drives) and
+/// keep precision as drives accumulate.
+///
+/// With a VisibilityIndex, the passes that had the group in view are ordered by
+/// drive start time (not upload order), and:
+///  - all-time rule: support >= required(all passes in view);
+///  - recent rule: support among the last `recent_passes` passes in view >=
+///    required(those passes) — a new object is accepted once recent drives see it;
+///  - miss streak: the most recent passes in view that did NOT support the group, and
+///    their distinct vehicles.
+/// A miss streak of at least `retire_min_misses` passes from at least
+/// `retire_min_vehicles` distinct vehicles retires the group (one vehicle, e.g. with
+/// a faulty sensor, cannot retire a landmark alone). Otherwise it is accepted if the
+/// recent or the all-time rule holds. Retired: one of the rules holds but the streak
+/// retires it (it was a landmark; recent passes of several vehicles no longer see it).
+/// required(n) = max(min_drives, ceil(min_view_fraction * n)).
+/// Without a VisibilityIndex: accepted iff support >= min_drives.
+struct SupportRule {
+  /// Distinct drives a group needs in any case: N_p,thres / N_l,thres (paper §IV-B).
+  int min_drives = 2;
+  /// Share of the passes in view that must support it. 0.5: a permanent object
+  /// detected in most passes is kept, clutter coinciding in a few of many drives and
+  /// temporary objects present in fewer than half of the passes are not.
+  double min_view_fraction = 0.5;
+  /// The recent rule's window (passes in view, latest by drive time).
+  int recent_passes = 32;
+  /// A landmark is retired after at least this many consecutive recent misses ...
+  int retire_min_misses = 5;
+  /// ... by at least this many distinct vehicles.
+  int retire_min_vehicles = 2;
+};
+
+/// Support a group needs among n passes: max(min_drives, ceil(min_view_fraction * n)).
+int required_support(int min_drives, double min_view_fraction, std::size_t passes_in_view);
+
+/// The verdict on one group (see SupportRule).
+struct SupportVerdict {
+  enum class Status { Accepted, Rejected, Retired };
+  Status status = Status::Rejected;
+  std::uint32_t support_drives = 0;  ///< distinct drives among the members
+  std::uint32_t drives_in_view = 0;  ///< passes in view, supporting drives included
+  std::uint32_t recent_passes = 0;   ///< passes in the recent window
+  std::uint32_t recent_support = 0;  ///< of those, supporting
+  std::uint32_t miss_streak = 0;     ///< latest consecutive passes in view without support
+  std::uint32_t miss_streak_vehicles = 0;
+  double last_support_time_s = 0.0;  ///< start time of the latest supporting pass (0: unknown)
+};
+
+/// Judges a group with distinct supporting drives `support_drives_sorted` (ascending)
+/// at `places` (the drives that had any of them in view count). view == nullptr: the
+/// fixed min_drives rule.
+SupportVerdict judge_support(const VisibilityIndex* view, std::span<const Eigen::Vector2d> places,
+                             std::span<const std::int64_t> support_drives_sorted,
+                             const SupportRule& rule);
+
 /// Point consensus parameters. Defaults: paper §IV-B.
 struct PointConsensusConfig {
   /// Candidates of different drives closer than this (strictly) are joined: d_p,thres.
   double max_pair_distance_m = 0.3;
-  /// A group needs candidates of at least this many distinct drives: N_p,thres.
-  int min_drives = 2;
+  SupportRule support;
 };
 
 /// Line consensus parameters. The first three are the paper's (§IV-B); the
@@ -56,7 +119,9 @@ struct LineConsensusConfig {
   /// Projection distance d_l,prj,thres: gap between the two segments'
   /// intervals projected onto their common direction (0 if they overlap).
   double max_projection_distance_m = 1.5;
-  int min_drives = 2;
+  /// Judged at the merged line's vertices and midpoint (the drives that had any of
+  /// them in view).
+  SupportRule support;
   /// A merged group whose member end points deviate more than this from the
   /// straight merged segment is a curve and becomes a polyline; the polyline
   /// is refined RDP-style until no member sample is farther than this from
@@ -78,12 +143,17 @@ struct LineConsensusConfig {
 struct PointConsensusResult {
   std::vector<PointLandmark> landmarks;            ///< id = index in this vector
   std::vector<std::vector<std::int64_t>> support;  ///< candidate ids, ascending
+  std::vector<SupportVerdict> verdicts;            ///< verdicts[i] for landmarks[i]
+  /// Groups the rule retired (SupportVerdict::Status::Retired), as landmarks would be.
+  std::vector<PointLandmark> retired;
+  std::vector<SupportVerdict> retired_verdicts;
   struct Stats {
     std::size_t candidates = 0;
     std::size_t pairs = 0;            ///< cross-drive edges
     std::size_t groups = 0;           ///< connected components (incl. singletons)
-    std::size_t rejected_groups = 0;  ///< groups with < min_drives drives
-    std::size_t largest_group = 0;    ///< members of the largest accepted group
+    std::size_t rejected_groups = 0;  ///< groups below the required support
+    std::size_t retired_groups = 0;
+    std::size_t largest_group = 0;  ///< members of the largest accepted group
   } stats;
 };
 
@@ -91,11 +161,15 @@ struct PointConsensusResult {
 struct LineConsensusResult {
   std::vector<LineLandmark> landmarks;  ///< id = index in this vector
   std::vector<std::vector<std::int64_t>> support;
+  std::vector<SupportVerdict> verdicts;
+  std::vector<LineLandmark> retired;
+  std::vector<SupportVerdict> retired_verdicts;
   struct Stats {
     std::size_t candidates = 0;
     std::size_t pairs = 0;
     std::size_t groups = 0;
     std::size_t rejected_groups = 0;
+    std::size_t retired_groups = 0;
     std::size_t polylines = 0;     ///< landmarks with more than two vertices
     std::size_t snapped_ends = 0;  ///< line ends moved to an intersection
   } stats;
@@ -107,8 +181,10 @@ struct LineConsensusResult {
 /// support_drives = distinct drives, spread_m = RMS distance to the mean,
 /// scattering = majority class of members (Unknown ignored unless all are;
 /// ties -> Mixed).
+/// `view`: the drives' passes (nullptr: the fixed min_drives rule alone; SupportRule).
 PointConsensusResult consensus_points(std::span<const TaggedPointCandidate> candidates,
-                                      const PointConsensusConfig& cfg = {});
+                                      const PointConsensusConfig& cfg = {},
+                                      const VisibilityIndex* view = nullptr);
 
 /// Lines: pairs of cross-drive segments with hull distance < max_hull_distance_m
 /// and projection distance < max_projection_distance_m (found through a grid
@@ -122,7 +198,8 @@ PointConsensusResult consensus_points(std::span<const TaggedPointCandidate> cand
 /// of member samples (every curve_sample_spacing_m along each member) to the
 /// merged polyline, before snapping.
 LineConsensusResult consensus_lines(std::span<const TaggedLineCandidate> candidates,
-                                    const LineConsensusConfig& cfg = {});
+                                    const LineConsensusConfig& cfg = {},
+                                    const VisibilityIndex* view = nullptr);
 
 /// Pair measures of the line consensus, exposed for tests and the matcher.
 struct LinePairDistance {
@@ -135,6 +212,7 @@ LinePairDistance line_pair_distance(const LineCandidate& a, const LineCandidate&
 
 /// Brute-force O(n²) reference of consensus_points (tests only).
 PointConsensusResult consensus_points_bruteforce(std::span<const TaggedPointCandidate> candidates,
-                                                 const PointConsensusConfig& cfg = {});
+                                                 const PointConsensusConfig& cfg = {},
+                                                 const VisibilityIndex* view = nullptr);
 
 }  // namespace polmap::mapping

@@ -118,6 +118,8 @@ class SqliteMapStore final : public MapStore {
   std::int64_t begin_map_version(const nlohmann::json& parameters) override;
   void put_landmarks(std::int64_t version, std::span<const StoredPointLandmark> points,
                      std::span<const StoredLineLandmark> lines) override;
+  void put_landmark_changes(std::int64_t version, std::span<const LandmarkChange> changes) override;
+  [[nodiscard]] std::vector<LandmarkChange> landmark_changes(std::int64_t version) const override;
   void put_tiles(std::int64_t version, TileLayer layer, std::span<const TileWrite> tiles) override;
   void publish_map_version(std::int64_t version, const nlohmann::json& statistics,
                            bool make_current = true) override;

@@ -152,6 +152,27 @@ struct LandmarkSet {
   std::vector<StoredLineLandmark> lines;
 };
 
+/// How a landmark changed from the previous map version (landmark_diff.hpp).
+enum class LandmarkChangeKind { Added, Moved, Retired };
+std::string_view to_string(LandmarkChangeKind k);
+/// Parses "added" | "moved" | "retired"; nullopt otherwise.
+std::optional<LandmarkChangeKind> parse_landmark_change_kind(std::string_view s);
+
+/// One landmark change, recorded with the map version that made it.
+struct LandmarkChange {
+  LandmarkChangeKind change = LandmarkChangeKind::Added;
+  bool is_line = false;
+  /// Key in the new version (Added, Moved); the retired landmark's key (Retired).
+  std::int64_t key = 0;
+  std::int64_t previous_key = 0;            ///< Moved: the old key; otherwise 0
+  std::vector<GeoPoint> geometry;           ///< new geometry; Retired: the old one
+  std::vector<GeoPoint> previous_geometry;  ///< Moved: the old geometry; otherwise empty
+  double distance_m = 0.0;                  ///< Moved: how far (metres)
+  /// Why, as the builder judged it: {"rule": "...", "support_drives": k,
+  /// "drives_in_view": n, ...}; null when not recorded.
+  nlohmann::json reason;
+};
+
 /// Tile layers kept per map version.
 enum class TileLayer {
   Localization,  ///< localization tiles (tiles/localization_tile.hpp), z = kLocalizationZoom
@@ -248,6 +269,14 @@ class MapStore {
   /// Adds landmarks to a Building version (may be called repeatedly).
   virtual void put_landmarks(std::int64_t version, std::span<const StoredPointLandmark> points,
                              std::span<const StoredLineLandmark> lines) = 0;
+  /// Records landmark changes of a Building version against its previous version (may
+  /// be called repeatedly; kept in call order).
+  virtual void put_landmark_changes(std::int64_t version,
+                                    std::span<const LandmarkChange> changes) = 0;
+  /// The changes a published version recorded (empty for a first version). Throws
+  /// NotFoundError for unknown or unpublished versions.
+  [[nodiscard]] virtual std::vector<LandmarkChange> landmark_changes(
+      std::int64_t version) const = 0;
   /// Adds tiles of a layer to a Building version (may be called repeatedly).
   virtual void put_tiles(std::int64_t version, TileLayer layer,
                          std::span<const TileWrite> tiles) = 0;

@@ -1,0 +1,160 @@
+// Visibility of places from drive passes (see visibility.hpp).
+#include "polmap/mapping_service/visibility.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <tuple>
+
+#include "polmap/schema/errors.hpp"
+
+namespace polmap::mapping {
+namespace {
+
+double point_segment_distance(const Eigen::Vector2d& p, const Eigen::Vector2d& a,
+                              const Eigen::Vector2d& b) {
+  const Eigen::Vector2d ab = b - a;
+  const double l2 = ab.squaredNorm();
+  if (l2 <= 0.0) return (p - a).norm();
+  const double t = std::clamp((p - a).dot(ab) / l2, 0.0, 1.0);
+  return (p - (a + t * ab)).norm();
+}
+
+/// Ramer–Douglas–Peucker, iterative (paths can have 10^5 samples).
+std::vector<Eigen::Vector2d> simplify(std::span<const Eigen::Vector2d> pts, double eps) {
+  if (pts.size() <= 2) return {pts.begin(), pts.end()};
+  std::vector<char> keep(pts.size(), 0);
+  keep.front() = keep.back() = 1;
+  std::vector<std::pair<std::size_t, std::size_t>> todo{{0, pts.size() - 1}};
+  while (!todo.empty()) {
+    const auto [lo, hi] = todo.back();
+    todo.pop_back();
+    double worst = -1.0;
+    std::size_t wi = lo;
+    for (std::size_t i = lo + 1; i < hi; ++i) {
+      const double d = point_segment_distance(pts[i], pts[lo], pts[hi]);
+      if (d > worst) worst = d, wi = i;
+    }
+    if (worst > eps) {
+      keep[wi] = 1;
+      todo.emplace_back(lo, wi);
+      todo.emplace_back(wi, hi);
+    }
+  }
+  std::vector<Eigen::Vector2d> out;
+  for (std::size_t i = 0; i < pts.size(); ++i) {
+    if (keep[i]) out.push_back(pts[i]);
+  }
+  return out;
+}
+
+std::uint64_t cell_key(std::int64_t cx, std::int64_t cy) {
+  return (static_cast<std::uint64_t>(cx) << 32) ^ (static_cast<std::uint64_t>(cy) & 0xffffffffU);
+}
+
+double path_distance(std::span<const Eigen::Vector2d> path, const Eigen::Vector2d& p) {
+  if (path.size() == 1) return (p - path[0]).norm();
+  double best = std::numeric_limits<double>::infinity();
+  for (std::size_t i = 0; i + 1 < path.size(); ++i) {
+    best = std::min(best, point_segment_distance(p, path[i], path[i + 1]));
+  }
+  return best;
+}
+
+}  // namespace
+
+double estimate_view_range_m(std::span<const Eigen::Vector2d> path_m,
+                             std::span<const Eigen::Vector2d> candidate_positions_m,
+                             const VisibilityConfig& cfg) {
+  POLMAP_EXPECT(cfg.range_quantile > 0.0 && cfg.range_quantile <= 1.0);
+  if (path_m.empty() || candidate_positions_m.empty()) return cfg.default_view_range_m;
+  // The simplified path keeps every candidate's distance within the tolerance, and a
+  // single-drive index answers each distance in O(local pieces).
+  DrivePass pass;
+  pass.path_m = simplify(path_m, cfg.simplify_tolerance_m);
+  pass.view_range_m = cfg.max_view_range_m;
+  const VisibilityIndex index({pass}, cfg);
+  std::vector<double> d;
+  d.reserve(candidate_positions_m.size());
+  for (const auto& c : candidate_positions_m) {
+    // Outside the maximum range: count as the maximum (clamped below anyway).
+    d.push_back(index.count_in_view(c) == 0 ? cfg.max_view_range_m
+                                            : path_distance(pass.path_m, c));
+  }
+  const auto k = static_cast<std::size_t>(
+      std::min<double>(static_cast<double>(d.size() - 1),
+                       std::floor(cfg.range_quantile * static_cast<double>(d.size() - 1))));
+  std::nth_element(d.begin(), d.begin() + static_cast<std::ptrdiff_t>(k), d.end());
+  return std::clamp(d[k], cfg.min_view_range_m, cfg.max_view_range_m);
+}
+
+VisibilityIndex::VisibilityIndex(std::vector<DrivePass> passes, const VisibilityConfig& cfg)
+    : passes_(std::move(passes)), cell_m_(cfg.cell_m) {
+  POLMAP_EXPECT(cfg.cell_m > 0.0 && cfg.simplify_tolerance_m >= 0.0);
+  POLMAP_EXPECT(passes_.size() < std::numeric_limits<std::uint32_t>::max());
+  // Drive-time order: consensus decisions follow when drives happened, not upload order.
+  std::stable_sort(passes_.begin(), passes_.end(), [](const DrivePass& a, const DrivePass& b) {
+    return std::tie(a.start_time_s, a.drive) < std::tie(b.start_time_s, b.drive);
+  });
+  range_m_.reserve(passes_.size());
+  for (std::size_t i = 0; i < passes_.size(); ++i) {
+    const DrivePass& p = passes_[i];
+    const double range = p.view_range_m > 0.0 ? p.view_range_m : cfg.default_view_range_m;
+    range_m_.push_back(range);
+    std::vector<Eigen::Vector2d> path = simplify(p.path_m, cfg.simplify_tolerance_m);
+    if (path.size() == 1) path.push_back(path[0]);
+    for (std::size_t k = 0; k + 1 < path.size(); ++k) {
+      // Pieces no longer than a cell keep the grown boxes small for diagonal segments.
+      const Eigen::Vector2d a = path[k], b = path[k + 1];
+      const int n = std::max(1, static_cast<int>(std::ceil((b - a).norm() / cell_m_)));
+      for (int s = 0; s < n; ++s) {
+        const Eigen::Vector2d pa = a + (b - a) * (static_cast<double>(s) / n);
+        const Eigen::Vector2d pb = a + (b - a) * (static_cast<double>(s + 1) / n);
+        const auto cx0 = static_cast<std::int64_t>(std::floor((std::min(pa.x(), pb.x()) - range) / cell_m_));
+        const auto cx1 = static_cast<std::int64_t>(std::floor((std::max(pa.x(), pb.x()) + range) / cell_m_));
+        const auto cy0 = static_cast<std::int64_t>(std::floor((std::min(pa.y(), pb.y()) - range) / cell_m_));
+        const auto cy1 = static_cast<std::int64_t>(std::floor((std::max(pa.y(), pb.y()) + range) / cell_m_));
+        for (auto cx = cx0; cx <= cx1; ++cx) {
+          for (auto cy = cy0; cy <= cy1; ++cy) {
+            auto& v = cells_[cell_key(cx, cy)];
+            // Consecutive pieces of one pass often land in the same cell: keep them all
+            // (the query stops at the first piece in range).
+            v.push_back({static_cast<std::uint32_t>(i), pa, pb});
+          }
+        }
+      }
+    }
+  }
+}
+
+std::vector<std::size_t> VisibilityIndex::passes_in_view(const Eigen::Vector2d& p) const {
+  std::vector<std::size_t> out;
+  const auto it = cells_.find(cell_key(static_cast<std::int64_t>(std::floor(p.x() / cell_m_)),
+                                       static_cast<std::int64_t>(std::floor(p.y() / cell_m_))));
+  if (it == cells_.end()) return out;
+  std::uint32_t last = std::numeric_limits<std::uint32_t>::max();
+  bool last_in = false;
+  for (const Piece& piece : it->second) {
+    // Pieces of a pass are contiguous in the cell's list (inserted pass by pass).
+    if (piece.pass == last && last_in) continue;
+    if (piece.pass != last) last_in = false;
+    last = piece.pass;
+    if (point_segment_distance(p, piece.a, piece.b) <= range_m_[piece.pass]) {
+      last_in = true;
+      out.push_back(piece.pass);
+    }
+  }
+  std::sort(out.begin(), out.end());
+  out.erase(std::unique(out.begin(), out.end()), out.end());
+  return out;
+}
+
+std::vector<std::int64_t> VisibilityIndex::drives_in_view(const Eigen::Vector2d& p) const {
+  std::vector<std::int64_t> out;
+  for (std::size_t i : passes_in_view(p)) out.push_back(passes_[i].drive);
+  std::sort(out.begin(), out.end());
+  out.erase(std::unique(out.begin(), out.end()), out.end());
+  return out;
+}
+
+}  // namespace polmap::mapping

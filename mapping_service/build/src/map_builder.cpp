@@ -169,6 +169,7 @@ nlohmann::json to_json(const MapBuildStats& s) {
                           {"groups", s.point_consensus.groups},
                           {"rejected_groups", s.point_consensus.rejected_groups},
                           {"retired_groups", s.point_consensus.retired_groups},
+                          {"split_groups", s.point_consensus.split_groups},
                           {"largest_group", s.point_consensus.largest_group}};
   j["line_consensus"] = {{"candidates", s.line_consensus.candidates},
                          {"pairs", s.line_consensus.pairs},

@@ -120,6 +120,112 @@ std::vector<std::int64_t> group_drives(const std::vector<T>& items,
   return drives;
 }
 
+/// A group to judge: members and where the landmark would be.
+struct PointGroup {
+  std::vector<std::size_t> members;
+  Eigen::Vector2d position_m = Eigen::Vector2d::Zero();
+};
+
+/// Mean of the members within `radius` of `at`, iterated from `at` (flat-kernel mean
+/// shift); `at` if none is that close.
+Eigen::Vector2d mean_shift(const std::vector<TaggedPointCandidate>& pts,
+                           const std::vector<std::size_t>& members, Eigen::Vector2d at,
+                           double radius) {
+  const double r2 = radius * radius;
+  for (int it = 0; it < 20; ++it) {
+    Eigen::Vector2d sum = Eigen::Vector2d::Zero();
+    int n = 0;
+    for (std::size_t i : members) {
+      if ((pts[i].candidate.position_m - at).squaredNorm() <= r2) {
+        sum += pts[i].candidate.position_m;
+        ++n;
+      }
+    }
+    if (n == 0) return at;
+    const Eigen::Vector2d next = sum / n;
+    const double moved = (next - at).norm();
+    at = next;
+    if (moved < 1e-4) break;
+  }
+  return at;
+}
+
+/// A connected component of many drives may chain neighbouring objects (two poles
+/// 0.5 m apart whose candidates' noise tails touch) and collect clutter at its rim. Its
+/// modes are found with a flat-kernel mean shift of radius d_p / 2 started from the
+/// densest cells of a 5 cm histogram; members go to the nearest mode within d_p (others
+/// support nothing); each mode is positioned at the mean of its members within d_p / 2
+/// of it. Small groups stay whole with the plain mean (the paper's rule for two or three
+/// drives is kept exactly).
+std::vector<PointGroup> split_modes(const std::vector<TaggedPointCandidate>& pts,
+                                    const std::vector<std::size_t>& g, std::size_t drives,
+                                    const PointConsensusConfig& cfg) {
+  PointGroup whole;
+  whole.members = g;
+  for (std::size_t i : g) whole.position_m += pts[i].candidate.position_m;
+  whole.position_m /= static_cast<double>(g.size());
+  if (static_cast<int>(drives) < cfg.split_min_drives || g.size() > cfg.split_max_members) {
+    return {whole};
+  }
+  const double h = 0.5 * cfg.max_pair_distance_m;
+  const double cell = h / 3.0;
+  std::map<std::pair<std::int64_t, std::int64_t>, int> hist;
+  for (std::size_t i : g) {
+    const auto& p = pts[i].candidate.position_m;
+    ++hist[{static_cast<std::int64_t>(std::floor(p.x() / cell)),
+            static_cast<std::int64_t>(std::floor(p.y() / cell))}];
+  }
+  // Density of a cell: members within 3 cells (= h) in the box around it.
+  std::vector<std::pair<int, std::pair<std::int64_t, std::int64_t>>> dens;
+  for (const auto& [c, n] : hist) {
+    int d = 0;
+    for (std::int64_t dx = -3; dx <= 3; ++dx) {
+      for (std::int64_t dy = -3; dy <= 3; ++dy) {
+        if (auto it = hist.find({c.first + dx, c.second + dy}); it != hist.end()) d += it->second;
+      }
+    }
+    dens.push_back({d, c});
+  }
+  std::sort(dens.begin(), dens.end(), [](const auto& a, const auto& b) {
+    return a.first != b.first ? a.first > b.first : a.second < b.second;
+  });
+  std::vector<Eigen::Vector2d> modes;
+  const int min_density = std::max(2, cfg.support.min_drives);
+  for (const auto& [d, c] : dens) {
+    if (d < min_density) break;
+    const Eigen::Vector2d start((c.first + 0.5) * cell, (c.second + 0.5) * cell);
+    // A cell already within a found mode's kernel leads to that mode.
+    bool covered = false;
+    for (const auto& m : modes) covered = covered || (m - start).norm() < h;
+    if (covered) continue;
+    const Eigen::Vector2d m = mean_shift(pts, g, start, h);
+    bool dup = false;
+    for (const auto& o : modes) dup = dup || (o - m).norm() < h;
+    if (!dup) modes.push_back(m);
+  }
+  if (modes.size() <= 1) {
+    if (!modes.empty()) whole.position_m = modes[0];
+    return {whole};
+  }
+  std::vector<PointGroup> out(modes.size());
+  const double r2 = cfg.max_pair_distance_m * cfg.max_pair_distance_m;
+  for (std::size_t i : g) {
+    const auto& p = pts[i].candidate.position_m;
+    std::size_t best = modes.size();
+    double best_d2 = r2;
+    for (std::size_t k = 0; k < modes.size(); ++k) {
+      const double d2 = (modes[k] - p).squaredNorm();
+      if (d2 < best_d2) best_d2 = d2, best = k;
+    }
+    if (best < modes.size()) out[best].members.push_back(i);
+  }
+  for (std::size_t k = 0; k < modes.size(); ++k) {
+    out[k].position_m = mean_shift(pts, out[k].members, modes[k], h);
+  }
+  std::erase_if(out, [](const PointGroup& pg) { return pg.members.empty(); });
+  return out;
+}
+
 PointConsensusResult finish_points(const std::vector<TaggedPointCandidate>& pts,
                                    const std::vector<std::pair<std::size_t, std::size_t>>& edges,
                                    const PointConsensusConfig& cfg, const VisibilityIndex* view) {
@@ -130,42 +236,49 @@ PointConsensusResult finish_points(const std::vector<TaggedPointCandidate>& pts,
   for (const auto& [a, b] : edges) uf.unite(a, b);
   const auto groups = components(uf, pts.size());
   out.stats.groups = groups.size();
-  for (const auto& g : groups) {
-    const std::vector<std::int64_t> drives = group_drives(pts, g);
-    if (static_cast<int>(drives.size()) < cfg.support.min_drives) {
+  for (const auto& component : groups) {
+    const std::vector<std::int64_t> component_drives = group_drives(pts, component);
+    if (static_cast<int>(component_drives.size()) < cfg.support.min_drives) {
       ++out.stats.rejected_groups;
       continue;
     }
-    Eigen::Vector2d mean = Eigen::Vector2d::Zero();
-    for (std::size_t i : g) mean += pts[i].candidate.position_m;
-    mean /= static_cast<double>(g.size());
-    const SupportVerdict verdict = judge_support(view, std::span(&mean, 1), drives, cfg.support);
-    if (verdict.status == SupportVerdict::Status::Rejected) {
-      ++out.stats.rejected_groups;
-      continue;
+    const std::vector<PointGroup> parts =
+        split_modes(pts, component, component_drives.size(), cfg);
+    out.stats.split_groups += parts.size() > 1 ? 1 : 0;
+    for (const PointGroup& part : parts) {
+      const auto& g = part.members;
+      const std::vector<std::int64_t> drives = group_drives(pts, g);
+      const Eigen::Vector2d& at = part.position_m;
+      const SupportVerdict verdict = judge_support(view, std::span(&at, 1), drives, cfg.support);
+      if (static_cast<int>(drives.size()) < cfg.support.min_drives ||
+          verdict.status == SupportVerdict::Status::Rejected) {
+        ++out.stats.rejected_groups;
+        continue;
+      }
+      double ss = 0.0;
+      for (std::size_t i : g) ss += (pts[i].candidate.position_m - at).squaredNorm();
+      PointLandmark lm;
+      lm.id = static_cast<std::int64_t>(out.landmarks.size());
+      lm.position_m = at;
+      lm.scattering = majority_class(pts, g);
+      lm.support_drives = static_cast<std::uint32_t>(drives.size());
+      lm.spread_m = std::sqrt(ss / static_cast<double>(g.size()));
+      if (verdict.status == SupportVerdict::Status::Retired) {
+        ++out.stats.retired_groups;
+        lm.id = static_cast<std::int64_t>(out.retired.size());
+        out.retired.push_back(lm);
+        out.retired_verdicts.push_back(verdict);
+        continue;
+      }
+      out.landmarks.push_back(lm);
+      std::vector<std::int64_t> support;
+      support.reserve(g.size());
+      for (std::size_t i : g) support.push_back(pts[i].candidate_id);
+      std::sort(support.begin(), support.end());
+      out.support.push_back(std::move(support));
+      out.verdicts.push_back(verdict);
+      out.stats.largest_group = std::max(out.stats.largest_group, g.size());
     }
-    double ss = 0.0;
-    for (std::size_t i : g) ss += (pts[i].candidate.position_m - mean).squaredNorm();
-    PointLandmark lm;
-    lm.id = static_cast<std::int64_t>(out.landmarks.size());
-    lm.position_m = mean;
-    lm.scattering = majority_class(pts, g);
-    lm.support_drives = static_cast<std::uint32_t>(drives.size());
-    lm.spread_m = std::sqrt(ss / static_cast<double>(g.size()));
-    if (verdict.status == SupportVerdict::Status::Retired) {
-      ++out.stats.retired_groups;
-      lm.id = static_cast<std::int64_t>(out.retired.size());
-      out.retired.push_back(lm);
-      out.retired_verdicts.push_back(verdict);
-      continue;
-    }
-    out.landmarks.push_back(lm);
-    std::vector<std::int64_t> support;
-    support.reserve(g.size());
-    for (std::size_t i : g) support.push_back(pts[i].candidate_id);
-    out.support.push_back(std::move(support));
-    out.verdicts.push_back(verdict);
-    out.stats.largest_group = std::max(out.stats.largest_group, g.size());
   }
   return out;
 }

@@ -4,6 +4,7 @@
 // keep the paper's fixed count.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <random>
 
 #include "polmap/mapping_service/consensus.hpp"
@@ -130,6 +131,66 @@ TEST(ConsensusFleet, LinesAreJudgedAgainstTheDrivesThatPassedThem) {
   EXPECT_NEAR(r.landmarks[0].polyline_m.front().y(), 9.03, 0.01);
   EXPECT_EQ(r.verdicts[0].drives_in_view, 30U);
   EXPECT_EQ(r.stats.rejected_groups, 1U);
+}
+
+}  // namespace
+}  // namespace polmap::mapping
+
+namespace polmap::mapping {
+namespace {
+
+TEST(ConsensusFleet, ChainedNeighboursOfManyDrivesAreSplitAtTheirModes) {
+  // Two poles 0.45 m apart, each seen by 30 drives with 6 cm noise: with so many
+  // candidates, noise tails chain them into one component; it holds two objects.
+  std::mt19937 rng(2);
+  std::normal_distribution<double> noise(0.0, 0.06);
+  std::vector<TaggedPointCandidate> in;
+  std::int64_t id = 0;
+  for (int d = 1; d <= 30; ++d) {
+    in.push_back(cand(id++, d, {noise(rng), noise(rng)}));
+    in.push_back(cand(id++, d, {0.45 + noise(rng), noise(rng)}));
+  }
+  PointConsensusConfig whole;
+  whole.split_min_drives = 1000;  // never split: the chained component stays one
+  const auto chained = consensus_points(in, whole);
+  ASSERT_EQ(chained.landmarks.size(), 1U);
+  const auto r = consensus_points(in);
+  ASSERT_EQ(r.landmarks.size(), 2U);
+  EXPECT_EQ(r.stats.split_groups, 1U);
+  std::vector<double> xs{r.landmarks[0].position_m.x(), r.landmarks[1].position_m.x()};
+  std::sort(xs.begin(), xs.end());
+  EXPECT_NEAR(xs[0], 0.0, 0.03);
+  EXPECT_NEAR(xs[1], 0.45, 0.03);
+  for (const auto& lm : r.landmarks) EXPECT_GE(lm.support_drives, 25U);
+}
+
+TEST(ConsensusFleet, ClutterAtTheRimDoesNotPullAManyDriveLandmark) {
+  std::mt19937 rng(4);
+  std::normal_distribution<double> noise(0.0, 0.03);
+  std::vector<TaggedPointCandidate> in;
+  std::int64_t id = 0;
+  for (int d = 1; d <= 40; ++d) in.push_back(cand(id++, d, {noise(rng), noise(rng)}));
+  // Six clutter candidates of other drives chained on one side, 0.2–0.45 m away.
+  for (int k = 0; k < 6; ++k) in.push_back(cand(id++, 100 + k, {0.2 + 0.05 * k, 0.0}));
+  // All 46 drives passed; the clutter's six are far below half of them.
+  std::vector<DrivePass> passes;
+  for (std::int64_t d : {1, 100}) {
+    const VisibilityIndex part = passes_along_x(d == 1 ? 40 : 6, d);
+    passes.insert(passes.end(), part.passes().begin(), part.passes().end());
+  }
+  const VisibilityIndex view(std::move(passes));
+  PointConsensusConfig plain;
+  plain.split_min_drives = 1000;
+  const auto p = consensus_points(in, plain, &view);
+  const auto r = consensus_points(in, {}, &view);
+  ASSERT_EQ(p.landmarks.size(), 1U);
+  ASSERT_EQ(r.landmarks.size(), 1U);
+  double truth_x = 0.0;
+  for (int i = 0; i < 40; ++i) truth_x += in[static_cast<std::size_t>(i)].candidate.position_m.x();
+  truth_x /= 40.0;
+  // The plain mean moves by ~6 * 0.325 / 46 = 4 cm; the mode stays on the pole.
+  EXPECT_GT(std::abs(p.landmarks[0].position_m.x() - truth_x), 0.03);
+  EXPECT_LT(std::abs(r.landmarks[0].position_m.x() - truth_x), 0.01);
 }
 
 }  // namespace

@@ -108,6 +108,13 @@ struct PointConsensusConfig {
   /// Candidates of different drives closer than this (strictly) are joined: d_p,thres.
   double max_pair_distance_m = 0.3;
   SupportRule support;
+  /// Groups of at least this many drives are split at their density modes (mean
+  /// shift, radius d_p / 2) and each mode positioned by the mean of its members
+  /// within d_p / 2 (robust to clutter at the rim); smaller groups keep the paper's
+  /// plain mean.
+  int split_min_drives = 8;
+  /// Larger groups (a pathological clutter chain) are not split (bounded work).
+  std::size_t split_max_members = 20000;
 };
 
 /// Line consensus parameters. The first three are the paper's (§IV-B); the
@@ -153,6 +160,7 @@ struct PointConsensusResult {
     std::size_t groups = 0;           ///< connected components (incl. singletons)
     std::size_t rejected_groups = 0;  ///< groups below the required support
     std::size_t retired_groups = 0;
+    std::size_t split_groups = 0;   ///< components split into several modes
     std::size_t largest_group = 0;  ///< members of the largest accepted group
   } stats;
 };
@@ -177,7 +185,9 @@ struct LineConsensusResult {
 
 /// Points: k-d tree (nanoflann) radius search, cross-drive pairs closer than
 /// max_pair_distance_m, connected components (union-find), groups with at
-/// least min_drives distinct drives. Landmark position = mean of members,
+/// least min_drives distinct drives (and the SupportRule with a view); components
+/// of many drives split at their modes (PointConsensusConfig::split_min_drives).
+/// Landmark position = mean of members (modes: trimmed mean),
 /// support_drives = distinct drives, spread_m = RMS distance to the mean,
 /// scattering = majority class of members (Unknown ignored unless all are;
 /// ties -> Mixed).

@@ -22,10 +22,12 @@
 //
 //   bench_map_build [--drives 2,4,8,16] [--length-km 2] [--seed 1] [--keep DIR]
 //                   [--view-fraction F] (default: the builder's; 0 = fixed count only)
+//                   [--world urban [--sim-cache DIR]] (drives from the simulator)
 #include <sys/resource.h>
 
 #include <CLI/CLI.hpp>
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -34,12 +36,15 @@
 #include <map>
 #include <optional>
 #include <random>
+#include <set>
 #include <sstream>
 
+#include "polmap/eval/study.hpp"
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/mapping_service/map_builder.hpp"
-#include "polmap/mapping_service/ustar.hpp"
 #include "polmap/mapping_service/sqlite_store.hpp"
+#include "polmap/mapping_service/ustar.hpp"
+#include "polmap/sim/world.hpp"
 #include "polmap/tiles/local_frame.hpp"
 
 namespace {
@@ -165,60 +170,136 @@ std::vector<Eigen::Vector2d> samples(const std::vector<Eigen::Vector2d>& pl, dou
   return out;
 }
 
-struct Accuracy {
-  double point_precision = 0, point_recall = 0, point_rmse_m = 0;
-  double line_precision = 0, line_recall = 0;
+/// What the map should contain, in a local metric frame.
+struct Truth {
+  std::vector<Eigen::Vector2d> points;              ///< permanent point objects
+  std::vector<std::vector<Eigen::Vector2d>> lines;  ///< permanent line objects
 };
 
-/// The map against the route's truth (see the file comment).
-Accuracy accuracy(const MapStore& store, std::int64_t version, const Route& route,
-                  const GeoPoint& world_origin, double radius_m) {
-  const tiles::LocalFrame world(world_origin);
+struct Accuracy {
+  double point_precision = 0, point_recall = 0, point_recall_all = 0, point_rmse_m = 0;
+  double line_precision = 0, line_recall = 0, line_recall_all = 0;
+  std::size_t detectable_points = 0;
+};
+
+/// Grid of polyline pieces for near-distance queries (cell = 1 m).
+class NearIndex {
+ public:
+  explicit NearIndex(const std::vector<std::vector<Eigen::Vector2d>>& lines) {
+    for (std::size_t l = 0; l < lines.size(); ++l) {
+      for (std::size_t i = 0; i + 1 < lines[l].size(); ++i) {
+        for (const auto& p : samples({lines[l][i], lines[l][i + 1]}, 0.5)) {
+          auto& v = grid_[key(p)];
+          if (v.empty() || v.back() != std::pair{l, i}) v.emplace_back(l, i);
+        }
+      }
+    }
+    lines_ = &lines;
+  }
+  /// Whether p is within r (<= 0.5 m) of any polyline.
+  [[nodiscard]] bool near(const Eigen::Vector2d& p, double r) const {
+    const auto [cx, cy] = key(p);
+    for (long dx = -1; dx <= 1; ++dx) {
+      for (long dy = -1; dy <= 1; ++dy) {
+        auto it = grid_.find({cx + dx, cy + dy});
+        if (it == grid_.end()) continue;
+        for (const auto& [l, i] : it->second) {
+          if (point_segment_distance(p, (*lines_)[l][i], (*lines_)[l][i + 1]) <= r) return true;
+        }
+      }
+    }
+    return false;
+  }
+
+ private:
+  static std::pair<long, long> key(const Eigen::Vector2d& p) {
+    return {std::lround(std::floor(p.x())), std::lround(std::floor(p.y()))};
+  }
+  std::map<std::pair<long, long>, std::vector<std::pair<std::size_t, std::size_t>>> grid_;
+  const std::vector<std::vector<Eigen::Vector2d>>* lines_ = nullptr;
+};
+
+/// Points within r of p (grid of 1 m cells over a point set).
+class PointIndex {
+ public:
+  explicit PointIndex(const std::vector<Eigen::Vector2d>& pts) : pts_(&pts) {
+    for (std::size_t i = 0; i < pts.size(); ++i) {
+      grid_[{std::lround(std::floor(pts[i].x())), std::lround(std::floor(pts[i].y()))}].push_back(
+          i);
+    }
+  }
+  template <typename F>
+  void within(const Eigen::Vector2d& p, double r, F&& f) const {
+    const long cx = std::lround(std::floor(p.x())), cy = std::lround(std::floor(p.y()));
+    for (long dx = -1; dx <= 1; ++dx) {
+      for (long dy = -1; dy <= 1; ++dy) {
+        auto it = grid_.find({cx + dx, cy + dy});
+        if (it == grid_.end()) continue;
+        for (std::size_t i : it->second) {
+          const double d = ((*pts_)[i] - p).norm();
+          if (d <= r) f(i, d);
+        }
+      }
+    }
+  }
+
+ private:
+  const std::vector<Eigen::Vector2d>* pts_;
+  std::map<std::pair<long, long>, std::vector<std::size_t>> grid_;
+};
+
+/// The map against the truth (see the file comment). Detectable truth: objects (line
+/// samples) with a candidate within the radius in at least half of the drives: what
+/// any consensus of these candidates can find; recall is against it, recall_all against
+/// all truth.
+Accuracy accuracy(const MapStore& store, std::int64_t version, const Truth& truth,
+                  const tiles::LocalFrame& world, double radius_m) {
   const LandmarkSet lms = store.landmarks_in(version, std::nullopt, false);
+  const CandidateSet cands = store.candidates_in(std::nullopt);
+  std::set<std::int64_t> drive_set;
+  for (const auto& c : cands.points) drive_set.insert(c.drive);
+  for (const auto& c : cands.lines) drive_set.insert(c.drive);
+  const double half = 0.5 * static_cast<double>(drive_set.size());
   Accuracy a;
   // Points: all (landmark, object) pairs within the radius, nearest first, one-to-one.
   std::vector<Eigen::Vector2d> lp;
   for (const auto& p : lms.points) lp.push_back(world.to_local(p.position));
+  const PointIndex objects(truth.points);
+  std::vector<std::set<std::int64_t>> seen_by(truth.points.size());
+  for (const auto& c : cands.points) {
+    objects.within(world.to_local(c.position), radius_m,
+                   [&](std::size_t o, double) { seen_by[o].insert(c.drive); });
+  }
+  std::vector<char> detectable(truth.points.size(), 0);
+  for (std::size_t o = 0; o < truth.points.size(); ++o) {
+    detectable[o] = static_cast<double>(seen_by[o].size()) >= half ? 1 : 0;
+    a.detectable_points += detectable[o];
+  }
   struct Pair {
     double d;
     std::size_t l, o;
   };
   std::vector<Pair> pairs;
-  {
-    std::map<std::pair<long, long>, std::vector<std::size_t>> grid;
-    for (std::size_t o = 0; o < route.objects.size(); ++o) {
-      grid[{std::lround(std::floor(route.objects[o].x())),
-            std::lround(std::floor(route.objects[o].y()))}]
-          .push_back(o);
-    }
-    for (std::size_t l = 0; l < lp.size(); ++l) {
-      const long cx = std::lround(std::floor(lp[l].x())), cy = std::lround(std::floor(lp[l].y()));
-      for (long dx = -1; dx <= 1; ++dx) {
-        for (long dy = -1; dy <= 1; ++dy) {
-          auto it = grid.find({cx + dx, cy + dy});
-          if (it == grid.end()) continue;
-          for (std::size_t o : it->second) {
-            const double d = (lp[l] - route.objects[o]).norm();
-            if (d <= radius_m) pairs.push_back({d, l, o});
-          }
-        }
-      }
-    }
+  for (std::size_t l = 0; l < lp.size(); ++l) {
+    objects.within(lp[l], radius_m, [&](std::size_t o, double d) { pairs.push_back({d, l, o}); });
   }
   std::sort(pairs.begin(), pairs.end(), [](const Pair& x, const Pair& y) {
     return std::tie(x.d, x.l, x.o) < std::tie(y.d, y.l, y.o);
   });
-  std::vector<char> lu(lp.size(), 0), ou(route.objects.size(), 0);
-  std::size_t matched = 0;
+  std::vector<char> lu(lp.size(), 0), ou(truth.points.size(), 0);
+  std::size_t matched = 0, matched_detectable = 0;
   double ss = 0;
   for (const Pair& p : pairs) {
     if (lu[p.l] || ou[p.o]) continue;
     lu[p.l] = ou[p.o] = 1;
     ++matched;
+    matched_detectable += detectable[p.o];
     ss += p.d * p.d;
   }
   a.point_precision = lp.empty() ? 0.0 : double(matched) / double(lp.size());
-  a.point_recall = route.objects.empty() ? 0.0 : double(matched) / double(route.objects.size());
+  a.point_recall =
+      a.detectable_points ? double(matched_detectable) / double(a.detectable_points) : 0.0;
+  a.point_recall_all = truth.points.empty() ? 0.0 : double(matched) / double(truth.points.size());
   a.point_rmse_m = matched ? std::sqrt(ss / double(matched)) : 0.0;
   // Lines, by length.
   std::vector<std::vector<Eigen::Vector2d>> ll;
@@ -227,35 +308,217 @@ Accuracy accuracy(const MapStore& store, std::int64_t version, const Route& rout
     for (const auto& g : l.polyline) pl.push_back(world.to_local(g));
     ll.push_back(std::move(pl));
   }
-  auto near_wall = [&](const Eigen::Vector2d& p) {
-    for (const auto& [wa, wb] : route.walls) {
-      if (point_segment_distance(p, wa, wb) <= radius_m) return true;
-    }
-    return false;
-  };
-  auto near_landmark = [&](const Eigen::Vector2d& p) {
-    for (const auto& pl : ll) {
-      for (std::size_t i = 0; i + 1 < pl.size(); ++i) {
-        if (point_segment_distance(p, pl[i], pl[i + 1]) <= radius_m) return true;
-      }
-    }
-    return false;
-  };
-  std::size_t ln = 0, lok = 0, wn = 0, wok = 0;
+  const NearIndex near_truth(truth.lines), near_landmark(ll);
+  std::size_t ln = 0, lok = 0;
   for (const auto& pl : ll) {
-    for (const auto& p : samples(pl, 0.25)) ++ln, lok += near_wall(p) ? 1 : 0;
+    for (const auto& p : samples(pl, 0.25)) ++ln, lok += near_truth.near(p, radius_m) ? 1 : 0;
   }
-  for (const auto& [wa, wb] : route.walls) {
-    for (const auto& p : samples({wa, wb}, 0.25)) ++wn, wok += near_landmark(p) ? 1 : 0;
+  // Truth samples, and by how many drives' line candidates each is covered.
+  std::vector<Eigen::Vector2d> ts;
+  for (const auto& pl : truth.lines) {
+    for (const auto& p : samples(pl, 0.25)) ts.push_back(p);
+  }
+  std::vector<std::set<std::int64_t>> covered_by(ts.size());
+  {
+    const PointIndex tsi(ts);
+    for (const auto& c : cands.lines) {
+      const Eigen::Vector2d a0 = world.to_local(c.start), a1 = world.to_local(c.end);
+      std::set<std::size_t> hit;
+      for (const auto& p : samples({a0, a1}, 0.25)) {
+        tsi.within(p, radius_m + 0.25, [&](std::size_t i, double) {
+          if (point_segment_distance(ts[i], a0, a1) <= radius_m) hit.insert(i);
+        });
+      }
+      for (std::size_t i : hit) covered_by[i].insert(c.drive);
+    }
+  }
+  std::size_t wn = 0, wok = 0, dn = 0, dok = 0;
+  for (std::size_t i = 0; i < ts.size(); ++i) {
+    const bool ok = near_landmark.near(ts[i], radius_m);
+    ++wn, wok += ok ? 1 : 0;
+    if (static_cast<double>(covered_by[i].size()) >= half) ++dn, dok += ok ? 1 : 0;
   }
   a.line_precision = ln ? double(lok) / double(ln) : 0.0;
-  a.line_recall = wn ? double(wok) / double(wn) : 0.0;
+  a.line_recall = dn ? double(dok) / double(dn) : 0.0;
+  a.line_recall_all = wn ? double(wok) / double(wn) : 0.0;
   return a;
 }
 
 double seconds_since(std::chrono::steady_clock::time_point t) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
 }
+
+/// Where the drives come from: the synthetic route or the simulator.
+class DriveSource {
+ public:
+  virtual ~DriveSource() = default;
+  /// Ingests drive k of a fleet of n (k == n: one more full drive; k == n + 1: a short
+  /// drive over the first 300 m); returns its candidate count.
+  virtual std::size_t ingest(MapStore& store, const fs::path& dir, int n, int k) = 0;
+  [[nodiscard]] virtual const Truth& truth() const = 0;
+  [[nodiscard]] virtual const tiles::LocalFrame& frame() const = 0;
+  /// Prints what the false point landmarks are near (simulator: nearest world object).
+  virtual void explain(const MapStore& /*store*/, std::int64_t /*version*/,
+                       double /*radius_m*/) const {}
+};
+
+class SyntheticSource final : public DriveSource {
+ public:
+  SyntheticSource(double length_km, double points_per_km, double walls_per_km,
+                  double temporaries_per_km, unsigned seed)
+      : temporaries_per_km_(temporaries_per_km), seed_(seed), frame_(kOrigin) {
+    std::mt19937 rng(seed);
+    route_ = make_route(length_km * 1000.0, points_per_km, walls_per_km, rng);
+    truth_.points = route_.objects;
+    for (const auto& [a, b] : route_.walls) truth_.lines.push_back({a, b});
+    std::printf(
+        "synthetic route %.1f km: %zu point objects, %zu walls; per drive ~%.0f point + ~%.0f "
+        "line candidates\n",
+        length_km, route_.objects.size(), route_.walls.size(),
+        0.9 * route_.objects.size() + temporaries_per_km * length_km,
+        0.9 * 2 * route_.walls.size());
+  }
+  std::size_t ingest(MapStore& store, const fs::path& dir, int n, int k) override {
+    if (k == 0) rng_.seed(seed_ * 1000 + static_cast<unsigned>(n));
+    const double max_x = k == n + 1 ? -route_.length_m / 2 + 300.0 : 1e18;
+    const DrivePackage p = drive(route_, kOrigin, k, temporaries_per_km_, rng_, max_x);
+    // The store keeps the archive as given; the candidates come from `p` (what
+    // validation would have produced), so a placeholder archive suffices here.
+    const fs::path tar = dir / (p.manifest.drive_id + ".tar");
+    const std::string bytes =
+        write_ustar({{kManifestFileName, "bench package " + p.manifest.drive_id}});
+    std::ofstream(tar, std::ios::binary) << bytes;
+    (void)store.put_drive(p, tar, content_etag(bytes));
+    return p.points.size() + p.lines.size();
+  }
+  [[nodiscard]] const Truth& truth() const override { return truth_; }
+  [[nodiscard]] const tiles::LocalFrame& frame() const override { return frame_; }
+
+ private:
+  static constexpr GeoPoint kOrigin{48.7758, 9.1829, 0.0};
+  Route route_;
+  Truth truth_;
+  double temporaries_per_km_;
+  unsigned seed_;
+  std::mt19937 rng_;
+  tiles::LocalFrame frame_;
+};
+
+/// Drives of the simulator (tools/sim) over one world: moving traffic, parked cars and
+/// bins present in a share of the drives, vegetation; processed by the real front end
+/// (mapping mode, full polarimetry) into landmarks-only packages, validated and
+/// ingested. Packages are cached in CACHE/drive_K (drive K is the same for every fleet
+/// size). Truth: the world's permanent point objects (poles, posts, signs, trunks,
+/// facade corners and recesses) and permanent line objects (curbs, road borders, walls,
+/// facades, guardrails, fences); parked cars and bins are not truth.
+class SimSource final : public DriveSource {
+ public:
+  SimSource(const std::string& world, double length_m, unsigned seed, fs::path cache)
+      : cache_(std::move(cache)) {
+    sim_.seed = seed;
+    world_ = sim::load_world(world, length_m, seed, sim_);
+    for (const auto& o : world_->objects) {
+      if (!o.permanent) continue;
+      using C = sim::ObjectClass;
+      switch (o.cls) {
+        case C::LampPole:
+        case C::SignPole:
+        case C::SignPlate:
+        case C::TrafficLight:
+        case C::Pole:
+        case C::GuardrailPost:
+        case C::GuidePost:
+        case C::TreeTrunk:
+        case C::FacadeRecess:
+        case C::FacadeCorner:
+        case C::FencePost:
+          if (o.geometry_m.size() == 1) truth_.points.push_back(o.geometry_m[0]);
+          break;
+        case C::GuardrailBeam:
+        case C::Curbstone:
+        case C::RoadBorder:
+        case C::Wall:
+        case C::Facade:
+        case C::FenceMesh:
+          if (o.geometry_m.size() >= 2) truth_.lines.push_back(o.geometry_m);
+          break;
+        default:
+          break;
+      }
+    }
+    study_.landmarks_only = true;
+    std::printf("simulated world %s, %.0f m, seed %u: %zu permanent point objects, %zu lines\n",
+                world.c_str(), world_->route.length_m(), seed, truth_.points.size(),
+                truth_.lines.size());
+  }
+  std::size_t ingest(MapStore& store, const fs::path& /*dir*/, int n, int k) override {
+    sim::SimConfig cfg = sim_;
+    int index = k;
+    std::string name = "drive_" + std::to_string(k);
+    if (k == n + 1) {  // the short drive: 30 s (about 300 m) of a drive no fleet has
+      cfg.duration_s = 30.0;
+      index = 100000 + n;
+      name = "short_" + std::to_string(n);
+    }
+    const fs::path pkg_dir = cache_ / name;
+    if (!fs::exists(pkg_dir / kManifestFileName)) {
+      std::fprintf(stderr, "  simulating %s ...\n", name.c_str());
+      (void)eval::simulate_and_package(world_, cfg, index, PolLevel::Full, study_, pkg_dir);
+    }
+    const DrivePackage pkg = read_and_validate_package(pkg_dir);
+    (void)store.put_drive(pkg, pkg_dir, pkg.content_sha256);
+    return pkg.points.size() + pkg.lines.size();
+  }
+  [[nodiscard]] const Truth& truth() const override { return truth_; }
+  [[nodiscard]] const tiles::LocalFrame& frame() const override { return world_->frame; }
+  void explain(const MapStore& store, std::int64_t version, double radius_m) const override {
+    const LandmarkSet lms = store.landmarks_in(version, std::nullopt, false);
+    const PointIndex truth(truth_.points);
+    std::map<std::string, int> cls;
+    // Support histogram (tenths of the fleet) of true and false point landmarks.
+    std::map<std::string, std::array<int, 11>> hist;
+    std::set<std::int64_t> drives;
+    for (const auto& d : store.list_drives()) drives.insert(d.row);
+    const double fleet = static_cast<double>(std::max<std::size_t>(1, drives.size() - 2));
+    for (const auto& p : lms.points) {
+      const Eigen::Vector2d x = world_->frame.to_local(p.position);
+      bool ok = false;
+      truth.within(x, radius_m, [&](std::size_t, double) { ok = true; });
+      const int bin = std::clamp(static_cast<int>(10.0 * p.support_drives / fleet), 0, 10);
+      if (ok) {
+        ++hist["true"][static_cast<std::size_t>(bin)];
+        continue;
+      }
+      double best = 2.0;
+      std::string name = "nothing within 2 m";
+      for (const auto& o : world_->objects) {
+        double d = 1e9;
+        if (o.geometry_m.size() == 1) d = (o.geometry_m[0] - x).norm();
+        for (std::size_t i = 0; i + 1 < o.geometry_m.size(); ++i)
+          d = std::min(d, point_segment_distance(x, o.geometry_m[i], o.geometry_m[i + 1]));
+        if (d < best)
+          best = d, name = std::string(sim::to_string(o.cls)) + (o.permanent ? "" : " (temporary)");
+      }
+      ++cls[name];
+      ++hist[name][static_cast<std::size_t>(bin)];
+    }
+    for (const auto& [k, h] : hist) {
+      std::printf("  support/fleet histogram %-28s", k.c_str());
+      for (int v : h) std::printf(" %4d", v);
+      std::printf("\n");
+    }
+    std::printf("  false point landmarks by nearest world object:");
+    for (const auto& [k, v] : cls) std::printf(" %s %d;", k.c_str(), v);
+    std::printf("\n");
+  }
+
+ private:
+  fs::path cache_;
+  sim::SimConfig sim_;
+  eval::StudyConfig study_;
+  std::shared_ptr<const sim::World> world_;
+  Truth truth_;
+};
 
 }  // namespace
 
@@ -265,7 +528,7 @@ int main(int argc, char** argv) {
   double length_km = 2.0;
   double points_per_km = 600.0, walls_per_km = 60.0, temporaries_per_km = 100.0;
   unsigned seed = 1;
-  std::string keep;
+  std::string keep, world, sim_cache;
   double radius_m = 0.3;
   std::optional<double> view_fraction;
   app.add_option("--radius-m", radius_m, "truth matching radius");
@@ -279,54 +542,42 @@ int main(int argc, char** argv) {
                  "single-drive objects per km and drive");
   app.add_option("--seed", seed, "random seed");
   app.add_option("--keep", keep, "keep the databases in this directory");
+  app.add_option("--world", world,
+                 "drives from the simulator over this world (urban | industrial | rural | "
+                 "FILE.osm | FILE.xodr) instead of the synthetic route");
+  bool explain = false;
+  app.add_flag("--explain", explain, "print what false point landmarks are near (simulator)");
+  app.add_option("--sim-cache", sim_cache,
+                 "simulated packages are kept here and reused (default: KEEP/packages)");
   CLI11_PARSE(app, argc, argv);
 
-  const GeoPoint origin{48.7758, 9.1829, 0.0};
-  std::mt19937 rng(seed);
-  const Route route = make_route(length_km * 1000.0, points_per_km, walls_per_km, rng);
   const fs::path root =
       keep.empty() ? fs::temp_directory_path() / ("polmap_bench_map_build_" + std::to_string(seed))
                    : fs::path(keep);
-  fs::remove_all(root);
+  for (int n : counts) fs::remove_all(root / ("n" + std::to_string(n)));
   fs::create_directories(root);
+  std::unique_ptr<DriveSource> source;
+  if (world.empty()) {
+    source = std::make_unique<SyntheticSource>(length_km, points_per_km, walls_per_km,
+                                               temporaries_per_km, seed);
+  } else {
+    const fs::path cache = sim_cache.empty() ? root / "packages" : fs::path(sim_cache);
+    source = std::make_unique<SimSource>(world, length_km * 1000.0, seed, cache);
+  }
 
   std::printf(
-      "route %.1f km: %zu point objects, %zu walls; per drive ~%.0f point + ~%.0f line "
-      "candidates\n",
-      length_km, route.objects.size(), route.walls.size(),
-      0.9 * route.objects.size() + temporaries_per_km * length_km, 0.9 * 2 * route.walls.size());
-  std::printf(
-      "%6s %9s %9s %7s %7s | %6s %6s %7s %6s %6s | %6s | %8s %8s %9s %8s | %8s %7s %7s | %8s %7s "
-      "%7s %8s\n",
-      "drives", "cand_pts", "cand_lin", "lm_pts", "lm_lin", "P_pts", "R_pts", "rmse_cm", "P_lin",
-      "R_lin", "tiles", "ingest_s", "cand/s", "build_s", "consns_s", "incr_s", "written", "reused",
-      "short_s", "written", "reused", "maxrss_MB");
+      "%6s %9s %9s %7s %7s | %6s %6s %6s %7s %6s %6s %6s | %6s | %8s %8s %9s %8s | %8s %7s %7s | "
+      "%8s %7s %7s %8s\n",
+      "drives", "cand_pts", "cand_lin", "lm_pts", "lm_lin", "P_pts", "R_pts", "Ra_pts", "rmse_cm",
+      "P_lin", "R_lin", "Ra_lin", "tiles", "ingest_s", "cand/s", "build_s", "consns_s", "incr_s",
+      "written", "reused", "short_s", "written", "reused", "maxrss_MB");
   for (int n : counts) {
     const fs::path dir = root / ("n" + std::to_string(n));
     fs::create_directories(dir);
     SqliteMapStore store(dir / "map.db");
-    std::mt19937 drng(seed * 1000 + static_cast<unsigned>(n));
-    std::vector<DrivePackage> pkgs;
-    for (int k = 0; k <= n; ++k) pkgs.push_back(drive(route, origin, k, temporaries_per_km, drng));
-    // A short drive: the first 300 m of the route only.
-    pkgs.push_back(
-        drive(route, origin, n + 1, temporaries_per_km, drng, -route.length_m / 2 + 300.0));
-    auto ingest = [&](const DrivePackage& p) {
-      // The store keeps the archive as given; the candidates come from `p` (what
-      // validation would have produced), so a placeholder archive suffices here.
-      const fs::path tar = dir / (p.manifest.drive_id + ".tar");
-      const std::string bytes =
-          write_ustar({{kManifestFileName, "bench package " + p.manifest.drive_id}});
-      std::ofstream(tar, std::ios::binary) << bytes;
-      (void)store.put_drive(p, tar, content_etag(bytes));
-    };
     std::size_t cand = 0;
     auto t0 = std::chrono::steady_clock::now();
-    for (int k = 0; k < n; ++k) {
-      ingest(pkgs[static_cast<std::size_t>(k)]);
-      cand += pkgs[static_cast<std::size_t>(k)].points.size() +
-              pkgs[static_cast<std::size_t>(k)].lines.size();
-    }
+    for (int k = 0; k < n; ++k) cand += source->ingest(store, dir, n, k);
     const double ingest_s = seconds_since(t0);
     MapBuildRequest req;
     req.build_gridmap = false;
@@ -338,24 +589,25 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "build failed: %s\n", r.error.c_str());
       return 1;
     }
-    ingest(pkgs[static_cast<std::size_t>(n)]);
+    const Accuracy acc = accuracy(store, r.version, source->truth(), source->frame(), radius_m);
+    if (explain) source->explain(store, r.version, radius_m);
+    (void)source->ingest(store, dir, n, n);
     const auto inc = builder.build(store, req);
-    ingest(pkgs[static_cast<std::size_t>(n + 1)]);
+    (void)source->ingest(store, dir, n, n + 1);
     const auto part = builder.build(store, req);
-    const Accuracy acc = accuracy(store, r.version, route, origin, radius_m);
     rusage ru{};
     getrusage(RUSAGE_SELF, &ru);
     std::printf(
-        "%6d %9lld %9lld %7lld %7lld | %6.3f %6.3f %7.2f %6.3f %6.3f | %6lld | %8.3f %8.0f %9.3f "
-        "%8.3f | %8.3f %7lld %7lld | %8.3f %7lld %7lld %8.0f\n",
+        "%6d %9lld %9lld %7lld %7lld | %6.3f %6.3f %6.3f %7.2f %6.3f %6.3f %6.3f | %6lld | %8.3f "
+        "%8.0f %9.3f %8.3f | %8.3f %7lld %7lld | %8.3f %7lld %7lld %8.0f\n",
         n, static_cast<long long>(r.stats.point_candidates),
         static_cast<long long>(r.stats.line_candidates),
         static_cast<long long>(r.stats.point_landmarks),
         static_cast<long long>(r.stats.line_landmarks), acc.point_precision, acc.point_recall,
-        100.0 * acc.point_rmse_m, acc.line_precision, acc.line_recall,
-        static_cast<long long>(r.stats.tiles_total), ingest_s, static_cast<double>(cand) / ingest_s,
-        r.stats.seconds_total, r.stats.seconds_consensus, inc.stats.seconds_total,
-        static_cast<long long>(inc.stats.tiles_written),
+        acc.point_recall_all, 100.0 * acc.point_rmse_m, acc.line_precision, acc.line_recall,
+        acc.line_recall_all, static_cast<long long>(r.stats.tiles_total), ingest_s,
+        static_cast<double>(cand) / ingest_s, r.stats.seconds_total, r.stats.seconds_consensus,
+        inc.stats.seconds_total, static_cast<long long>(inc.stats.tiles_written),
         static_cast<long long>(inc.stats.tiles_reused), part.stats.seconds_total,
         static_cast<long long>(part.stats.tiles_written),
         static_cast<long long>(part.stats.tiles_reused),
@@ -365,8 +617,9 @@ int main(int argc, char** argv) {
   std::printf(
       "build_s = load + consensus + landmarks + tiles + publish of a fresh version; incr_s = the\n"
       "same after one more full drive, short_s after one more 300 m drive (tiles whose bytes did\n"
-      "not change are reused, not rewritten); P/R: precision and recall against the route's\n"
-      "permanent objects and walls (file comment), maxrss_MB: peak resident memory of the process\n"
+      "not change are reused, not rewritten); P/R: precision and recall against the permanent\n"
+      "objects that at least half of the drives detected (Ra: against all permanent objects),\n"
+      "rmse over matched points (file comment); maxrss_MB: peak resident memory of the process\n"
       "so far. Store: SQLite WAL in %s\n",
       root.c_str());
   if (keep.empty()) fs::remove_all(root);

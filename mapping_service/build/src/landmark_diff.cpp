@@ -126,7 +126,8 @@ void diff_kind(const std::vector<Item>& from, const std::vector<Item>& to, bool 
     const Item& t = *new_left[n];
     for (auto cx = cell_of(t.lo.x()) - 1; cx <= cell_of(t.hi.x()) + 1; ++cx) {
       for (auto cy = cell_of(t.lo.y()) - 1; cy <= cell_of(t.hi.y()) + 1; ++cy) {
-        if (auto it = grid.find({cx, cy}); it != grid.end()) near.insert(it->second.begin(), it->second.end());
+        if (auto it = grid.find({cx, cy}); it != grid.end())
+          near.insert(it->second.begin(), it->second.end());
       }
     }
     for (std::size_t o : near) {
@@ -192,7 +193,8 @@ LandmarkDiff diff_landmarks(const LandmarkSet& from, const LandmarkSet& to,
   bool found = false;
   for (const LandmarkSet* s : {&from, &to}) {
     if (found) break;
-    if (!s->points.empty()) origin = s->points.front().position, found = true;
+    if (!s->points.empty())
+      origin = s->points.front().position, found = true;
     else if (!s->lines.empty() && !s->lines.front().polyline.empty())
       origin = s->lines.front().polyline.front(), found = true;
   }

@@ -82,7 +82,8 @@ nlohmann::json request_json(const MapBuildRequest& r, const MapBuilderConfig& c)
   j["visibility"] = {{"default_view_range_m", r.visibility.default_view_range_m},
                      {"min_view_range_m", r.visibility.min_view_range_m},
                      {"max_view_range_m", r.visibility.max_view_range_m},
-                     {"range_quantile", r.visibility.range_quantile}};
+                     {"range_quantile", r.visibility.range_quantile},
+                     {"range_margin", r.visibility.range_margin}};
   j["tile_zoom"] = c.tile_zoom;
   j["tile_quantum_m"] = c.encode.quantum_m;
   return j;

@@ -242,8 +242,7 @@ PointConsensusResult finish_points(const std::vector<TaggedPointCandidate>& pts,
       ++out.stats.rejected_groups;
       continue;
     }
-    const std::vector<PointGroup> parts =
-        split_modes(pts, component, component_drives.size(), cfg);
+    const std::vector<PointGroup> parts = split_modes(pts, component, component_drives.size(), cfg);
     out.stats.split_groups += parts.size() > 1 ? 1 : 0;
     for (const PointGroup& part : parts) {
       const auto& g = part.members;

@@ -66,7 +66,7 @@ double path_distance(std::span<const Eigen::Vector2d> path, const Eigen::Vector2
 double estimate_view_range_m(std::span<const Eigen::Vector2d> path_m,
                              std::span<const Eigen::Vector2d> candidate_positions_m,
                              const VisibilityConfig& cfg) {
-  POLMAP_EXPECT(cfg.range_quantile > 0.0 && cfg.range_quantile <= 1.0);
+  POLMAP_EXPECT(cfg.range_quantile > 0.0 && cfg.range_quantile <= 1.0 && cfg.range_margin > 0.0);
   if (path_m.empty() || candidate_positions_m.empty()) return cfg.default_view_range_m;
   // The simplified path keeps every candidate's distance within the tolerance, and a
   // single-drive index answers each distance in O(local pieces).
@@ -78,14 +78,13 @@ double estimate_view_range_m(std::span<const Eigen::Vector2d> path_m,
   d.reserve(candidate_positions_m.size());
   for (const auto& c : candidate_positions_m) {
     // Outside the maximum range: count as the maximum (clamped below anyway).
-    d.push_back(index.count_in_view(c) == 0 ? cfg.max_view_range_m
-                                            : path_distance(pass.path_m, c));
+    d.push_back(index.count_in_view(c) == 0 ? cfg.max_view_range_m : path_distance(pass.path_m, c));
   }
   const auto k = static_cast<std::size_t>(
       std::min<double>(static_cast<double>(d.size() - 1),
                        std::floor(cfg.range_quantile * static_cast<double>(d.size() - 1))));
   std::nth_element(d.begin(), d.begin() + static_cast<std::ptrdiff_t>(k), d.end());
-  return std::clamp(d[k], cfg.min_view_range_m, cfg.max_view_range_m);
+  return std::clamp(cfg.range_margin * d[k], cfg.min_view_range_m, cfg.max_view_range_m);
 }
 
 VisibilityIndex::VisibilityIndex(std::vector<DrivePass> passes, const VisibilityConfig& cfg)
@@ -110,10 +109,14 @@ VisibilityIndex::VisibilityIndex(std::vector<DrivePass> passes, const Visibility
       for (int s = 0; s < n; ++s) {
         const Eigen::Vector2d pa = a + (b - a) * (static_cast<double>(s) / n);
         const Eigen::Vector2d pb = a + (b - a) * (static_cast<double>(s + 1) / n);
-        const auto cx0 = static_cast<std::int64_t>(std::floor((std::min(pa.x(), pb.x()) - range) / cell_m_));
-        const auto cx1 = static_cast<std::int64_t>(std::floor((std::max(pa.x(), pb.x()) + range) / cell_m_));
-        const auto cy0 = static_cast<std::int64_t>(std::floor((std::min(pa.y(), pb.y()) - range) / cell_m_));
-        const auto cy1 = static_cast<std::int64_t>(std::floor((std::max(pa.y(), pb.y()) + range) / cell_m_));
+        const auto cx0 =
+            static_cast<std::int64_t>(std::floor((std::min(pa.x(), pb.x()) - range) / cell_m_));
+        const auto cx1 =
+            static_cast<std::int64_t>(std::floor((std::max(pa.x(), pb.x()) + range) / cell_m_));
+        const auto cy0 =
+            static_cast<std::int64_t>(std::floor((std::min(pa.y(), pb.y()) - range) / cell_m_));
+        const auto cy1 =
+            static_cast<std::int64_t>(std::floor((std::max(pa.y(), pb.y()) + range) / cell_m_));
         for (auto cx = cx0; cx <= cx1; ++cx) {
           for (auto cy = cy0; cy <= cy1; ++cy) {
             auto& v = cells_[cell_key(cx, cy)];

@@ -107,12 +107,11 @@ TEST(SupportRule, DecisionsFollowDriveTimeNotUploadOrder) {
 }
 
 TEST(SupportRule, WithoutVisibilityTheFixedCountDecides) {
-  EXPECT_EQ(judge_support(nullptr, std::span(&kPlace, 1), std::vector<std::int64_t>{4, 9}, {})
-                .status,
-            SupportVerdict::Status::Accepted);
   EXPECT_EQ(
-      judge_support(nullptr, std::span(&kPlace, 1), std::vector<std::int64_t>{4}, {}).status,
-      SupportVerdict::Status::Rejected);
+      judge_support(nullptr, std::span(&kPlace, 1), std::vector<std::int64_t>{4, 9}, {}).status,
+      SupportVerdict::Status::Accepted);
+  EXPECT_EQ(judge_support(nullptr, std::span(&kPlace, 1), std::vector<std::int64_t>{4}, {}).status,
+            SupportVerdict::Status::Rejected);
 }
 
 }  // namespace

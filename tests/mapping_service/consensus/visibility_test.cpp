@@ -110,9 +110,12 @@ TEST(Visibility, ViewRangeIsAQuantileOfTheDrivesOwnCandidateDistances) {
     cands.emplace_back(10.0 + 0.4 * i, i % 2 ? d : -d);
   }
   VisibilityConfig cfg;
+  cfg.range_margin = 1.0;
   EXPECT_NEAR(estimate_view_range_m(path, cands, cfg), 18.0, 0.05);
   cfg.range_quantile = 0.5;
   EXPECT_NEAR(estimate_view_range_m(path, cands, cfg), 10.0, 0.05);
+  cfg.range_margin = 1.25;
+  EXPECT_NEAR(estimate_view_range_m(path, cands, cfg), 12.5, 0.07);
   cfg.max_view_range_m = 8.0;
   EXPECT_DOUBLE_EQ(estimate_view_range_m(path, cands, cfg), 8.0);
   cfg = {};

@@ -72,6 +72,7 @@ ProcessedDrive process_to_package(RecordSource& source, const StudyConfig& cfg, 
   mapping::PackageWriteOptions wo;
   wo.overwrite = true;
   wo.format_version = cfg.package_format;
+  wo.landmarks_only = cfg.landmarks_only;
   mapping::write_drive_package(r, dir, wo);
   return {r.header.drive_id, dir, static_cast<std::int64_t>(r.points.size()),
           static_cast<std::int64_t>(r.lines.size())};

@@ -30,11 +30,11 @@ namespace polmap::mapping {
 
 /// One drive's pass through the consensus region.
 struct DrivePass {
-  std::int64_t drive = 0;                ///< drive identity (TaggedPointCandidate::drive)
-  std::vector<Eigen::Vector2d> path_m;   ///< trajectory positions, consensus frame, in time order
-  double view_range_m = 0.0;             ///< <= 0: VisibilityConfig::default_view_range_m
-  double start_time_s = 0.0;             ///< drive start (UNIX time), for time-ordered decisions
-  std::int64_t vehicle = 0;              ///< vehicle identity (distinct vehicles for retirement)
+  std::int64_t drive = 0;               ///< drive identity (TaggedPointCandidate::drive)
+  std::vector<Eigen::Vector2d> path_m;  ///< trajectory positions, consensus frame, in time order
+  double view_range_m = 0.0;            ///< <= 0: VisibilityConfig::default_view_range_m
+  double start_time_s = 0.0;            ///< drive start (UNIX time), for time-ordered decisions
+  std::int64_t vehicle = 0;             ///< vehicle identity (distinct vehicles for retirement)
 };
 
 /// Visibility model settings. Defaults suit the front radars of the paper's vehicle.
@@ -44,16 +44,19 @@ struct VisibilityConfig {
   /// Estimated ranges are clamped to [min_view_range_m, max_view_range_m].
   double min_view_range_m = 5.0;
   double max_view_range_m = 80.0;
-  /// Quantile of a drive's candidate distances from its trajectory taken as its range.
+  /// Quantile of a drive's candidate distances from its trajectory ...
   double range_quantile = 0.9;
+  /// ... times this margin is its range: the farthest landmarks a drive detects lie at
+  /// the quantile by construction, and a pass that missed one of them had it in view.
+  double range_margin = 1.25;
   /// Paths are simplified to this tolerance before indexing (shorter queries).
   double simplify_tolerance_m = 0.5;
   /// Cell edge of the spatial index.
   double cell_m = 32.0;
 };
 
-/// A drive's view range from its own candidates: the range_quantile quantile of
-/// their distances from its path (clamped), or the default if there are none.
+/// A drive's view range from its own candidates: range_margin times the range_quantile
+/// quantile of their distances from its path (clamped), or the default if there are none.
 double estimate_view_range_m(std::span<const Eigen::Vector2d> path_m,
                              std::span<const Eigen::Vector2d> candidate_positions_m,
                              const VisibilityConfig& cfg = {});

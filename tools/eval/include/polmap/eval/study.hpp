@@ -87,6 +87,9 @@ struct StudyConfig {
   /// Drive package format the mapping drives are uploaded in (2: compact, what vehicles
   /// send; 1: lossless Float32 + GeoPackage).
   std::uint32_t package_format = 2;
+  /// Format 2 packages without the gridmap (simulate_and_package; the study's maps need
+  /// landmarks only, the fleet gridmap does not).
+  bool landmarks_only = false;
   /// Tiles through a real Server on loopback + TileFetcher instead of the store.
   bool http = false;
   /// Deliberate error of the initial pose (see file comment).

@@ -668,6 +668,81 @@ PointConsensusResult consensus_points_bruteforce(std::span<const TaggedPointCand
   return finish_points(pts, edges, cfg, view);
 }
 
+std::size_t remove_points_on_lines(PointConsensusResult& points, const LineConsensusResult& lines,
+                                   const PointConsensusConfig& cfg) {
+  if (cfg.on_line_max_distance_m <= 0.0 || lines.landmarks.empty()) return 0;
+  // Line edges in a grid of cells no smaller than the test distance.
+  const double cell = std::max(4.0, 4.0 * cfg.on_line_max_distance_m);
+  struct Edge {
+    Eigen::Vector2d a, b;
+    std::size_t line;
+  };
+  std::vector<Edge> edges;
+  // Vertices near which points are kept: a line's ends and its corners (turns > 30°).
+  std::vector<std::vector<Eigen::Vector2d>> protect(lines.landmarks.size());
+  std::unordered_map<std::uint64_t, std::vector<std::size_t>> grid;
+  auto key = [](std::int64_t cx, std::int64_t cy) {
+    return (static_cast<std::uint64_t>(cx) << 32) ^ static_cast<std::uint64_t>(cy & 0xffffffff);
+  };
+  for (std::size_t li = 0; li < lines.landmarks.size(); ++li) {
+    const auto& pl = lines.landmarks[li].polyline_m;
+    if (pl.empty()) continue;
+    protect[li] = {pl.front(), pl.back()};
+    for (std::size_t i = 1; i + 1 < pl.size(); ++i) {
+      const Eigen::Vector2d u = pl[i] - pl[i - 1], v = pl[i + 1] - pl[i];
+      const double turn = std::atan2(std::abs(u.x() * v.y() - u.y() * v.x()), u.dot(v));
+      if (turn > 0.5236) protect[li].push_back(pl[i]);
+    }
+    for (std::size_t i = 0; i + 1 < pl.size(); ++i) {
+      const std::size_t e = edges.size();
+      edges.push_back({pl[i], pl[i + 1], li});
+      const double g = cfg.on_line_max_distance_m;
+      const auto cx0 = static_cast<std::int64_t>(std::floor((std::min(pl[i].x(), pl[i + 1].x()) - g) / cell));
+      const auto cx1 = static_cast<std::int64_t>(std::floor((std::max(pl[i].x(), pl[i + 1].x()) + g) / cell));
+      const auto cy0 = static_cast<std::int64_t>(std::floor((std::min(pl[i].y(), pl[i + 1].y()) - g) / cell));
+      const auto cy1 = static_cast<std::int64_t>(std::floor((std::max(pl[i].y(), pl[i + 1].y()) + g) / cell));
+      for (auto cx = cx0; cx <= cx1; ++cx) {
+        for (auto cy = cy0; cy <= cy1; ++cy) grid[key(cx, cy)].push_back(e);
+      }
+    }
+  }
+  std::size_t removed = 0, out = 0;
+  for (std::size_t i = 0; i < points.landmarks.size(); ++i) {
+    const Eigen::Vector2d& p = points.landmarks[i].position_m;
+    bool on_line = false;
+    const auto it = grid.find(key(static_cast<std::int64_t>(std::floor(p.x() / cell)),
+                                  static_cast<std::int64_t>(std::floor(p.y() / cell))));
+    if (it != grid.end()) {
+      for (std::size_t e : it->second) {
+        const Edge& ed = edges[e];
+        bool kept = false;
+        for (const auto& v : protect[ed.line]) kept = kept || (p - v).norm() < cfg.on_line_end_margin_m;
+        if (kept) continue;
+        if (point_segment_distance(p, ed.a, ed.b) < cfg.on_line_max_distance_m) {
+          on_line = true;
+          break;
+        }
+      }
+    }
+    if (on_line) {
+      ++removed;
+      continue;
+    }
+    if (out != i) {
+      points.landmarks[out] = points.landmarks[i];
+      points.support[out] = std::move(points.support[i]);
+      points.verdicts[out] = points.verdicts[i];
+    }
+    points.landmarks[out].id = static_cast<std::int64_t>(out);
+    ++out;
+  }
+  points.landmarks.resize(out);
+  points.support.resize(out);
+  points.verdicts.resize(out);
+  points.stats.on_lines += removed;
+  return removed;
+}
+
 LinePairDistance line_pair_distance(const LineCandidate& a, const LineCandidate& b) {
   Eigen::Vector2d ua = a.end_m - a.start_m;
   Eigen::Vector2d ub = b.end_m - b.start_m;

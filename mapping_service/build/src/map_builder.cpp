@@ -73,9 +73,6 @@ nlohmann::json request_json(const MapBuildRequest& r, const MapBuilderConfig& c)
   j["incremental"] = r.incremental;
   j["build_gridmap"] = r.build_gridmap;
   j["points"] = {{"max_pair_distance_m", r.points.max_pair_distance_m},
-                 {"split_min_drives", r.points.split_min_drives},
-                 {"on_line_max_distance_m", r.points.on_line_max_distance_m},
-                 {"on_line_end_margin_m", r.points.on_line_end_margin_m},
                  {"support", support_json(r.points.support)}};
   j["lines"] = {{"max_hull_distance_m", r.lines.max_hull_distance_m},
                 {"max_projection_distance_m", r.lines.max_projection_distance_m},
@@ -174,7 +171,6 @@ nlohmann::json to_json(const MapBuildStats& s) {
                           {"rejected_groups", s.point_consensus.rejected_groups},
                           {"retired_groups", s.point_consensus.retired_groups},
                           {"split_groups", s.point_consensus.split_groups},
-                          {"on_lines", s.point_consensus.on_lines},
                           {"largest_group", s.point_consensus.largest_group}};
   j["line_consensus"] = {{"candidates", s.line_consensus.candidates},
                          {"pairs", s.line_consensus.pairs},
@@ -504,9 +500,8 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version, const MapB
 
     // ---------------------------------------------------------------- consensus
     stage("consensus", 0.1);
-    PointConsensusResult pc = consensus_points(tp, req.points, &view);
+    const PointConsensusResult pc = consensus_points(tp, req.points, &view);
     const LineConsensusResult lc = consensus_lines(tl, req.lines, &view);
-    remove_points_on_lines(pc, lc, req.points);
     st.point_consensus = pc.stats;
     st.line_consensus = lc.stats;
     st.seconds_consensus = clock.lap();

@@ -109,9 +109,6 @@ void put_drives(SqliteMapStore& store, const fs::path& dir, const World& w, int 
 MapBuildRequest no_gridmap() {
   MapBuildRequest r;
   r.build_gridmap = false;  // the fake packages have no gridmap.tif
-  // The random worlds place some objects on walls; every object is a landmark here
-  // (removing points on lines is tested in consensus/points_on_lines_test.cpp).
-  r.points.on_line_max_distance_m = 0.0;
   return r;
 }
 

@@ -115,15 +115,6 @@ struct PointConsensusConfig {
   int split_min_drives = 8;
   /// Larger groups (a pathological clutter chain) are not split (bounded work).
   std::size_t split_max_members = 20000;
-  /// Point landmarks closer than this to a line landmark, and farther than
-  /// on_line_end_margin_m from its ends and corners, are parts of the extended object
-  /// (a peak on a curb or a facade), not discrete objects: the line represents them,
-  /// and a point's position along a homogeneous structure is arbitrary, so it would
-  /// mislead matching. Removed by remove_points_on_lines (0: keep them).
-  double on_line_max_distance_m = 0.25;
-  /// Points this close to a line's end vertices or corners (turns > 30°) are kept
-  /// (building corners, wall ends).
-  double on_line_end_margin_m = 1.0;
 };
 
 /// Line consensus parameters. The first three are the paper's (§IV-B); the
@@ -170,7 +161,6 @@ struct PointConsensusResult {
     std::size_t rejected_groups = 0;  ///< groups below the required support
     std::size_t retired_groups = 0;
     std::size_t split_groups = 0;   ///< components split into several modes
-    std::size_t on_lines = 0;       ///< removed as parts of line landmarks
     std::size_t largest_group = 0;  ///< members of the largest accepted group
   } stats;
 };
@@ -220,12 +210,6 @@ PointConsensusResult consensus_points(std::span<const TaggedPointCandidate> cand
 LineConsensusResult consensus_lines(std::span<const TaggedLineCandidate> candidates,
                                     const LineConsensusConfig& cfg = {},
                                     const VisibilityIndex* view = nullptr);
-
-/// Removes the point landmarks that lie on a line landmark (PointConsensusConfig::
-/// on_line_max_distance_m) from `points` (landmarks, support, verdicts stay parallel);
-/// returns how many. Retired points are left as they are.
-std::size_t remove_points_on_lines(PointConsensusResult& points, const LineConsensusResult& lines,
-                                   const PointConsensusConfig& cfg = {});
 
 /// Pair measures of the line consensus, exposed for tests and the matcher.
 struct LinePairDistance {

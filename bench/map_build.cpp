@@ -507,6 +507,30 @@ class SimSource final : public DriveSource {
       for (int v : h) std::printf(" %4d", v);
       std::printf("\n");
     }
+    // False line length (0.25 m samples farther than the radius from line truth) by the
+    // nearest world object.
+    std::map<std::string, double> line_cls;
+    const NearIndex near_truth(truth_.lines);
+    for (const auto& l : lms.lines) {
+      std::vector<Eigen::Vector2d> pl;
+      for (const auto& g : l.polyline) pl.push_back(world_->frame.to_local(g));
+      for (const auto& x : samples(pl, 0.25)) {
+        if (near_truth.near(x, radius_m)) continue;
+        double best = 2.0;
+        std::string name = "nothing within 2 m";
+        for (const auto& o : world_->objects) {
+          double d = 1e9;
+          if (o.geometry_m.size() == 1) d = (o.geometry_m[0] - x).norm();
+          for (std::size_t i = 0; i + 1 < o.geometry_m.size(); ++i)
+            d = std::min(d, point_segment_distance(x, o.geometry_m[i], o.geometry_m[i + 1]));
+          if (d < best) best = d, name = std::string(sim::to_string(o.cls)) + (o.permanent ? "" : " (temporary)");
+        }
+        line_cls[name] += 0.25;
+      }
+    }
+    std::printf("  false line length (m) by nearest world object:");
+    for (const auto& [k, v] : line_cls) std::printf(" %s %.0f;", k.c_str(), v);
+    std::printf("\n");
     std::printf("  false point landmarks by nearest world object:");
     for (const auto& [k, v] : cls) std::printf(" %s %d;", k.c_str(), v);
     std::printf("\n");

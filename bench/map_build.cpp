@@ -523,7 +523,9 @@ class SimSource final : public DriveSource {
           if (o.geometry_m.size() == 1) d = (o.geometry_m[0] - x).norm();
           for (std::size_t i = 0; i + 1 < o.geometry_m.size(); ++i)
             d = std::min(d, point_segment_distance(x, o.geometry_m[i], o.geometry_m[i + 1]));
-          if (d < best) best = d, name = std::string(sim::to_string(o.cls)) + (o.permanent ? "" : " (temporary)");
+          if (d < best)
+            best = d,
+            name = std::string(sim::to_string(o.cls)) + (o.permanent ? "" : " (temporary)");
         }
         line_cls[name] += 0.25;
       }
@@ -636,6 +638,13 @@ int main(int argc, char** argv) {
         static_cast<long long>(part.stats.tiles_written),
         static_cast<long long>(part.stats.tiles_reused),
         static_cast<double>(ru.ru_maxrss) / 1024.0);
+    std::printf(
+        "       short build: load %.3f s, consensus %.3f s, landmarks %.3f s, tiles %.3f s, "
+        "total %.3f s (%s, %lld landmarks copied)\n",
+        part.stats.seconds_load, part.stats.seconds_consensus, part.stats.seconds_landmarks,
+        part.stats.seconds_tiles, part.stats.seconds_total,
+        part.stats.incremental_from ? "incremental" : "full",
+        static_cast<long long>(part.stats.landmarks_copied));
     std::fflush(stdout);
   }
   std::printf(

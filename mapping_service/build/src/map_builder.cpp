@@ -160,6 +160,9 @@ nlohmann::json to_json(const MapBuildStats& s) {
   j["gridmap_drives"] = s.gridmap_drives;
   j["previous_version"] =
       s.previous_version ? nlohmann::json(*s.previous_version) : nlohmann::json();
+  j["incremental_from"] =
+      s.incremental_from ? nlohmann::json(*s.incremental_from) : nlohmann::json();
+  j["landmarks_copied"] = s.landmarks_copied;
   j["changes"] = {{"against_version",
                    s.changes_against ? nlohmann::json(*s.changes_against) : nlohmann::json()},
                   {"added", s.landmarks_added},
@@ -275,6 +278,84 @@ std::vector<DrivePass> drive_passes(const MapStore& store, const std::optional<G
   return passes;
 }
 
+tiles::GeoBox polyline_box(const std::vector<GeoPoint>& pl) {
+  tiles::GeoBox b{90, 180, -90, -180};
+  for (const auto& g : pl) {
+    b.min_lat_deg = std::min(b.min_lat_deg, g.lat_deg);
+    b.max_lat_deg = std::max(b.max_lat_deg, g.lat_deg);
+    b.min_lon_deg = std::min(b.min_lon_deg, g.lon_deg);
+    b.max_lon_deg = std::max(b.max_lon_deg, g.lon_deg);
+  }
+  return b;
+}
+
+tiles::GeoBox union_box(const tiles::GeoBox& a, const tiles::GeoBox& b) {
+  return {std::min(a.min_lat_deg, b.min_lat_deg), std::min(a.min_lon_deg, b.min_lon_deg),
+          std::max(a.max_lat_deg, b.max_lat_deg), std::max(a.max_lon_deg, b.max_lon_deg)};
+}
+
+/// The drive rows a build uses (all drives but the excluded ones), ascending.
+std::vector<std::int64_t> drive_rows(const std::vector<DriveRecord>& drives,
+                                     const std::vector<std::string>& excluded) {
+  const std::set<std::string> skip(excluded.begin(), excluded.end());
+  std::vector<std::int64_t> rows;
+  for (const auto& d : drives) {
+    if (!skip.contains(d.drive_id)) rows.push_back(d.row);
+  }
+  std::sort(rows.begin(), rows.end());
+  return rows;
+}
+
+/// Incremental build plan: when the current version was built with the same request
+/// (whole store, same exclusions and parameters) from a subset of today's drives, only
+/// the area the new drives can influence is rebuilt: their boxes, grown by the largest
+/// view range (their passes change verdicts that far) and the consensus margin.
+/// nullopt: a full build (drives were removed, parameters changed, or the new drives
+/// touch most of the map).
+std::optional<tiles::GeoBox> incremental_area(const MapStore& store, const MapBuildRequest& req,
+                                              const nlohmann::json& request_params,
+                                              std::int64_t current,
+                                              const std::vector<DriveRecord>& drives,
+                                              double margin_m) {
+  if (!req.incremental || req.region) return std::nullopt;
+  const auto info = store.get_map_version(current);
+  if (!info || !info->statistics.is_object() || !info->statistics.contains("drive_rows")) {
+    return std::nullopt;
+  }
+  nlohmann::json a = info->parameters, b = request_params;
+  for (auto* j : {&a, &b}) {
+    j->erase("notes");
+    j->erase("make_current");
+    j->erase("incremental");
+  }
+  if (a != b) return std::nullopt;
+  std::vector<std::int64_t> before;
+  for (const auto& r : info->statistics["drive_rows"]) {
+    if (!r.is_number_integer()) return std::nullopt;
+    before.push_back(r.get<std::int64_t>());
+  }
+  std::sort(before.begin(), before.end());
+  const std::vector<std::int64_t> now = drive_rows(drives, req.excluded_drive_ids);
+  if (!std::includes(now.begin(), now.end(), before.begin(), before.end())) return std::nullopt;
+  std::optional<tiles::GeoBox> added, all;
+  for (const auto& d : drives) {
+    if (!std::binary_search(now.begin(), now.end(), d.row)) continue;
+    all = all ? union_box(*all, d.bbox) : d.bbox;
+    if (!std::binary_search(before.begin(), before.end(), d.row)) {
+      added = added ? union_box(*added, d.bbox) : d.bbox;
+    }
+  }
+  if (!added || !all) return std::nullopt;
+  const tiles::GeoBox area = grow_box(*added, req.visibility.max_view_range_m + margin_m);
+  // Mostly new: a full build costs about the same and has no seams.
+  const double area_deg2 =
+      (area.max_lat_deg - area.min_lat_deg) * (area.max_lon_deg - area.min_lon_deg);
+  const double all_deg2 =
+      (all->max_lat_deg - all->min_lat_deg) * (all->max_lon_deg - all->min_lon_deg);
+  if (area_deg2 >= 0.5 * all_deg2) return std::nullopt;
+  return area;
+}
+
 /// The frame position as a geodetic point quantized to 1e-8 degrees (stable keys).
 GeoPoint to_geo_quantized(const tiles::LocalFrame& frame, const Eigen::Vector2d& xy) {
   const GeoPoint g = frame.to_geo(xy);
@@ -316,11 +397,8 @@ std::vector<StoredLineLandmark> stored_lines(
     const auto& lm = lc.landmarks[i];
     StoredLineLandmark s;
     for (const auto& v : lm.polyline_m) s.polyline.push_back(to_geo_quantized(frame, v));
-    if (region) {
-      bool inside = false;
-      for (const auto& g : s.polyline) inside = inside || region->contains(g.lat_deg, g.lon_deg);
-      if (!inside) continue;
-    }
+    // Lines whose bounding box meets the region (as MapStore::landmarks_in selects them).
+    if (region && !region->intersects(polyline_box(s.polyline))) continue;
     s.key = landmark_key(true, s.polyline);
     if (i < lc.verdicts.size()) verdicts[s.key] = lc.verdicts[i];
     s.support_drives = lm.support_drives;
@@ -475,11 +553,19 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version, const MapB
     const double margin_m =
         2.0 * std::max(req.points.max_pair_distance_m,
                        req.lines.max_projection_distance_m + req.lines.max_hull_distance_m);
-    std::optional<tiles::GeoBox> query;
-    if (req.region) query = grow_box(*req.region, margin_m);
     // The version this build follows: tiles are reused from it and changes recorded
     // against it (read once, so both refer to the same version).
     const std::optional<std::int64_t> current = store.current_map_version();
+    const std::vector<DriveRecord> all_drives = store.list_drives();
+    const nlohmann::json params = request_json(req, cfg_);
+    // Incremental: only `area` is rebuilt; the rest of the current version carries over.
+    const std::optional<tiles::GeoBox> area =
+        current ? incremental_area(store, req, params, *current, all_drives, margin_m)
+                : std::nullopt;
+    const std::optional<tiles::GeoBox> build_region = area ? area : req.region;
+    st.incremental_from = area ? current : std::nullopt;
+    std::optional<tiles::GeoBox> query;
+    if (build_region) query = grow_box(*build_region, margin_m);
     const CandidateSet cands = store.candidates_in(query, req.excluded_drive_ids);
     st.point_candidates = static_cast<std::int64_t>(cands.points.size());
     st.line_candidates = static_cast<std::int64_t>(cands.lines.size());
@@ -489,7 +575,7 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version, const MapB
       for (const auto& l : cands.lines) drives.insert(l.drive);
       st.drives_used = static_cast<std::int64_t>(drives.size());
     }
-    const tiles::LocalFrame frame(region_centre(req.region, cands));
+    const tiles::LocalFrame frame(region_centre(build_region, cands));
     const std::vector<TaggedPointCandidate> tp = tagged_points(cands, frame);
     const std::vector<TaggedLineCandidate> tl = tagged_lines(cands, frame);
     const VisibilityIndex view(
@@ -509,10 +595,27 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version, const MapB
     // ---------------------------------------------------------------- landmarks
     stage("landmarks", 0.4);
     std::unordered_map<std::int64_t, SupportVerdict> verdicts;
-    const std::vector<StoredPointLandmark> points = stored_points(pc, frame, req.region, verdicts);
-    const std::vector<StoredLineLandmark> lines = stored_lines(lc, frame, req.region, verdicts);
+    const std::vector<StoredPointLandmark> points =
+        stored_points(pc, frame, build_region, verdicts);
+    const std::vector<StoredLineLandmark> lines = stored_lines(lc, frame, build_region, verdicts);
     st.point_landmarks = static_cast<std::int64_t>(points.size());
     st.line_landmarks = static_cast<std::int64_t>(lines.size());
+    // The current version's landmarks in the rebuilt area (replaced) and outside it
+    // (copied unchanged).
+    LandmarkSet replaced;
+    if (area) {
+      replaced = store.landmarks_in(*current, area, false);
+      std::vector<std::int64_t> ids;
+      for (const auto& p : replaced.points) ids.push_back(p.id);
+      for (const auto& l : replaced.lines) ids.push_back(l.id);
+      st.landmarks_copied = store.copy_landmarks(*current, version, ids);
+      const auto prev_info = store.get_map_version(*current);
+      const auto& ps = prev_info->statistics;
+      st.point_landmarks += ps.value("point_landmarks", std::int64_t{0}) -
+                            static_cast<std::int64_t>(replaced.points.size());
+      st.line_landmarks += ps.value("line_landmarks", std::int64_t{0}) -
+                           static_cast<std::int64_t>(replaced.lines.size());
+    }
     for (std::size_t b = 0; b < points.size(); b += cfg_.write_batch) {
       stage("landmarks", 0.4);
       const std::size_t e = std::min(points.size(), b + cfg_.write_batch);
@@ -526,7 +629,7 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version, const MapB
     // What changed against the current version (recorded with this version; the
     // diff endpoint reads the reasons from here).
     if (const auto& prev = current) {
-      const LandmarkSet previous = store.landmarks_in(*prev, req.region, false);
+      const LandmarkSet previous = area ? replaced : store.landmarks_in(*prev, req.region, false);
       const std::vector<LandmarkChange> changes =
           changes_with_reasons(previous, points, lines, verdicts, pc, lc, frame, cfg_.diff);
       for (const auto& ch : changes) {
@@ -548,6 +651,41 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version, const MapB
     const int z = cfg_.tile_zoom;
     std::map<tiles::TileKey, tiles::LocalizationTile> content =
         localization_tile_content(points, lines, frame, z, cfg_.line_tile_sample_m);
+    std::int64_t tiles_copied = 0;
+    std::set<tiles::TileKey> affected;
+    if (area) {
+      // Tiles that hold a new or a replaced landmark are re-encoded from everything the
+      // new version has there (new landmarks plus copied ones); the others are copied.
+      for (const auto& [k, t] : content) affected.insert(k);
+      for (const auto& [k, t] : localization_tile_content(replaced.points, replaced.lines, frame, z,
+                                                          cfg_.line_tile_sample_m)) {
+        affected.insert(k);
+      }
+      if (!affected.empty()) {
+        std::optional<tiles::GeoBox> box;
+        for (const auto& k : affected) {
+          box = box ? union_box(*box, tiles::tile_bounds(k)) : tiles::tile_bounds(k);
+        }
+        std::set<std::int64_t> replaced_ids;
+        for (const auto& p : replaced.points) replaced_ids.insert(p.id);
+        for (const auto& l : replaced.lines) replaced_ids.insert(l.id);
+        LandmarkSet around = store.landmarks_in(*current, box, false);
+        std::vector<StoredPointLandmark> all_points = points;
+        std::vector<StoredLineLandmark> all_lines = lines;
+        for (auto& p : around.points) {
+          if (!replaced_ids.contains(p.id)) all_points.push_back(std::move(p));
+        }
+        for (auto& l : around.lines) {
+          if (!replaced_ids.contains(l.id)) all_lines.push_back(std::move(l));
+        }
+        content =
+            localization_tile_content(all_points, all_lines, frame, z, cfg_.line_tile_sample_m);
+        std::erase_if(content, [&](const auto& kv) { return !affected.contains(kv.first); });
+      }
+      const std::vector<tiles::TileKey> except(affected.begin(), affected.end());
+      tiles_copied = store.copy_tiles(*current, version, TileLayer::Localization, except);
+      st.tiles_reused += tiles_copied;
+    }
     std::map<tiles::TileKey, std::string> prev_etags;
     if (req.incremental) {
       st.previous_version = current;
@@ -601,9 +739,10 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version, const MapB
         flush(TileLayer::Localization);
     }
     flush(TileLayer::Localization);
-    st.tiles_total = static_cast<std::int64_t>(content.size());
+    st.tiles_total = static_cast<std::int64_t>(content.size()) + tiles_copied;
     for (const auto& [key, etag] : prev_etags) {
-      if (!content.contains(key)) ++st.tiles_removed;
+      // Previous tiles with no successor (incremental: only affected ones can vanish).
+      if (!content.contains(key) && (!area || affected.contains(key))) ++st.tiles_removed;
     }
     st.seconds_tiles = clock.lap();
 
@@ -680,6 +819,8 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version, const MapB
     stage("publish", 0.95);
     st.seconds_total = clock.total();
     nlohmann::json stats = to_json(st);
+    // The drives this version was built from (the next build's incremental plan).
+    stats["drive_rows"] = drive_rows(all_drives, req.excluded_drive_ids);
     stats["gridmap"] = gridmap_info;
     store.publish_map_version(version, stats, req.make_current);
     if (ctl.progress) ctl.progress("publish", 1.0);

@@ -133,6 +133,85 @@ std::optional<LandmarkChangeKind> parse_landmark_change_kind(std::string_view s)
   return std::nullopt;
 }
 
+std::int64_t SqliteMapStore::copy_landmarks(std::int64_t from, std::int64_t to,
+                                            std::span<const std::int64_t> except_ids) {
+  return impl_->write([&](Connection& c) {
+    Impl::require_published(c, from);
+    Impl::require_building(c, to);
+    c.exec(
+        "CREATE TEMP TABLE IF NOT EXISTS copy_except(id INTEGER PRIMARY KEY); "
+        "CREATE TEMP TABLE IF NOT EXISTS copy_map(old_id INTEGER PRIMARY KEY, new_id INTEGER); "
+        "DELETE FROM copy_except; DELETE FROM copy_map;");
+    for (std::int64_t id : except_ids) {
+      c.stmt("INSERT OR IGNORE INTO copy_except(id) VALUES (?1)").bind(1, id).run();
+    }
+    std::vector<std::int64_t> old_ids;
+    {
+      auto s = c.stmt(
+          "SELECT id FROM landmarks WHERE version = ?1 AND id NOT IN (SELECT id FROM "
+          "copy_except) ORDER BY id");
+      s.bind(1, from);
+      while (s.step()) old_ids.push_back(s.i64(0));
+    }
+    for (std::int64_t old_id : old_ids) {
+      c.stmt(
+           "INSERT INTO landmarks(version, key, kind, lat_deg, lon_deg, polyline_json, "
+           "scattering, support_drives, spread_m) SELECT ?1, key, kind, lat_deg, lon_deg, "
+           "polyline_json, scattering, support_drives, spread_m FROM landmarks WHERE id = ?2")
+          .bind(1, to)
+          .bind(2, old_id)
+          .run();
+      const std::int64_t new_id = c.last_id();
+      c.stmt(
+           "INSERT INTO landmarks_rtree(id, min_lat, max_lat, min_lon, max_lon) SELECT ?1, "
+           "min_lat, max_lat, min_lon, max_lon FROM landmarks_rtree WHERE id = ?2")
+          .bind(1, new_id)
+          .bind(2, old_id)
+          .run();
+      c.stmt("INSERT INTO copy_map(old_id, new_id) VALUES (?1, ?2)")
+          .bind(1, old_id)
+          .bind(2, new_id)
+          .run();
+    }
+    c.exec(
+        "INSERT INTO landmark_support(landmark, candidate) SELECT m.new_id, s.candidate FROM "
+        "copy_map m JOIN landmark_support s ON s.landmark = m.old_id; "
+        "DELETE FROM copy_except; DELETE FROM copy_map;");
+    return static_cast<std::int64_t>(old_ids.size());
+  });
+}
+
+std::int64_t SqliteMapStore::copy_tiles(std::int64_t from, std::int64_t to, TileLayer layer,
+                                        std::span<const tiles::TileKey> except_keys) {
+  return impl_->write([&](Connection& c) {
+    Impl::require_published(c, from);
+    Impl::require_building(c, to);
+    c.exec(
+        "CREATE TEMP TABLE IF NOT EXISTS copy_tile_except(z INTEGER, x INTEGER, y INTEGER, "
+        "PRIMARY KEY (z, x, y)); DELETE FROM copy_tile_except;");
+    for (const auto& k : except_keys) {
+      c.stmt("INSERT OR IGNORE INTO copy_tile_except(z, x, y) VALUES (?1, ?2, ?3)")
+          .bind(1, k.z)
+          .bind(2, k.x)
+          .bind(3, k.y)
+          .run();
+    }
+    const std::string table = tile_table(layer);
+    c.stmt("INSERT INTO " + table +
+           "(version, z, x, y, blob, num_points, num_lines) SELECT ?1, t.z, t.x, t.y, t.blob, "
+           "t.num_points, t.num_lines FROM " +
+           table +
+           " t WHERE t.version = ?2 AND NOT EXISTS (SELECT 1 FROM copy_tile_except e WHERE "
+           "e.z = t.z AND e.x = t.x AND e.y = t.y)")
+        .bind(1, to)
+        .bind(2, from)
+        .run();
+    const auto n = static_cast<std::int64_t>(c.changes());
+    c.exec("DELETE FROM copy_tile_except;");
+    return n;
+  });
+}
+
 void SqliteMapStore::put_landmark_changes(std::int64_t version,
                                           std::span<const LandmarkChange> changes) {
   impl_->write([&](Connection& c) {

@@ -122,6 +122,16 @@ class WriteTriggerStore final : public MapStore {
     if (before_write) before_write("put_landmarks");
     s_.put_landmarks(v, p, l);
   }
+  std::int64_t copy_landmarks(std::int64_t f, std::int64_t t,
+                              std::span<const std::int64_t> ex) override {
+    if (before_write) before_write("copy_landmarks");
+    return s_.copy_landmarks(f, t, ex);
+  }
+  std::int64_t copy_tiles(std::int64_t f, std::int64_t t, TileLayer l,
+                          std::span<const tiles::TileKey> ex) override {
+    if (before_write) before_write("copy_tiles");
+    return s_.copy_tiles(f, t, l, ex);
+  }
   void put_landmark_changes(std::int64_t v, std::span<const LandmarkChange> ch) override {
     if (before_write) before_write("put_landmark_changes");
     s_.put_landmark_changes(v, ch);

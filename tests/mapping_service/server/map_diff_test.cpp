@@ -98,8 +98,8 @@ class MapDiffTest : public ServerFixture {
   }
   /// Drive-frame position of a change's (first) geometry vertex.
   static Eigen::Vector2d at(const json& geometry) {
-    return scene_frame().to_local(GeoPoint{geometry[0]["lat_deg"].get<double>(),
-                                           geometry[0]["lon_deg"].get<double>(), 0.0});
+    return scene_frame().to_local(
+        GeoPoint{geometry[0]["lat_deg"].get<double>(), geometry[0]["lon_deg"].get<double>(), 0.0});
   }
 };
 
@@ -123,8 +123,7 @@ TEST_F(MapDiffTest, TheMapFollowsAWorldChangeAndTheDiffNamesIt) {
   EXPECT_EQ(stats["line_landmarks"], 1);
   EXPECT_EQ(stats["changes"]["against_version"], v1);
 
-  const json d =
-      get_json("/v1/maps/" + std::to_string(v2) + "/diff?from=" + std::to_string(v1));
+  const json d = get_json("/v1/maps/" + std::to_string(v2) + "/diff?from=" + std::to_string(v1));
   EXPECT_EQ(d["from"], v1);
   EXPECT_EQ(d["to"], v2);
   EXPECT_EQ(d["counts"]["added"], 1);
@@ -182,8 +181,7 @@ TEST_F(MapDiffTest, TheMapFollowsAWorldChangeAndTheDiffNamesIt) {
   }
 
   // Backwards: the same objects, roles swapped; no reasons (no version recorded them).
-  const json back =
-      get_json("/v1/maps/" + std::to_string(v1) + "/diff?from=" + std::to_string(v2));
+  const json back = get_json("/v1/maps/" + std::to_string(v1) + "/diff?from=" + std::to_string(v2));
   EXPECT_EQ(back["counts"]["added"], 2);
   EXPECT_EQ(back["counts"]["retired"], 1);
   EXPECT_EQ(back["counts"]["moved"], 1);

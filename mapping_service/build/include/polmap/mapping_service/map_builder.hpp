@@ -118,6 +118,9 @@ struct MapBuildStats {
   std::int64_t gridmap_tiles = 0;
   std::int64_t gridmap_drives = 0;  ///< drives whose gridmap was accumulated
   std::optional<std::int64_t> previous_version;
+  /// Incremental build: the version whose landmarks outside the rebuilt area were copied.
+  std::optional<std::int64_t> incremental_from;
+  std::int64_t landmarks_copied = 0;
   /// Landmark changes recorded against the version current when the build started.
   std::optional<std::int64_t> changes_against;
   std::int64_t landmarks_added = 0;

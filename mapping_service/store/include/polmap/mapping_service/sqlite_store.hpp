@@ -118,6 +118,10 @@ class SqliteMapStore final : public MapStore {
   std::int64_t begin_map_version(const nlohmann::json& parameters) override;
   void put_landmarks(std::int64_t version, std::span<const StoredPointLandmark> points,
                      std::span<const StoredLineLandmark> lines) override;
+  std::int64_t copy_landmarks(std::int64_t from, std::int64_t to,
+                              std::span<const std::int64_t> except_ids) override;
+  std::int64_t copy_tiles(std::int64_t from, std::int64_t to, TileLayer layer,
+                          std::span<const tiles::TileKey> except_keys) override;
   void put_landmark_changes(std::int64_t version, std::span<const LandmarkChange> changes) override;
   [[nodiscard]] std::vector<LandmarkChange> landmark_changes(std::int64_t version) const override;
   void put_tiles(std::int64_t version, TileLayer layer, std::span<const TileWrite> tiles) override;

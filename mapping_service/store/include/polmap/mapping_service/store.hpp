@@ -269,6 +269,16 @@ class MapStore {
   /// Adds landmarks to a Building version (may be called repeatedly).
   virtual void put_landmarks(std::int64_t version, std::span<const StoredPointLandmark> points,
                              std::span<const StoredLineLandmark> lines) = 0;
+  /// Copies the landmarks of published version `from` (with their support links) into
+  /// Building version `to`, except those whose row ids are in `except_ids` (incremental
+  /// builds: the landmarks outside the rebuilt area carry over unchanged). Returns the
+  /// number copied.
+  virtual std::int64_t copy_landmarks(std::int64_t from, std::int64_t to,
+                                      std::span<const std::int64_t> except_ids) = 0;
+  /// Copies the tiles of a layer of published version `from` into Building version `to`,
+  /// except those at `except_keys` (the blobs are shared). Returns the number copied.
+  virtual std::int64_t copy_tiles(std::int64_t from, std::int64_t to, TileLayer layer,
+                                  std::span<const tiles::TileKey> except_keys) = 0;
   /// Records landmark changes of a Building version against its previous version (may
   /// be called repeatedly; kept in call order).
   virtual void put_landmark_changes(std::int64_t version,

@@ -52,6 +52,15 @@
 --                     lon_deg, yaw_enu_rad, speed_mps], ...]; for map display (MVT, TileJSON
 --                     bounds) without opening the package. Drives ingested before migration 2
 --                     have no row.
+--   upload_sessions   (migration 3) resumable uploads in progress (POST /v1/uploads): id = 128
+--                     random bits as 32 lower-case hex digits; owner = fingerprint (SHA-256 hex)
+--                     of the API key that created it, never the key; the package's declared
+--                     length_bytes and optional sha256; offset_bytes = bytes received, fsynced
+--                     to the session file and acknowledged (the truth: bytes of the file beyond
+--                     it are cut off before the next chunk); file_path relative to the upload
+--                     session directory (<db>.uploads/, beside the drive store, reachable by
+--                     every replica). Sessions whose expires_at has passed are swept with their
+--                     files; nothing else is.
 
 -- bootstrap (every open)
 CREATE TABLE IF NOT EXISTS schema_migrations (
@@ -192,7 +201,23 @@ CREATE TABLE drive_trajectories (
   samples_json  TEXT NOT NULL
 );
 
--- migration 3: landmark changes recorded per map version (added, moved, retired, with reasons)
+-- migration 3: resumable upload sessions
+CREATE TABLE upload_sessions (
+  id           TEXT PRIMARY KEY CHECK (length(id) = 32),
+  owner        TEXT NOT NULL,
+  length_bytes INTEGER NOT NULL CHECK (length_bytes > 0),
+  offset_bytes INTEGER NOT NULL DEFAULT 0
+               CHECK (offset_bytes >= 0 AND offset_bytes <= length_bytes),
+  sha256       TEXT,
+  created_at   TEXT NOT NULL,
+  expires_at   TEXT NOT NULL,
+  file_path    TEXT NOT NULL
+) WITHOUT ROWID;
+CREATE INDEX upload_sessions_owner ON upload_sessions(owner, expires_at);
+CREATE INDEX upload_sessions_expires ON upload_sessions(expires_at);
+
+-- migration 4: landmark changes recorded per map version (added, moved, retired, with reasons);
+-- landmarks copied by an incremental build share their source's support links (support_of)
 CREATE TABLE landmark_changes (
   version                INTEGER NOT NULL REFERENCES map_versions(version) ON DELETE CASCADE,
   seq                    INTEGER NOT NULL,
@@ -207,3 +232,5 @@ CREATE TABLE landmark_changes (
   PRIMARY KEY (version, seq)
 ) WITHOUT ROWID;
 CREATE INDEX landmark_changes_key ON landmark_changes(key);
+ALTER TABLE landmarks ADD COLUMN support_of INTEGER;
+CREATE INDEX landmarks_support_of ON landmarks(support_of) WHERE support_of IS NOT NULL;

@@ -4,6 +4,7 @@
 // gracefully on SIGINT/SIGTERM (requests in flight finish, a running map build is cancelled
 // and marked failed).
 #include <CLI/CLI.hpp>
+#include <algorithm>
 #include <cstdio>
 #include <cstdlib>
 #if defined(__GLIBC__)
@@ -32,6 +33,9 @@ struct ServeOptions {
   std::string cors_origin;
   double retention_days = 0.0;
   int max_concurrent_uploads = 4;
+  double upload_session_ttl_h = 24.0;
+  int max_upload_sessions_per_key = 4;
+  double max_upload_session_mib_per_key = 2048.0;
   std::string upload_dir;
   std::string tls_cert;
   std::string tls_key;
@@ -72,6 +76,11 @@ void run(const ServeOptions& o) {
   cfg.cors_allow_origin = o.cors_origin;
   cfg.drive_retention_days = o.retention_days;
   cfg.max_concurrent_uploads = o.max_concurrent_uploads;
+  cfg.upload_session_ttl_s =
+      std::max<std::int64_t>(1, static_cast<std::int64_t>(o.upload_session_ttl_h * 3600.0));
+  cfg.max_upload_sessions_per_key = o.max_upload_sessions_per_key;
+  cfg.max_upload_session_bytes_per_key =
+      static_cast<std::uint64_t>(o.max_upload_session_mib_per_key * 1024.0 * 1024.0);
   cfg.upload_dir = o.upload_dir;
   cfg.tls_cert_file = o.tls_cert;
   cfg.tls_key_file = o.tls_key;
@@ -117,6 +126,18 @@ void setup(CLI::App& app) {
       ->required()
       ->check(CLI::ExistingFile);
   cmd->add_option("--max-upload-mib", opts->max_upload_mib, "Largest accepted package upload")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  cmd->add_option("--upload-session-ttl-h", opts->upload_session_ttl_h,
+                  "Resumable upload sessions expire this long after they were opened")
+      ->capture_default_str()
+      ->check(CLI::PositiveNumber);
+  cmd->add_option("--max-upload-sessions-per-key", opts->max_upload_sessions_per_key,
+                  "Unexpired resumable upload sessions one key may hold")
+      ->capture_default_str()
+      ->check(CLI::Range(0, 1000000));
+  cmd->add_option("--max-upload-session-mib-per-key", opts->max_upload_session_mib_per_key,
+                  "MiB the unexpired upload sessions of one key may declare in all")
       ->capture_default_str()
       ->check(CLI::PositiveNumber);
   cmd->add_option("--threads", opts->threads, "Worker threads (= concurrent connections)")

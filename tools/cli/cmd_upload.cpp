@@ -1,18 +1,29 @@
-// `polmap upload --server URL --package PKG --api-key KEY [--json]`: uploads one drive
-// package (a package directory, packed on the fly into the canonical ustar archive, or a
-// .tar file) to the mapping service: POST /v1/drives.
+// `polmap upload --server URL --package PKG --api-key KEY [--chunk-mb 8] [--retries 10] [--json]`:
+// uploads one drive package (a package directory, packed on the fly into the canonical ustar
+// archive, or a .tar file) to the mapping service. Up to --chunk-mb in one POST /v1/drives;
+// larger packages resumably: POST /v1/uploads, then PATCH chunks at the acknowledged offset;
+// after a dropped connection it waits (backoff), asks HEAD for the offset and continues from
+// there, so no byte the server acknowledged is sent again. A server without /v1/uploads (404)
+// gets the single POST.
 #include <CLI/CLI.hpp>
+#include <algorithm>
+#include <charconv>
+#include <chrono>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <memory>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <sstream>
 #include <string>
+#include <thread>
 
 #include "command.hpp"
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/schema/errors.hpp"
+#include "polmap/util/sha256.hpp"
+#include "progress.hpp"
 
 // Last: httplib pulls in <resolv.h>, whose `_res` macro breaks Eigen templates.
 #include "http_client.hpp"
@@ -25,6 +36,12 @@ struct UploadOptions {
   std::string package;
   std::string api_key;
   int timeout_s = 600;
+  /// Packages above this go resumably, in chunks of this size (MiB; fractions allowed).
+  double chunk_mb = 8.0;
+  /// Dropped connections or busy answers in a row before the upload gives up.
+  int retries = 10;
+  /// First wait after a failure; doubled per failure in a row, at most 30 s.
+  double backoff_s = 0.5;
   bool json = false;
 };
 
@@ -36,7 +53,139 @@ std::string read_file(const std::filesystem::path& p) {
   return ss.str();
 }
 
+std::optional<std::uint64_t> parse_offset(const std::string& s) {
+  std::uint64_t v = 0;
+  const auto [p, ec] = std::from_chars(s.data(), s.data() + s.size(), v);
+  if (ec != std::errc{} || p != s.data() + s.size() || s.empty()) return std::nullopt;
+  return v;
+}
+
+/// What the resumable upload did.
+struct ResumableOutcome {
+  httplib::Response response;    ///< the server's answer to the last chunk (201/200)
+  int reconnects = 0;            ///< failed requests retried
+  std::uint64_t sent_bytes = 0;  ///< chunk bytes handed to the connection, all attempts
+};
+
+/// The resumable protocol (schema/openapi.yaml, /v1/uploads). nullopt: the server has no
+/// /v1/uploads (an older server), nothing was sent.
+std::optional<ResumableOutcome> upload_resumable(const UploadOptions& o, const std::string& body,
+                                                 std::size_t chunk_bytes) {
+  auto cli = make_client(o.server, o.timeout_s);
+  const httplib::Headers auth{{"Authorization", "Bearer " + o.api_key}};
+  ResumableOutcome out;
+  int failures = 0;
+  // A failed request: wait, or give up after --retries in a row.
+  auto fail = [&](const std::string& why) {
+    if (++failures > o.retries) {
+      throw IoError("upload of " + o.package + ": giving up after " + std::to_string(o.retries) +
+                    " retries (" + why + ")");
+    }
+    ++out.reconnects;
+    const double wait =
+        std::min(30.0, o.backoff_s * static_cast<double>(1 << std::min(failures - 1, 10)));
+    std::fprintf(stderr, "upload: %s; retrying in %.1f s\n", why.c_str(), wait);
+    std::this_thread::sleep_for(std::chrono::duration<double>(wait));
+  };
+  auto transient = [](const httplib::Result& r) {
+    return !r || r->status == 503 || r->status == 502 || r->status == 504 ||
+           (r->status == 409 && r->has_header("Retry-After"));
+  };
+  auto why = [](const httplib::Result& r) {
+    return r ? "server answered " + std::to_string(r->status)
+             : "connection failed: " + httplib::to_string(r.error());
+  };
+
+  httplib::Headers create = auth;
+  create.emplace("Upload-Length", std::to_string(body.size()));
+  create.emplace("Upload-Sha256", util::sha256_hex(body));
+  std::string location;
+  for (;;) {
+    const auto r = cli->Post("/v1/uploads", create, "", "application/json");
+    if (r && (r->status == 404 || r->status == 405)) return std::nullopt;
+    if (transient(r)) {
+      fail(why(r));
+      continue;
+    }
+    location = expect_ok(r, o.server, "upload of " + o.package).get_header_value("Location");
+    if (!location.starts_with("/v1/uploads/")) {
+      throw Error("upload of " + o.package + ": the server's Location '" + location +
+                  "' is not an upload session");
+    }
+    break;
+  }
+  failures = 0;
+
+  Progress progress("upload " + std::filesystem::path(o.package).filename().string(),
+                    static_cast<double>(body.size()));
+  std::uint64_t offset = 0;
+  for (;;) {
+    const std::size_t n = std::min<std::size_t>(chunk_bytes, body.size() - offset);
+    httplib::Headers h = auth;
+    h.emplace("Upload-Offset", std::to_string(offset));
+    const std::uint64_t base = offset;
+    const auto r = cli->Patch(
+        location, h, n,
+        [&](std::size_t at, std::size_t length, httplib::DataSink& sink) {
+          const std::size_t piece = std::min<std::size_t>(length, 64u << 10);
+          if (!sink.write(body.data() + base + at, piece)) return false;
+          out.sent_bytes += piece;
+          progress.update(static_cast<double>(base + at + piece));
+          return true;
+        },
+        "application/offset+octet-stream");
+    if (r && (r->status == 201 || r->status == 200)) {
+      out.response = *r;
+      return out;
+    }
+    if (r && r->status == 204) {
+      const auto next = parse_offset(r->get_header_value("Upload-Offset"));
+      if (!next || *next <= offset || *next > body.size()) {
+        throw Error("upload of " + o.package + ": the server acknowledged offset '" +
+                    r->get_header_value("Upload-Offset") + "' after " + std::to_string(offset));
+      }
+      offset = *next;
+      failures = 0;
+      continue;
+    }
+    if (r && r->status == 409 && !r->has_header("Retry-After")) {
+      // Not the server's offset (an earlier chunk arrived after all): continue from its.
+      const auto next = parse_offset(r->get_header_value("Upload-Offset"));
+      if (!next || *next > body.size()) expect_ok(r, o.server, "upload of " + o.package);
+      offset = *next;
+      fail("the server's offset is " + std::to_string(offset));
+      continue;
+    }
+    if (!transient(r)) expect_ok(r, o.server, "upload of " + o.package);  // throws
+    fail(why(r));
+    // Where did the server stop? Its offset is the truth; continue from there.
+    for (;;) {
+      const auto s = cli->Head(location, auth);
+      if (s && s->status == 200) {
+        const auto at = parse_offset(s->get_header_value("Upload-Offset"));
+        if (!at || *at > body.size()) {
+          throw Error("upload of " + o.package + ": the server's Upload-Offset '" +
+                      s->get_header_value("Upload-Offset") + "' is not an offset");
+        }
+        offset = *at;
+        break;
+      }
+      if (s && (s->status == 404 || s->status == 410) && base + n == body.size()) {
+        throw Error("upload of " + o.package +
+                    ": the answer to the last chunk was lost and the session is over, so the "
+                    "package was most likely stored; upload it again to check (a stored "
+                    "package is answered 'already present')");
+      }
+      if (!transient(s)) expect_ok(s, o.server, "upload of " + o.package);  // throws
+      fail(why(s));
+    }
+  }
+}
+
 void run(const UploadOptions& o) {
+  if (!(o.chunk_mb > 0.0) || o.chunk_mb > 1024.0) {
+    throw ValidationError("--chunk-mb must be in (0, 1024], got " + std::to_string(o.chunk_mb));
+  }
   const std::filesystem::path pkg(o.package);
   std::string body;
   if (std::filesystem::is_directory(pkg)) {
@@ -46,10 +195,19 @@ void run(const UploadOptions& o) {
   } else {
     throw IoError("--package " + o.package + ": no such directory or file");
   }
-  auto cli = make_client(o.server, o.timeout_s);
-  httplib::Headers headers{{"Authorization", "Bearer " + o.api_key}};
-  const auto r = cli->Post("/v1/drives", headers, body, "application/x-tar");
-  const auto& res = expect_ok(r, o.server, "upload of " + o.package);
+  const auto chunk_bytes =
+      std::max<std::size_t>(1, static_cast<std::size_t>(o.chunk_mb * 1024.0 * 1024.0));
+  std::optional<ResumableOutcome> resumable;
+  if (body.size() > chunk_bytes) resumable = upload_resumable(o, body, chunk_bytes);
+  httplib::Response res;
+  if (resumable) {
+    res = resumable->response;
+  } else {
+    auto cli = make_client(o.server, o.timeout_s);
+    httplib::Headers headers{{"Authorization", "Bearer " + o.api_key}};
+    const auto r = cli->Post("/v1/drives", headers, body, "application/x-tar");
+    res = expect_ok(r, o.server, "upload of " + o.package);
+  }
   if (o.json) {
     std::printf("%s\n", res.body.c_str());
     return;
@@ -59,8 +217,14 @@ void run(const UploadOptions& o) {
     id = nlohmann::json::parse(res.body).value("drive_id", "?");
   } catch (const std::exception&) {
   }
-  std::printf("drive %s %s (%zu bytes)\n", id.c_str(),
-              res.status == 201 ? "uploaded" : "already present, not changed", body.size());
+  std::string how;
+  if (resumable) {
+    how = ", resumable: " + std::to_string(resumable->sent_bytes) + " bytes sent, " +
+          std::to_string(resumable->reconnects) + " retries";
+  }
+  std::printf("drive %s %s (%zu bytes%s)\n", id.c_str(),
+              res.status == 201 ? "uploaded" : "already present, not changed", body.size(),
+              how.c_str());
 }
 
 void setup(CLI::App& app) {
@@ -72,6 +236,15 @@ void setup(CLI::App& app) {
       ->required()
       ->envname("POLMAP_API_KEY");
   cmd->add_option("--timeout-s", opts->timeout_s, "Read/write timeout")->capture_default_str();
+  cmd->add_option("--chunk-mb", opts->chunk_mb,
+                  "Packages larger than this go resumably, in chunks of this many MiB")
+      ->capture_default_str();
+  cmd->add_option("--retries", opts->retries,
+                  "Failed requests in a row (dropped connection, busy server) before giving up")
+      ->capture_default_str();
+  cmd->add_option("--backoff-s", opts->backoff_s,
+                  "First wait after a failure (doubled per failure in a row, at most 30 s)")
+      ->capture_default_str();
   cmd->add_flag("--json", opts->json, "Print the server's JSON answer");
   cmd->callback([opts] { run(*opts); });
 }

@@ -129,10 +129,12 @@ Server::Impl::Impl(MapStore& s, ServerConfig config)
   if (!cfg.cors_allow_origin.empty()) {
     http.set_default_headers({{"Access-Control-Allow-Origin", cfg.cors_allow_origin},
                               {"Access-Control-Expose-Headers",
-                               "ETag, Location, Content-Encoding, X-Polmap-Map-Version"}});
+                               "ETag, Location, Content-Encoding, X-Polmap-Map-Version, "
+                               "Upload-Offset, Upload-Length, Upload-Expires"}});
   }
   sweep_upload_dir();
   (void)apply_retention();
+  (void)sweep_upload_sessions();
   register_routes();
   build_thread = std::thread([this] { build_loop(); });
   if (cfg.fail_stale_builds_on_start) {
@@ -426,7 +428,7 @@ bool Server::Impl::admit(const httplib::Request& req, httplib::Response& res) co
   if (!write) return true;
   // Uploads: their handler checks the key before it reads a byte, drains a small refused
   // body (the keep-alive connection survives) and streams the rest to disk, capped.
-  const bool upload = req.method == "POST" && req.path == "/v1/drives";
+  const bool upload = (req.method == "POST" && req.path == "/v1/drives") || is_upload_chunk(req);
   if (upload) return true;
   // Other writes without a valid key: refused before the body is read unless it is tiny
   // (then the handler answers 401 on a connection that stays usable).
@@ -471,14 +473,24 @@ void Server::Impl::register_routes() {
     t_start = Clock::now();
     t_route = nullptr;
     if (!admit(req, res)) return res.status;
-    const bool upload = req.method == "POST" && req.path == "/v1/drives";
+    const bool chunk = is_upload_chunk(req);
+    const bool upload = (req.method == "POST" && req.path == "/v1/drives") || chunk;
     if (req.method == "GET" || req.method == "HEAD" || req.method == "OPTIONS") return 100;
     if (!require(req, res, upload ? Access::Upload : Access::AnyKey)) {
-      set_route(upload ? "drives_upload" : "refused");
+      set_route(chunk ? "uploads_patch" : upload ? "drives_upload" : "refused");
       res.set_header("Connection", "close");
       return res.status;
     }
     const auto len = http::parse_int(req.get_header_value("Content-Length"));
+    if (chunk && len && *len > 0 && static_cast<std::uint64_t>(*len) > cfg.max_upload_chunk_bytes) {
+      set_route("uploads_patch");
+      reply_error(res, 413,
+                  "chunk of " + std::to_string(*len) + " bytes exceeds the chunk limit of " +
+                      std::to_string(cfg.max_upload_chunk_bytes) + " bytes",
+                  "Content-Length", {{"limit_bytes", cfg.max_upload_chunk_bytes}});
+      res.set_header("Connection", "close");
+      return 413;
+    }
     if (upload && len && *len > 0 && static_cast<std::uint64_t>(*len) > cfg.max_upload_bytes) {
       set_route("drives_upload");
       reply_error(res, 413,
@@ -557,11 +569,12 @@ void Server::Impl::register_routes() {
   http.Options(R"(/.*)", [](const httplib::Request&, httplib::Response& res) {
     set_route("preflight");
     res.status = 204;
-    res.set_header("Access-Control-Allow-Methods", "GET, HEAD, POST, DELETE, OPTIONS");
+    res.set_header("Access-Control-Allow-Methods", "GET, HEAD, POST, PATCH, DELETE, OPTIONS");
     res.set_header("Access-Control-Allow-Headers",
-                   "Authorization, Content-Type, If-None-Match, Accept-Encoding");
+                   "Authorization, Content-Type, If-None-Match, Accept-Encoding, Upload-Offset, "
+                   "Upload-Length, Upload-Sha256");
     res.set_header("Access-Control-Max-Age", "86400");
-    res.set_header("Allow", "GET, HEAD, POST, DELETE, OPTIONS");
+    res.set_header("Allow", "GET, HEAD, POST, PATCH, DELETE, OPTIONS");
   });
 
   http.Get("/health", [this](const httplib::Request&, httplib::Response& res) {
@@ -623,6 +636,7 @@ void Server::Impl::register_routes() {
   });
 
   register_drive_routes();
+  register_upload_routes();
   register_map_routes();
   register_gis_routes();
 }

@@ -145,6 +145,75 @@ std::size_t Server::Impl::apply_retention() {
   return n;
 }
 
+std::filesystem::path Server::Impl::upload_scratch_dir() const {
+  return cfg.upload_dir.empty() ? std::filesystem::temp_directory_path() : cfg.upload_dir;
+}
+
+int Server::Impl::ingest_package(const std::string& bytes, const std::string& hash,
+                                 const ApiKey& key, const std::filesystem::path& scratch_dir,
+                                 httplib::Response& res) {
+  const std::uint64_t received = bytes.size();
+  if (auto existing = store.find_drive_by_hash(hash)) {
+    metrics.upload("already_present", received);
+    nlohmann::json j = drive_to_json(*existing, false);
+    j["status"] = "already_present";
+    res.set_header("Location", "/v1/drives/" + existing->drive_id);
+    reply_json(res, 200, j);
+    return 200;
+  }
+  // One parser, one canonical copy: the bytes validated here are unpacked by the same ustar
+  // reader into member files, and only those are stored; GDAL never sees the archive.
+  auto pkg = try_validate_package_bytes(bytes);
+  if (!pkg) {
+    const PackageError& e = pkg.error();
+    const int status = e.http_status == 422 ? 422 : 400;
+    metrics.upload(status == 422 ? "invalid" : "bad_request", received);
+    log("info", "upload rejected: " + e.what());
+    nlohmann::json extra{{"file", e.file}};
+    reply_error(res, status, e.what(), e.field, extra);
+    return status;
+  }
+  if (!key.vehicle_id.empty() && pkg->manifest.vehicle_id != key.vehicle_id) {
+    metrics.upload("forbidden", received);
+    reply_error(res, 403,
+                "this key uploads drives of vehicle '" + key.vehicle_id +
+                    "', the package is of vehicle '" + pkg->manifest.vehicle_id + "'",
+                "vehicle_id");
+    return 403;
+  }
+  PutDriveResult put;
+  try {
+    const util::ScopedTempDir members = write_members(bytes, scratch_dir);
+    put = store.put_drive(*pkg, members.path(), hash);
+  } catch (const ConflictError& e) {
+    metrics.upload("conflict", received);
+    reply_error(res, 409, e.what(), "drive_id");
+    return 409;
+  } catch (const StorageFullError& e) {
+    // Nothing is kept: the members directory is removed, the store rolled back.
+    metrics.upload("storage_full", received);
+    log("warn", "upload: storage full: " + std::string(e.what()));
+    reply_error(res, 507, kStorageFullMessage);
+    return 507;
+  }
+  nlohmann::json j = drive_to_json(put.drive, false);
+  res.set_header("Location", "/v1/drives/" + put.drive.drive_id);
+  if (put.status == PutDriveResult::Status::Inserted) {
+    drives_generation.fetch_add(1);
+    metrics.upload("inserted", received);
+    log("info", "drive " + put.drive.drive_id + " ingested (" + std::to_string(received) +
+                    " bytes, " + std::to_string(put.drive.num_points) + " points, " +
+                    std::to_string(put.drive.num_lines) + " lines)");
+    j["status"] = "inserted";
+    reply_json(res, 201, j);
+    return 201;
+  }
+  metrics.upload("already_present", received);
+  j["status"] = "already_present";
+  reply_json(res, 200, j);
+  return 200;
+}
+
 void Server::Impl::register_drive_routes() {
   http.Post("/v1/drives", [this](const httplib::Request& req, httplib::Response& res,
                                  const httplib::ContentReader& reader) {
@@ -194,8 +263,7 @@ void Server::Impl::register_drive_routes() {
                   "body");
       return reject_unread("busy");
     }
-    const std::filesystem::path dir =
-        cfg.upload_dir.empty() ? std::filesystem::temp_directory_path() : cfg.upload_dir;
+    const std::filesystem::path dir = upload_scratch_dir();
     TempUpload upload(dir);
     util::Sha256 sha;
     std::uint64_t received = 0;
@@ -246,60 +314,9 @@ void Server::Impl::register_drive_routes() {
       return reply_error(res, 400, "empty body: send the drive package as one ustar archive",
                          "body");
     }
-    const std::string hash = sha.hex();
-    if (auto existing = store.find_drive_by_hash(hash)) {
-      metrics.upload("already_present", received);
-      nlohmann::json j = drive_to_json(*existing, false);
-      j["status"] = "already_present";
-      res.set_header("Location", "/v1/drives/" + existing->drive_id);
-      return reply_json(res, 200, j);
-    }
-    // One parser, one canonical copy: the bytes validated here are unpacked by the same ustar
-    // reader into member files, and only those are stored; GDAL never sees the archive.
-    const std::string bytes = util::read_file_bytes(upload.path());
-    auto pkg = try_validate_package_bytes(bytes);
-    if (!pkg) {
-      const PackageError& e = pkg.error();
-      metrics.upload(e.http_status == 422 ? "invalid" : "bad_request", received);
-      log("info", "upload rejected: " + e.what());
-      nlohmann::json extra{{"file", e.file}};
-      return reply_error(res, e.http_status == 422 ? 422 : 400, e.what(), e.field, extra);
-    }
-    if (!key->vehicle_id.empty() && pkg->manifest.vehicle_id != key->vehicle_id) {
-      metrics.upload("forbidden", received);
-      return reply_error(res, 403,
-                         "this key uploads drives of vehicle '" + key->vehicle_id +
-                             "', the package is of vehicle '" + pkg->manifest.vehicle_id + "'",
-                         "vehicle_id");
-    }
-    PutDriveResult put;
-    try {
-      const util::ScopedTempDir members = write_members(bytes, dir);
-      put = store.put_drive(*pkg, members.path(), hash);
-    } catch (const ConflictError& e) {
-      metrics.upload("conflict", received);
-      return reply_error(res, 409, e.what(), "drive_id");
-    } catch (const StorageFullError& e) {
-      // Nothing is kept: the members directory is removed, the store rolled back.
-      metrics.upload("storage_full", received);
-      log("warn", "upload: storage full: " + std::string(e.what()));
-      return reply_error(res, 507, kStorageFullMessage);
-    }
-    nlohmann::json j = drive_to_json(put.drive, false);
-    res.set_header("Location", "/v1/drives/" + put.drive.drive_id);
-    if (put.status == PutDriveResult::Status::Inserted) {
-      drives_generation.fetch_add(1);
-      metrics.upload("inserted", received);
-      log("info", "drive " + put.drive.drive_id + " ingested (" + std::to_string(received) +
-                      " bytes, " + std::to_string(put.drive.num_points) + " points, " +
-                      std::to_string(put.drive.num_lines) + " lines)");
-      j["status"] = "inserted";
-      reply_json(res, 201, j);
-    } else {
-      metrics.upload("already_present", received);
-      j["status"] = "already_present";
-      reply_json(res, 200, j);
-    }
+    // One parser, one canonical copy: ingest_package validates these bytes and stores the
+    // members its reader unpacks from them; GDAL never sees the archive.
+    (void)ingest_package(util::read_file_bytes(upload.path()), sha.hex(), *key, dir, res);
   });
 
   http.Get("/v1/drives", [this](const httplib::Request& req, httplib::Response& res) {

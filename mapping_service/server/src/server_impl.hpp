@@ -86,6 +86,20 @@ struct Server::Impl {
   void sweep_upload_dir();
   /// Deletes drives older than cfg.drive_retention_days; returns how many.
   std::size_t apply_retention();
+  /// Removes expired upload sessions (store and files); returns how many. Never throws.
+  std::size_t sweep_upload_sessions();
+
+  /// The one ingest path of an uploaded package, for POST /v1/drives and a completed
+  /// upload session alike: `bytes` is the whole archive (`hash` its SHA-256 hex), already
+  /// received under the upload limit. Already stored -> 200; validation (the one parser:
+  /// try_validate_package_bytes) -> 400/422; the key's vehicle -> 403; the validated
+  /// members, unpacked by the same reader below `scratch_dir`, are what put_drive stores ->
+  /// 201, 409 (drive_id conflict) or 507. Writes the reply and the upload metric; returns
+  /// the status. Other failures throw (500).
+  int ingest_package(const std::string& bytes, const std::string& hash, const ApiKey& key,
+                     const std::filesystem::path& scratch_dir, httplib::Response& res);
+  /// The directory for in-flight upload files (cfg.upload_dir or the system temp dir).
+  [[nodiscard]] std::filesystem::path upload_scratch_dir() const;
 
   // ---- logging
   /// One line to the log sink; the message is escaped (escape_for_log).
@@ -168,6 +182,7 @@ struct Server::Impl {
   // ---- routes (one function per file)
   void register_routes();
   void register_drive_routes();
+  void register_upload_routes();
   void register_map_routes();
   void register_tile_routes();
   // tile handlers (server_tiles.cpp)
@@ -186,6 +201,12 @@ struct Server::Impl {
 /// The cpp-httplib server for `cfg`: plain, or TLS with cfg's certificate and key (checked
 /// here; throws IoError / ValidationError naming the file). server_tls.cpp.
 std::unique_ptr<httplib::Server> make_http_server(const ServerConfig& cfg);
+
+/// The owner fingerprint of upload sessions created with `key`: SHA-256 hex of a
+/// domain-separated key (the store never holds a key).
+std::string upload_owner(const ApiKey& key);
+/// True for "PATCH /v1/uploads/..." (bodies streamed by their handler, like POST /v1/drives).
+bool is_upload_chunk(const httplib::Request& req);
 
 /// JSON of a drive record (manifest only when with_manifest).
 nlohmann::json drive_to_json(const DriveRecord& d, bool with_manifest);

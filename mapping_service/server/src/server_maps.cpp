@@ -103,7 +103,8 @@ void Server::Impl::build_loop() {
     BuildJob job;
     {
       std::unique_lock lock(build_mutex);
-      // Wakes every 10 minutes without work, for the retention period; every second while
+      // Wakes every 10 minutes without work, for the retention period and the sweep of
+      // expired upload sessions; every second while
       // a failed build waits to be marked failed.
       const auto wait =
           builds_to_fail.empty() ? std::chrono::seconds(600) : std::chrono::seconds(1);
@@ -114,6 +115,7 @@ void Server::Impl::build_loop() {
         if (std::chrono::steady_clock::now() - last_retention >= std::chrono::minutes(10)) {
           last_retention = std::chrono::steady_clock::now();
           (void)apply_retention();
+          (void)sweep_upload_sessions();
         }
         continue;
       }

@@ -22,8 +22,11 @@ namespace sqlite_store_detail {
 
 extern const std::string_view kStoreSql;  // store_sql.cpp, generated from schema/store.sql
 
-std::string now_iso() {
-  const std::time_t t = std::chrono::system_clock::to_time_t(std::chrono::system_clock::now());
+std::string now_iso() { return iso_utc(std::chrono::system_clock::now()); }
+
+std::string iso_utc(std::chrono::system_clock::time_point tp) {
+  const std::time_t t =
+      std::chrono::system_clock::to_time_t(std::chrono::time_point_cast<std::chrono::seconds>(tp));
   std::tm tm{};
   gmtime_r(&t, &tm);
   char buf[32];
@@ -221,6 +224,19 @@ void SqliteMapStore::Impl::sweep_orphans() {
     const auto age = std::chrono::duration<double>(now - e.last_write_time(ec)).count();
     if (age >= opt.orphan_grace_s) fs::remove_all(e.path(), ec);
   }
+  // Upload session files without a row: a crash between creating the file and the commit.
+  std::set<std::string> sessions;
+  read([&](Connection& c) {
+    auto s = c.stmt("SELECT file_path FROM upload_sessions");
+    while (s.step()) sessions.insert(s.text(0));
+    return 0;
+  });
+  for (const auto& e : fs::directory_iterator(uploads_dir, ec)) {
+    const std::string name = e.path().filename().string();
+    if (sessions.contains(name) || name.size() != 32 || !util::is_lower_hex(name)) continue;
+    const auto age = std::chrono::duration<double>(now - e.last_write_time(ec)).count();
+    if (age >= opt.orphan_grace_s) fs::remove(e.path(), ec);
+  }
   write([&](Connection& c) {
     char grace_modifier[48];
     std::snprintf(grace_modifier, sizeof grace_modifier, "-%lld seconds",
@@ -241,11 +257,19 @@ SqliteMapStore::SqliteMapStore(const fs::path& db_path, SqliteStoreOptions optio
   impl_->opt = std::move(options);
   impl_->drives_dir = impl_->opt.drive_store_dir.empty() ? fs::path(db_path.string() + ".drives")
                                                          : impl_->opt.drive_store_dir;
+  impl_->uploads_dir = impl_->opt.upload_session_dir.empty()
+                           ? fs::path(db_path.string() + ".uploads")
+                           : impl_->opt.upload_session_dir;
   std::error_code ec;
   if (db_path.has_parent_path()) fs::create_directories(db_path.parent_path(), ec);
   fs::create_directories(impl_->drives_dir, ec);
   if (ec)
     throw IoError("cannot create drive store " + impl_->drives_dir.string() + ": " + ec.message());
+  fs::create_directories(impl_->uploads_dir, ec);
+  if (ec) {
+    throw IoError("cannot create upload session directory " + impl_->uploads_dir.string() + ": " +
+                  ec.message());
+  }
   impl_->migrate();
   // Only the process that owns the store sweeps: a second process opening it (an export,
   // a CLI read) must never fail the owner's running build or delete its staging files.
@@ -266,6 +290,7 @@ SqliteMapStore::~SqliteMapStore() = default;
 
 const fs::path& SqliteMapStore::path() const { return impl_->path; }
 const fs::path& SqliteMapStore::drive_store_dir() const { return impl_->drives_dir; }
+const fs::path& SqliteMapStore::upload_session_dir() const { return impl_->uploads_dir; }
 
 int SqliteMapStore::schema_version() const {
   return impl_->read([](Connection& c) {

@@ -3,6 +3,7 @@
 // migrations, statistics; sqlite_store_drives.cpp: drives and candidates;
 // sqlite_store_maps.cpp: map versions, landmarks, tiles). Not installed.
 #include <algorithm>
+#include <chrono>
 #include <cstdint>
 #include <filesystem>
 #include <memory>
@@ -36,6 +37,8 @@ inline constexpr const char* kDriveColumns =
 
 /// UTC now as ISO 8601 ("2024-05-01T12:00:00Z").
 std::string now_iso();
+/// A time point as ISO 8601 UTC, whole seconds (truncated).
+std::string iso_utc(std::chrono::system_clock::time_point t);
 /// Splits an antimeridian-crossing box into two ordinary ones.
 std::vector<GeoBox> split_box(const GeoBox& b);
 bool box_contains(const GeoBox& b, double lat, double lon);
@@ -57,6 +60,7 @@ using namespace sqlite_store_detail;  // NOLINT: internal header of one target
 struct SqliteMapStore::Impl {
   std::filesystem::path path;
   std::filesystem::path drives_dir;
+  std::filesystem::path uploads_dir;  ///< upload session files
   SqliteStoreOptions opt;
   mutable std::mutex pool_mu;
   mutable std::vector<std::unique_ptr<Connection>> idle;

@@ -140,8 +140,7 @@ std::int64_t SqliteMapStore::copy_landmarks(std::int64_t from, std::int64_t to,
     Impl::require_building(c, to);
     c.exec(
         "CREATE TEMP TABLE IF NOT EXISTS copy_except(id INTEGER PRIMARY KEY); "
-        "CREATE TEMP TABLE IF NOT EXISTS copy_map(old_id INTEGER PRIMARY KEY, new_id INTEGER); "
-        "DELETE FROM copy_except; DELETE FROM copy_map;");
+        "DELETE FROM copy_except;");
     for (std::int64_t id : except_ids) {
       c.stmt("INSERT OR IGNORE INTO copy_except(id) VALUES (?1)").bind(1, id).run();
     }
@@ -153,30 +152,25 @@ std::int64_t SqliteMapStore::copy_landmarks(std::int64_t from, std::int64_t to,
       s.bind(1, from);
       while (s.step()) old_ids.push_back(s.i64(0));
     }
+    // A copy shares its source's support links (support_of) instead of duplicating them:
+    // an incremental build costs what it changes, not what it keeps.
     for (std::int64_t old_id : old_ids) {
       c.stmt(
            "INSERT INTO landmarks(version, key, kind, lat_deg, lon_deg, polyline_json, "
-           "scattering, support_drives, spread_m) SELECT ?1, key, kind, lat_deg, lon_deg, "
-           "polyline_json, scattering, support_drives, spread_m FROM landmarks WHERE id = ?2")
+           "scattering, support_drives, spread_m, support_of) SELECT ?1, key, kind, lat_deg, "
+           "lon_deg, polyline_json, scattering, support_drives, spread_m, COALESCE(support_of, "
+           "id) FROM landmarks WHERE id = ?2")
           .bind(1, to)
           .bind(2, old_id)
           .run();
-      const std::int64_t new_id = c.last_id();
       c.stmt(
            "INSERT INTO landmarks_rtree(id, min_lat, max_lat, min_lon, max_lon) SELECT ?1, "
            "min_lat, max_lat, min_lon, max_lon FROM landmarks_rtree WHERE id = ?2")
-          .bind(1, new_id)
+          .bind(1, c.last_id())
           .bind(2, old_id)
           .run();
-      c.stmt("INSERT INTO copy_map(old_id, new_id) VALUES (?1, ?2)")
-          .bind(1, old_id)
-          .bind(2, new_id)
-          .run();
     }
-    c.exec(
-        "INSERT INTO landmark_support(landmark, candidate) SELECT m.new_id, s.candidate FROM "
-        "copy_map m JOIN landmark_support s ON s.landmark = m.old_id; "
-        "DELETE FROM copy_except; DELETE FROM copy_map;");
+    c.exec("DELETE FROM copy_except;");
     return static_cast<std::int64_t>(old_ids.size());
   });
 }
@@ -374,6 +368,37 @@ bool SqliteMapStore::delete_map_version(std::int64_t version) {
                             " is current and cannot be deleted");
       }
     }
+    // Landmarks of later versions that share this version's support links (copies of an
+    // incremental build) inherit them: the first copy takes the links, the others point
+    // at it.
+    std::vector<std::int64_t> shared;
+    {
+      auto s = c.stmt(
+          "SELECT l.id FROM landmarks l WHERE l.version = ?1 AND EXISTS (SELECT 1 FROM "
+          "landmarks r WHERE r.support_of = l.id)");
+      s.bind(1, version);
+      while (s.step()) shared.push_back(s.i64(0));
+    }
+    for (std::int64_t l : shared) {
+      std::int64_t heir = 0;
+      {
+        // Prefer a published heir (a Building version may still fail and drop its rows).
+        auto s = c.stmt(
+            "SELECT l.id FROM landmarks l JOIN map_versions v ON v.version = l.version WHERE "
+            "l.support_of = ?1 ORDER BY v.status != 'published', l.id LIMIT 1");
+        s.bind(1, l);
+        if (s.step()) heir = s.i64(0);
+      }
+      c.stmt("UPDATE landmark_support SET landmark = ?1 WHERE landmark = ?2")
+          .bind(1, heir)
+          .bind(2, l)
+          .run();
+      c.stmt("UPDATE landmarks SET support_of = NULL WHERE id = ?1").bind(1, heir).run();
+      c.stmt("UPDATE landmarks SET support_of = ?1 WHERE support_of = ?2")
+          .bind(1, heir)
+          .bind(2, l)
+          .run();
+    }
     c.stmt("DELETE FROM map_versions WHERE version = ?1").bind(1, version).run();
     const bool deleted = c.changes() > 0;
     Impl::gc_blobs(c);
@@ -436,7 +461,7 @@ LandmarkSet SqliteMapStore::landmarks_in(std::int64_t version, const std::option
     LandmarkSet out;
     const std::string cols =
         "SELECT l.id, l.key, l.kind, l.lat_deg, l.lon_deg, l.polyline_json, l.scattering, "
-        "l.support_drives, l.spread_m FROM landmarks l";
+        "l.support_drives, l.spread_m, COALESCE(l.support_of, l.id) FROM landmarks l";
     std::set<std::int64_t> seen;
     auto take = [&](Stmt& s) {
       const std::int64_t id = s.i64(0);
@@ -445,7 +470,7 @@ LandmarkSet SqliteMapStore::landmarks_in(std::int64_t version, const std::option
       if (with_support) {
         auto q =
             c.stmt("SELECT candidate FROM landmark_support WHERE landmark = ?1 ORDER BY candidate");
-        q.bind(1, id);
+        q.bind(1, s.i64(9));  // a copied landmark's links are its source's
         while (q.step()) support.push_back(q.i64(0));
       }
       if (s.i64(2) == 0) {

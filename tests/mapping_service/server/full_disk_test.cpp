@@ -172,6 +172,19 @@ class WriteTriggerStore final : public MapStore {
   std::vector<TileInfo> list_tiles(std::int64_t v, TileLayer l) const override {
     return s_.list_tiles(v, l);
   }
+  CreateUploadSessionResult create_upload_session(const UploadSessionRequest& r) override {
+    return s_.create_upload_session(r);
+  }
+  std::optional<UploadSession> get_upload_session(std::string_view id) const override {
+    return s_.get_upload_session(id);
+  }
+  bool advance_upload_offset(std::string_view id, std::uint64_t from, std::uint64_t to) override {
+    return s_.advance_upload_offset(id, from, to);
+  }
+  bool delete_upload_session(std::string_view id) override { return s_.delete_upload_session(id); }
+  std::size_t sweep_expired_upload_sessions(std::chrono::system_clock::time_point now) override {
+    return s_.sweep_expired_upload_sessions(now);
+  }
   StoreStats stats() const override { return s_.stats(); }
 
  private:

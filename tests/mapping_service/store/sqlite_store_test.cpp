@@ -143,7 +143,9 @@ TEST(SqliteStore, UpgradesAnOlderDatabaseByApplyingOnlyMissingMigrations) {
   }
   // Turn it into a schema-1 database (as written by an older build).
   exec_sql(db,
-           "DROP TABLE drive_trajectories; DROP TABLE landmark_changes; "
+           "DROP TABLE upload_sessions; DROP TABLE drive_trajectories; "
+           "DROP TABLE landmark_changes; DROP INDEX landmarks_support_of; "
+           "ALTER TABLE landmarks DROP COLUMN support_of; "
            "DELETE FROM schema_migrations WHERE version >= 2;");
   SqliteMapStore store(db);
   const int latest = sqlite_store_migrations().back().version;

@@ -7,6 +7,11 @@
 ///   GET    /health                          liveness + store summary (JSON)
 ///   GET    /metrics                         Prometheus text format
 ///   POST   /v1/drives              (key)    upload a drive package (ustar archive)
+///   POST   /v1/uploads             (key)    open a resumable upload (Upload-Length) -> 201
+///   PATCH  /v1/uploads/{id}        (key)    append a chunk at Upload-Offset -> 204, or the
+///                                           drive (201/200) once the last byte is in
+///   HEAD   /v1/uploads/{id}        (key)    Upload-Offset / Upload-Length / Upload-Expires
+///   DELETE /v1/uploads/{id}        (key)    abort a resumable upload
 ///   GET    /v1/drives                       list drives
 ///   GET    /v1/drives/{id}                  one drive (with manifest)
 ///   DELETE /v1/drives/{id}         (key)    remove a drive
@@ -85,8 +90,20 @@ struct ServerConfig {
   /// Largest accepted upload body (413 beyond). 512 MiB: an hour of driving at
   /// the gridmap's 0.1 m cells is ~100–300 MiB of DEFLATE GeoTIFF.
   std::uint64_t max_upload_bytes = 512ull << 20;
-  /// Uploads received and validated at the same time; one more is answered 503 with
-  /// Retry-After before its body is read (each holds a worker, disk and CPU).
+  /// Resumable uploads (POST /v1/uploads, docs/security.md): a session expires this long
+  /// after it was created (then PATCH and HEAD answer 410 and the sweeper, run on every
+  /// create and every 10 minutes, removes it with its bytes).
+  std::int64_t upload_session_ttl_s = 24 * 3600;
+  /// Unexpired sessions one API key may hold at once (one more: 429).
+  int max_upload_sessions_per_key = 4;
+  /// Bytes the unexpired sessions of one API key may declare in all (one more: 429).
+  /// Default: four packages of the largest size.
+  std::uint64_t max_upload_session_bytes_per_key = 2ull << 30;
+  /// Largest chunk one PATCH may carry (its Content-Length; 413 beyond, before the body).
+  std::uint64_t max_upload_chunk_bytes = 64ull << 20;
+  /// Uploads received and validated at the same time (POST /v1/drives and PATCH
+  /// /v1/uploads/{id} alike); one more is answered 503 with Retry-After before its body is
+  /// read (each holds a worker, disk and CPU).
   int max_concurrent_uploads = 4;
   /// Map builds waiting behind the running one; one more is answered 503 with Retry-After
   /// (each queued build holds a map version row and will read every drive).

@@ -6,6 +6,7 @@
 ///   <db>                 SQLite database (schema/store.sql), WAL mode
 ///   <db>-wal, <db>-shm   SQLite's write-ahead log (do not delete while open)
 ///   <db>.drives/<sha256>/<package files>   ingested packages, by content hash
+///   <db>.uploads/<session id>              bytes of resumable uploads in progress
 ///
 /// Connections: a small pool. Each call takes an idle connection (or opens a
 /// new one), so concurrent readers run in parallel on their own connections
@@ -25,7 +26,8 @@
 /// rows inserted in a transaction, the directory renamed to its final name,
 /// then the transaction commits; any failure rolls back and removes the files.
 /// After a hard crash between rename and commit, the orphaned directory (no
-/// drives row) is removed by the next open (older than orphan_grace_s).
+/// drives row) is removed by the next open (older than orphan_grace_s), as is an upload
+/// session file without its row (a crash between creating the file and the commit).
 #include <filesystem>
 #include <functional>
 #include <memory>
@@ -44,6 +46,8 @@ struct SqliteStoreOptions {
   std::size_t max_idle_connections = 8;
   /// Drive store directory; empty = "<db path>.drives".
   std::filesystem::path drive_store_dir;
+  /// Upload session directory; empty = "<db path>.uploads".
+  std::filesystem::path upload_session_dir;
   /// Orphaned drive store entries (crash leftovers) older than this are
   /// removed on open. 0 removes all (tests; single-process use).
   double orphan_grace_s = 600.0;
@@ -90,6 +94,7 @@ class SqliteMapStore final : public MapStore {
 
   [[nodiscard]] const std::filesystem::path& path() const;
   [[nodiscard]] const std::filesystem::path& drive_store_dir() const;
+  [[nodiscard]] const std::filesystem::path& upload_session_dir() const;
   /// True if this object holds the owner lock (see the constructor).
   [[nodiscard]] bool owns_store() const;
   /// What the owner's open did to archive-stored packages (empty for other openers).
@@ -142,6 +147,12 @@ class SqliteMapStore final : public MapStore {
                                                          const tiles::TileKey& key) const override;
   [[nodiscard]] std::vector<TileInfo> list_tiles(std::int64_t version,
                                                  TileLayer layer) const override;
+
+  CreateUploadSessionResult create_upload_session(const UploadSessionRequest& request) override;
+  [[nodiscard]] std::optional<UploadSession> get_upload_session(std::string_view id) const override;
+  bool advance_upload_offset(std::string_view id, std::uint64_t from, std::uint64_t to) override;
+  bool delete_upload_session(std::string_view id) override;
+  std::size_t sweep_expired_upload_sessions(std::chrono::system_clock::time_point now) override;
 
   [[nodiscard]] StoreStats stats() const override;
 

@@ -26,6 +26,7 @@
 /// ConflictError (drive_id already present with different content),
 /// ValidationError (bad arguments), StorageFullError (no space left for a write),
 /// IoError (other database or file system failures).
+#include <chrono>
 #include <cstdint>
 #include <filesystem>
 #include <nlohmann/json.hpp>
@@ -223,6 +224,45 @@ struct StoreStats {
   std::int64_t drive_store_bytes = 0;
 };
 
+/// A resumable upload in progress (POST /v1/uploads): the package's bytes arrive in chunks
+/// appended to `file`; the first `offset_bytes` of them are durable and acknowledged. The
+/// session lives in the store, so any replica sharing the store can continue it.
+struct UploadSession {
+  std::string id;                  ///< 32 lower-case hex digits (128 random bits)
+  std::string owner;               ///< fingerprint of the API key that created it, never the key
+  std::uint64_t length_bytes = 0;  ///< declared size of the whole package
+  std::uint64_t offset_bytes = 0;  ///< bytes received, fsynced and acknowledged (<= length)
+  std::string sha256;              ///< declared SHA-256 hex of the whole package, or empty
+  std::string created_at;          ///< ISO 8601 UTC
+  std::string expires_at;          ///< ISO 8601 UTC; the session may be swept from then on
+  std::filesystem::path file;      ///< absolute path of the session's byte file
+};
+
+/// What create_upload_session needs. The per-owner limits are checked in the same
+/// transaction that inserts the session, so concurrent creates cannot exceed them.
+struct UploadSessionRequest {
+  std::string owner;               ///< key fingerprint (non-empty)
+  std::uint64_t length_bytes = 0;  ///< > 0 and <= INT64_MAX
+  std::string sha256;              ///< empty or 64 lower-case hex digits
+  std::chrono::system_clock::time_point now = std::chrono::system_clock::now();
+  /// Seconds from `now` until the session expires (> 0).
+  std::int64_t ttl_s = 24 * 3600;
+  /// The owner's unexpired sessions may be at most this many, including the new one.
+  std::size_t max_sessions_per_owner = 4;
+  /// ... and declare at most this many bytes in all, including the new one.
+  std::uint64_t max_bytes_per_owner = 2ull << 30;
+};
+
+/// Outcome of create_upload_session: Created (session filled in) or the limit that refused
+/// it; open_sessions / open_bytes are the owner's unexpired sessions before the request.
+struct CreateUploadSessionResult {
+  enum class Status { Created, TooManySessions, TooManyBytes };
+  Status status = Status::Created;
+  UploadSession session;
+  std::size_t open_sessions = 0;
+  std::uint64_t open_bytes = 0;
+};
+
 /// Strong ETag of a payload: lower-case SHA-256 hex (64 chars).
 std::string content_etag(std::string_view payload);
 
@@ -327,6 +367,26 @@ class MapStore {
   [[nodiscard]] virtual std::vector<TileInfo> list_tiles(std::int64_t version,
                                                          TileLayer layer) const = 0;
 
+  // ------------------------------------------------------------ upload sessions
+  /// Creates a session and its empty byte file (durable before the row commits), unless
+  /// the owner's unexpired sessions would exceed request's limits (status says which).
+  /// ValidationError for an empty owner, a zero or oversized length, a malformed sha256 or
+  /// a non-positive ttl.
+  virtual CreateUploadSessionResult create_upload_session(const UploadSessionRequest& request) = 0;
+  /// The session, expired or not (nullopt once deleted or swept). Callers compare
+  /// expires_at themselves (an expired session is refused, not continued).
+  [[nodiscard]] virtual std::optional<UploadSession> get_upload_session(
+      std::string_view id) const = 0;
+  /// Compare-and-set of the acknowledged offset: `from` -> `to` if the session exists and
+  /// its offset is still `from` (false otherwise). Call only once bytes [from, to) of the
+  /// file are durable. ValidationError unless from < to <= length_bytes.
+  virtual bool advance_upload_offset(std::string_view id, std::uint64_t from, std::uint64_t to) = 0;
+  /// Removes the session's row, then its file. False if unknown.
+  virtual bool delete_upload_session(std::string_view id) = 0;
+  /// Removes the sessions whose expires_at is at or before `now` (rows, then files), and
+  /// only those; returns how many.
+  virtual std::size_t sweep_expired_upload_sessions(std::chrono::system_clock::time_point now) = 0;
+
   [[nodiscard]] virtual StoreStats stats() const = 0;
 };
 
@@ -345,6 +405,9 @@ class MapStore {
 //  - partitioned builds: a `build_jobs(region, status, claimed_by)` table,
 //    claimed with `SELECT ... FOR UPDATE SKIP LOCKED`; each job writes its
 //    region's tiles into the Building version, the last one publishes;
-//  - connections from a pool (libpq, one per thread), as SqliteMapStore does.
+//  - connections from a pool (libpq, one per thread), as SqliteMapStore does;
+//  - upload sessions: the same table; their files on the shared storage of the packages;
+//    advance_upload_offset is `UPDATE ... SET offset_bytes = to WHERE id = ? AND
+//    offset_bytes = from`, the quota check and insert one SERIALIZABLE transaction.
 
 }  // namespace polmap::mapping

@@ -1,0 +1,199 @@
+// SqliteMapStore: resumable upload sessions (rows in upload_sessions, bytes in
+// <db>.uploads/<id>). The store keeps the acknowledged offset and the files' lifetime; the
+// server appends the bytes (it holds the file lock while it does).
+#include <fcntl.h>
+#include <sys/random.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstring>
+#include <limits>
+
+#include "polmap/util/file.hpp"
+#include "polmap/util/text.hpp"
+#include "sqlite_store_impl.hpp"
+
+namespace polmap::mapping {
+namespace fs = std::filesystem;
+
+namespace {
+
+constexpr const char* kSessionColumns =
+    "id, owner, length_bytes, offset_bytes, COALESCE(sha256, ''), created_at, expires_at, "
+    "file_path";
+
+/// 128 bits from the kernel's CSPRNG as 32 lower-case hex digits.
+std::string random_session_id() {
+  unsigned char bytes[16];
+  std::size_t got = 0;
+  while (got < sizeof bytes) {
+    const ssize_t n = ::getrandom(bytes + got, sizeof bytes - got, 0);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) throw IoError(std::string("getrandom: ") + std::strerror(errno));
+    got += static_cast<std::size_t>(n);
+  }
+  static constexpr char kHex[] = "0123456789abcdef";
+  std::string id;
+  for (const unsigned char b : bytes) {
+    id.push_back(kHex[b >> 4]);
+    id.push_back(kHex[b & 15]);
+  }
+  return id;
+}
+
+[[noreturn]] void throw_session_file_error(int err, const fs::path& path) {
+  const std::string msg =
+      "cannot create upload session file " + path.string() + ": " + std::strerror(err);
+  if (err == ENOSPC || err == EDQUOT) throw StorageFullError(msg);
+  throw IoError(msg);
+}
+
+UploadSession session_from_row(const fs::path& uploads_dir, Stmt& s) {
+  UploadSession u;
+  u.id = s.text(0);
+  u.owner = s.text(1);
+  u.length_bytes = static_cast<std::uint64_t>(s.i64(2));
+  u.offset_bytes = static_cast<std::uint64_t>(s.i64(3));
+  u.sha256 = s.text(4);
+  u.created_at = s.text(5);
+  u.expires_at = s.text(6);
+  u.file = uploads_dir / s.text(7);
+  return u;
+}
+
+}  // namespace
+
+CreateUploadSessionResult SqliteMapStore::create_upload_session(const UploadSessionRequest& r) {
+  Impl& I = *impl_;
+  if (r.owner.empty()) throw ValidationError("create_upload_session: owner is empty");
+  if (r.length_bytes == 0 ||
+      r.length_bytes > static_cast<std::uint64_t>(std::numeric_limits<std::int64_t>::max())) {
+    throw ValidationError("create_upload_session: length_bytes must be positive, got " +
+                          std::to_string(r.length_bytes));
+  }
+  if (!r.sha256.empty() && (r.sha256.size() != 64 || !util::is_lower_hex(r.sha256))) {
+    throw ValidationError("create_upload_session: sha256 must be 64 lower-case hex digits");
+  }
+  if (r.ttl_s <= 0) throw ValidationError("create_upload_session: ttl_s must be positive");
+  const std::string now = iso_utc(r.now);
+  const std::string expires = iso_utc(r.now + std::chrono::seconds(r.ttl_s));
+  const std::string id = random_session_id();
+  const fs::path file = I.uploads_dir / id;
+
+  // The file first, durable with its directory entry, then the row that names it: a crash
+  // in between leaves a file without a row, swept on the owner's next open.
+  const int fd = ::open(file.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0600);
+  if (fd < 0) throw_session_file_error(errno, file);
+  ::close(fd);
+  util::ScopedTempDir guard(file);  // (a file too) removed unless the row commits
+  util::sync_directory(I.uploads_dir);
+
+  CreateUploadSessionResult out = I.write([&](Connection& c) {
+    CreateUploadSessionResult res;
+    auto s = c.stmt(
+        "SELECT COUNT(*), COALESCE(SUM(length_bytes), 0) FROM upload_sessions "
+        "WHERE owner = ?1 AND expires_at > ?2");
+    s.bind(1, r.owner).bind(2, now);
+    if (s.step()) {
+      res.open_sessions = static_cast<std::size_t>(s.i64(0));
+      res.open_bytes = static_cast<std::uint64_t>(s.i64(1));
+    }
+    if (res.open_sessions + 1 > r.max_sessions_per_owner) {
+      res.status = CreateUploadSessionResult::Status::TooManySessions;
+      return res;
+    }
+    if (res.open_bytes + r.length_bytes > r.max_bytes_per_owner ||
+        res.open_bytes + r.length_bytes < res.open_bytes) {
+      res.status = CreateUploadSessionResult::Status::TooManyBytes;
+      return res;
+    }
+    auto ins = c.stmt(
+        "INSERT INTO upload_sessions(id, owner, length_bytes, offset_bytes, sha256, created_at, "
+        "expires_at, file_path) VALUES (?1, ?2, ?3, 0, ?4, ?5, ?6, ?7)");
+    ins.bind(1, id).bind(2, r.owner).bind(3, static_cast<std::int64_t>(r.length_bytes));
+    if (r.sha256.empty()) {
+      ins.bind_null(4);
+    } else {
+      ins.bind(4, r.sha256);
+    }
+    ins.bind(5, now).bind(6, expires).bind(7, id).run();
+    res.status = CreateUploadSessionResult::Status::Created;
+    res.session = {id, r.owner, r.length_bytes, 0, r.sha256, now, expires, file};
+    return res;
+  });
+  if (out.status == CreateUploadSessionResult::Status::Created) guard.release();
+  return out;
+}
+
+std::optional<UploadSession> SqliteMapStore::get_upload_session(std::string_view id) const {
+  return impl_->read([&](Connection& c) -> std::optional<UploadSession> {
+    auto s =
+        c.stmt(std::string("SELECT ") + kSessionColumns + " FROM upload_sessions WHERE id = ?1");
+    s.bind(1, id);
+    if (!s.step()) return std::nullopt;
+    return session_from_row(impl_->uploads_dir, s);
+  });
+}
+
+bool SqliteMapStore::advance_upload_offset(std::string_view id, std::uint64_t from,
+                                           std::uint64_t to) {
+  if (to <= from) {
+    throw ValidationError("advance_upload_offset: offset must grow (" + std::to_string(from) +
+                          " -> " + std::to_string(to) + ")");
+  }
+  return impl_->write([&](Connection& c) {
+    std::int64_t length = 0;
+    {
+      auto s = c.stmt("SELECT length_bytes FROM upload_sessions WHERE id = ?1");
+      s.bind(1, id);
+      if (!s.step()) return false;
+      length = s.i64(0);
+    }
+    if (to > static_cast<std::uint64_t>(length)) {
+      throw ValidationError("advance_upload_offset: offset " + std::to_string(to) +
+                            " beyond the session's length " + std::to_string(length));
+    }
+    c.stmt("UPDATE upload_sessions SET offset_bytes = ?1 WHERE id = ?2 AND offset_bytes = ?3")
+        .bind(1, static_cast<std::int64_t>(to))
+        .bind(2, id)
+        .bind(3, static_cast<std::int64_t>(from))
+        .run();
+    return c.changes() == 1;
+  });
+}
+
+bool SqliteMapStore::delete_upload_session(std::string_view id) {
+  std::optional<fs::path> file;
+  impl_->write([&](Connection& c) {
+    {
+      auto s = c.stmt("SELECT file_path FROM upload_sessions WHERE id = ?1");
+      s.bind(1, id);
+      if (!s.step()) return;
+      file = impl_->uploads_dir / s.text(0);
+    }
+    c.stmt("DELETE FROM upload_sessions WHERE id = ?1").bind(1, id).run();
+  });
+  if (!file) return false;
+  std::error_code ec;
+  fs::remove(*file, ec);  // after commit; a failure leaves an orphan swept on open
+  return true;
+}
+
+std::size_t SqliteMapStore::sweep_expired_upload_sessions(
+    std::chrono::system_clock::time_point now) {
+  const std::string cutoff = iso_utc(now);
+  std::vector<fs::path> files;
+  impl_->write([&](Connection& c) {
+    {
+      auto s = c.stmt("SELECT file_path FROM upload_sessions WHERE expires_at <= ?1");
+      s.bind(1, cutoff);
+      while (s.step()) files.push_back(impl_->uploads_dir / s.text(0));
+    }
+    c.stmt("DELETE FROM upload_sessions WHERE expires_at <= ?1").bind(1, cutoff).run();
+  });
+  std::error_code ec;
+  for (const fs::path& f : files) fs::remove(f, ec);
+  return files.size();
+}
+
+}  // namespace polmap::mapping

@@ -1,0 +1,143 @@
+// `polmap upload` (the built executable) sends a package resumably through a loopback proxy
+// that cuts its third chunk's connection in the middle: the CLI waits, asks HEAD for the
+// offset, continues from there, and the drive is stored. From the bytes the proxy carried:
+// the chunks' byte ranges never overlap (no byte before the last acknowledged offset goes
+// twice) and cover the package exactly once.
+#include <sys/wait.h>
+
+#include <array>
+#include <cstdio>
+#include <fstream>
+#include <regex>
+
+#include "mapping_service/server_fixture.hpp"
+#include "polmap/util/sha256.hpp"
+#include "support/tcp_proxy.hpp"
+
+namespace polmap::mapping::testing {
+namespace {
+
+const std::filesystem::path kPolmap = std::filesystem::path(POLMAP_BINARY_DIR) / "tools" / "polmap";
+
+/// One request the proxy carried and its answer.
+struct Exchange {
+  std::string method;
+  std::optional<std::uint64_t> offset;  ///< request's Upload-Offset
+  std::uint64_t body_bytes = 0;         ///< request body bytes that reached the server
+  int status = 0;                       ///< 0: no answer (the cut connection)
+  std::optional<std::uint64_t> acked;   ///< answer's Upload-Offset
+};
+
+std::optional<std::uint64_t> header_value(const std::string& head, const std::string& name) {
+  std::smatch m;
+  if (!std::regex_search(
+          head, m, std::regex("\r\n" + name + ": ([0-9]+)\r\n", std::regex_constants::icase))) {
+    return std::nullopt;
+  }
+  return std::stoull(m[1]);
+}
+
+Exchange parse(const test::TcpProxy::Record& r) {
+  Exchange e;
+  const std::size_t end = r.upstream.find("\r\n\r\n");
+  const std::string head = r.upstream.substr(0, end == std::string::npos ? 0 : end + 2);
+  e.method = r.upstream.substr(0, r.upstream.find(' '));
+  e.offset = header_value(head, "Upload-Offset");
+  if (end != std::string::npos) e.body_bytes = r.upstream.size() - end - 4;
+  if (r.downstream.size() > 12) e.status = std::atoi(r.downstream.substr(9, 3).c_str());
+  e.acked =
+      header_value(r.downstream.substr(0, r.downstream.find("\r\n\r\n") + 2), "Upload-Offset");
+  return e;
+}
+
+class CliUploadResume : public ServerFixture {};
+
+TEST_F(CliUploadResume, ADroppedConnectionResumesWithoutResendingAcknowledgedBytes) {
+  const std::string& tar = scene_tar("scene_drive_0", 11);
+  const std::size_t chunk = 64u << 10;
+  ASSERT_GT(tar.size(), 4 * chunk);  // at least five chunks: the third is cut
+  const auto pkg = dir_ / "drive.tar";
+  std::ofstream(pkg, std::ios::binary) << tar;
+
+  test::TcpProxy::Options po;
+  po.target_port = port_;
+  po.cut_nth = 3;
+  po.cut_after_bytes = 20000;  // the head and part of the third chunk's body
+  test::TcpProxy proxy(po);
+  ASSERT_GT(proxy.port(), 0);
+
+  const std::string cmd = kPolmap.string() +
+                          " upload --server http://127.0.0.1:" + std::to_string(proxy.port()) +
+                          " --package " + pkg.string() + " --api-key " + kKey +
+                          " --chunk-mb 0.0625 --timeout-s 30 2>&1";
+  std::string output;
+  FILE* p = ::popen(cmd.c_str(), "r");
+  ASSERT_NE(p, nullptr);
+  std::array<char, 4096> buf{};
+  std::size_t n = 0;
+  while ((n = std::fread(buf.data(), 1, buf.size(), p)) > 0) output.append(buf.data(), n);
+  const int status = ::pclose(p);
+  ASSERT_TRUE(WIFEXITED(status)) << output;
+  ASSERT_EQ(WEXITSTATUS(status), 0) << output;
+  EXPECT_NE(output.find("drive scene_drive_0 uploaded"), std::string::npos) << output;
+  EXPECT_NE(output.find("1 retries"), std::string::npos) << output;
+  ASSERT_EQ(store_->list_drives().size(), 1U);
+  EXPECT_EQ(store_->get_drive("scene_drive_0")->content_hash, util::sha256_hex(tar));
+
+  std::vector<Exchange> ex;
+  int cut = 0;
+  for (const auto& r : proxy.records()) {
+    ex.push_back(parse(r));
+    cut += r.cut ? 1 : 0;
+  }
+  EXPECT_EQ(cut, 1);
+  ASSERT_GE(ex.size(), 3U);
+  EXPECT_EQ(ex.front().method, "POST");
+  EXPECT_EQ(ex.front().status, 201);
+  // Every chunk starts at the last offset the server acknowledged (to a chunk or to HEAD):
+  // the byte ranges follow each other without overlap or gap and end at the package's end.
+  std::uint64_t acked = 0, covered = 0, sent = 0;
+  int heads = 0;
+  for (std::size_t i = 1; i < ex.size(); ++i) {
+    const Exchange& e = ex[i];
+    if (e.method == "HEAD") {
+      ++heads;
+      ASSERT_EQ(e.status, 200);
+      ASSERT_TRUE(e.acked);
+      EXPECT_EQ(*e.acked, covered) << "the server kept every byte that reached it";
+      acked = *e.acked;
+      continue;
+    }
+    ASSERT_EQ(e.method, "PATCH") << i;
+    ASSERT_TRUE(e.offset) << i;
+    EXPECT_EQ(*e.offset, acked) << "chunk " << i << " does not start at the acknowledged offset";
+    EXPECT_EQ(*e.offset, covered) << "chunk " << i << " overlaps or leaves a gap";
+    covered = *e.offset + e.body_bytes;
+    sent += e.body_bytes;
+    if (e.acked) acked = *e.acked;
+  }
+  EXPECT_EQ(heads, 1);
+  EXPECT_EQ(covered, tar.size());
+  EXPECT_EQ(sent, tar.size()) << "bytes sent twice: " << sent - tar.size();
+  EXPECT_EQ(ex.back().status, 201);
+  EXPECT_TRUE(std::filesystem::is_empty(store_->upload_session_dir()));
+}
+
+TEST_F(CliUploadResume, SmallPackagesStillGoInOnePost) {
+  const std::string& tar = scene_tar("scene_drive_1", 12);
+  const auto pkg = dir_ / "drive.tar";
+  std::ofstream(pkg, std::ios::binary) << tar;
+  test::TcpProxy::Options po;
+  po.target_port = port_;
+  test::TcpProxy proxy(po);
+  const std::string cmd = kPolmap.string() +
+                          " upload --server http://127.0.0.1:" + std::to_string(proxy.port()) +
+                          " --package " + pkg.string() + " --api-key " + kKey + " 2>&1";
+  ASSERT_EQ(std::system(cmd.c_str()), 0);
+  ASSERT_EQ(proxy.records().size(), 1U);
+  EXPECT_TRUE(proxy.records()[0].upstream.starts_with("POST /v1/drives "));
+  EXPECT_EQ(store_->list_drives().size(), 1U);
+}
+
+}  // namespace
+}  // namespace polmap::mapping::testing

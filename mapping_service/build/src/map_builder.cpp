@@ -337,22 +337,18 @@ std::optional<tiles::GeoBox> incremental_area(const MapStore& store, const MapBu
   std::sort(before.begin(), before.end());
   const std::vector<std::int64_t> now = drive_rows(drives, req.excluded_drive_ids);
   if (!std::includes(now.begin(), now.end(), before.begin(), before.end())) return std::nullopt;
-  std::optional<tiles::GeoBox> added, all;
+  std::optional<tiles::GeoBox> added;
+  std::size_t n_added = 0;
   for (const auto& d : drives) {
     if (!std::binary_search(now.begin(), now.end(), d.row)) continue;
-    all = all ? union_box(*all, d.bbox) : d.bbox;
     if (!std::binary_search(before.begin(), before.end(), d.row)) {
       added = added ? union_box(*added, d.bbox) : d.bbox;
+      ++n_added;
     }
   }
-  if (!added || !all) return std::nullopt;
+  // Mostly new drives: a full build costs about the same and has no seams.
+  if (!added || 2 * n_added >= now.size()) return std::nullopt;
   const tiles::GeoBox area = grow_box(*added, req.visibility.max_view_range_m + margin_m);
-  // Mostly new: a full build costs about the same and has no seams.
-  const double area_deg2 =
-      (area.max_lat_deg - area.min_lat_deg) * (area.max_lon_deg - area.min_lon_deg);
-  const double all_deg2 =
-      (all->max_lat_deg - all->min_lat_deg) * (all->max_lon_deg - all->min_lon_deg);
-  if (area_deg2 >= 0.5 * all_deg2) return std::nullopt;
   return area;
 }
 

@@ -39,7 +39,11 @@
 --                     lat/lon = first vertex). key = stable id (hash of the quantized
 --                     geometry), identical for an unchanged landmark in the next version.
 --   landmark_support  landmark -> supporting candidate ids (provenance). Deleting a drive
---                     removes its links; landmarks of published versions stay.
+--                     removes its links; landmarks of published versions stay. A landmark
+--                     copied unchanged by an incremental build has support_of = the landmark
+--                     whose links it shares (deleting that version hands them to the copy).
+--   landmark_changes  per map version: landmarks added, moved or retired against the version
+--                     current when its build started, with the builder's reason (JSON).
 --   tile_blobs        content-addressed tile payloads: etag = SHA-256 hex of payload, unique,
 --                     so an unchanged tile shared by many versions is stored once (and keeps
 --                     its ETag, so vehicle caches stay valid across versions). Blobs no

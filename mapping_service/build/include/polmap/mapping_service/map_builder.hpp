@@ -21,19 +21,31 @@
 /// for regions up to ~10 km (larger areas are partitioned into regions, each
 /// built in its own frame).
 ///
-/// Incremental tiles ("a new drive rebuilds only the tiles it touches"):
-/// consensus is local — a landmark depends only on candidates within
-/// d_p (points) or the projection threshold plus the segment length (lines)
-/// of it — so adding a drive changes only landmarks near its candidates. The
-/// builder recomputes the consensus of the whole region (fast: see
-/// bench/map_build.cpp) but encodes each tile with the map_version stamp of
-/// the previous (current) version's tile first; if the bytes are identical
-/// the new version references the previous blob (same ETag, so vehicle caches
-/// stay valid) and counts it as reused, otherwise the tile is re-encoded with
-/// the new version number and written. For this, landmark geometry is
-/// quantized to 1e-8 degrees (≈ 1.1 mm) and landmark ids in tiles are stable
-/// keys (hash of the quantized geometry), so an unchanged landmark encodes to
-/// identical bytes in every build.
+/// Support is judged against the drives that passed a place with it in view
+/// (visibility.hpp, SupportRule in consensus.hpp): every included drive's stored
+/// trajectory is a pass, its view range estimated from its own candidates.
+///
+/// Incremental builds (MapBuildRequest::incremental, the default). When the current
+/// version was built with the same request from a subset of today's drives (versions
+/// record their drive rows), only the area the new drives can influence is rebuilt:
+/// their boxes grown by the largest view range and the consensus margin (consensus
+/// is local — a landmark depends only on candidates within d_p (points) or the
+/// projection threshold plus the segment length (lines) of it, and a pass changes
+/// verdicts only within its view range). Candidates and passes are read for that
+/// area only (memory and time follow the area, not the store); the current
+/// version's landmarks outside it are copied (MapStore::copy_landmarks; copies share
+/// the source's support links) and so are its tiles that hold none of the new or
+/// replaced landmarks (MapStore::copy_tiles). Otherwise (drives removed, parameters
+/// changed, most drives new, a region request) the build is full. Either way, each
+/// re-encoded tile is encoded with the map_version stamp of the previous version's
+/// tile first; identical bytes keep the previous blob (same ETag, so vehicle caches
+/// stay valid). For this, landmark geometry is quantized to 1e-8 degrees (≈ 1.1 mm)
+/// and landmark ids in tiles are stable keys (hash of the quantized geometry), so an
+/// unchanged landmark encodes to identical bytes in every build.
+///
+/// Changes: each version records, against the version current when it started,
+/// which landmarks were added, moved or retired and why (landmark_diff.hpp,
+/// MapStore::landmark_changes); `GET /v1/maps/{v}/diff?from=U` serves them.
 ///
 /// Thread safety: a MapBuilder is immutable; build/begin/run may run
 /// concurrently with any store readers. Run at most one build per store at a

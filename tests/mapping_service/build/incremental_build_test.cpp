@@ -103,8 +103,8 @@ TEST(IncrementalBuild, AShortDriveRebuildsItsAreaAndEqualsAFullBuild) {
   const auto v2 = builder.build(store, request(true));
   ASSERT_EQ(v2.status, MapBuildResult::Status::Published) << v2.error;
   ASSERT_EQ(v2.stats.incremental_from, v1.version);
-  EXPECT_GT(v2.stats.landmarks_copied, 250);  // of 331: all but the first ~460 m
-  EXPECT_LT(v2.stats.point_candidates, 3 * 80);    // only the area's candidates were read
+  EXPECT_GT(v2.stats.landmarks_copied, 250);     // of 331: all but the first ~460 m
+  EXPECT_LT(v2.stats.point_candidates, 3 * 80);  // only the area's candidates were read
   EXPECT_GT(v2.stats.tiles_reused, 0);
   const auto v3 = builder.build(store, request(false));  // the same, built in full
   ASSERT_EQ(v3.status, MapBuildResult::Status::Published) << v3.error;

@@ -42,6 +42,7 @@
 #include "polmap/eval/study.hpp"
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/mapping_service/map_builder.hpp"
+#include "polmap/mapping_service/polyline_distance.hpp"
 #include "polmap/mapping_service/sqlite_store.hpp"
 #include "polmap/mapping_service/ustar.hpp"
 #include "polmap/sim/world.hpp"
@@ -149,14 +150,6 @@ DrivePackage drive(const Route& r, const GeoPoint& world_origin, int k, double t
     }
   }
   return pkg;
-}
-
-double point_segment_distance(const Eigen::Vector2d& p, const Eigen::Vector2d& a,
-                              const Eigen::Vector2d& b) {
-  const Eigen::Vector2d ab = b - a;
-  const double l2 = ab.squaredNorm();
-  const double t = l2 > 0 ? std::clamp((p - a).dot(ab) / l2, 0.0, 1.0) : 0.0;
-  return (p - (a + t * ab)).norm();
 }
 
 /// Samples every `step` along a polyline (end points included).
@@ -471,6 +464,19 @@ class SimSource final : public DriveSource {
   }
   [[nodiscard]] const Truth& truth() const override { return truth_; }
   [[nodiscard]] const tiles::LocalFrame& frame() const override { return world_->frame; }
+  /// Class of the world object nearest to x (within 2 m), "(temporary)" marked.
+  [[nodiscard]] std::string nearest_object(const Eigen::Vector2d& x) const {
+    double best = 2.0;
+    std::string name = "nothing within 2 m";
+    for (const auto& o : world_->objects) {
+      const double d = point_polyline_distance(x, o.geometry_m);
+      if (d < best) {
+        best = d;
+        name = std::string(sim::to_string(o.cls)) + (o.permanent ? "" : " (temporary)");
+      }
+    }
+    return name;
+  }
   void explain(const MapStore& store, std::int64_t version, double radius_m) const override {
     const LandmarkSet lms = store.landmarks_in(version, std::nullopt, false);
     const PointIndex truth(truth_.points);
@@ -489,16 +495,7 @@ class SimSource final : public DriveSource {
         ++hist["true"][static_cast<std::size_t>(bin)];
         continue;
       }
-      double best = 2.0;
-      std::string name = "nothing within 2 m";
-      for (const auto& o : world_->objects) {
-        double d = 1e9;
-        if (o.geometry_m.size() == 1) d = (o.geometry_m[0] - x).norm();
-        for (std::size_t i = 0; i + 1 < o.geometry_m.size(); ++i)
-          d = std::min(d, point_segment_distance(x, o.geometry_m[i], o.geometry_m[i + 1]));
-        if (d < best)
-          best = d, name = std::string(sim::to_string(o.cls)) + (o.permanent ? "" : " (temporary)");
-      }
+      const std::string name = nearest_object(x);
       ++cls[name];
       ++hist[name][static_cast<std::size_t>(bin)];
     }
@@ -516,17 +513,7 @@ class SimSource final : public DriveSource {
       for (const auto& g : l.polyline) pl.push_back(world_->frame.to_local(g));
       for (const auto& x : samples(pl, 0.25)) {
         if (near_truth.near(x, radius_m)) continue;
-        double best = 2.0;
-        std::string name = "nothing within 2 m";
-        for (const auto& o : world_->objects) {
-          double d = 1e9;
-          if (o.geometry_m.size() == 1) d = (o.geometry_m[0] - x).norm();
-          for (std::size_t i = 0; i + 1 < o.geometry_m.size(); ++i)
-            d = std::min(d, point_segment_distance(x, o.geometry_m[i], o.geometry_m[i + 1]));
-          if (d < best)
-            best = d,
-            name = std::string(sim::to_string(o.cls)) + (o.permanent ? "" : " (temporary)");
-        }
+        const std::string name = nearest_object(x);
         line_cls[name] += 0.25;
       }
     }

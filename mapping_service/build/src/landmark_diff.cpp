@@ -8,27 +8,11 @@
 #include <set>
 #include <tuple>
 
+#include "polmap/mapping_service/polyline_distance.hpp"
 #include "polmap/tiles/local_frame.hpp"
 
 namespace polmap::mapping {
 namespace {
-
-double point_segment_distance(const Eigen::Vector2d& p, const Eigen::Vector2d& a,
-                              const Eigen::Vector2d& b) {
-  const Eigen::Vector2d ab = b - a;
-  const double l2 = ab.squaredNorm();
-  const double t = l2 > 0.0 ? std::clamp((p - a).dot(ab) / l2, 0.0, 1.0) : 0.0;
-  return (p - (a + t * ab)).norm();
-}
-
-double polyline_distance(const std::vector<Eigen::Vector2d>& pl, const Eigen::Vector2d& p) {
-  if (pl.size() == 1) return (p - pl[0]).norm();
-  double best = std::numeric_limits<double>::infinity();
-  for (std::size_t i = 0; i + 1 < pl.size(); ++i) {
-    best = std::min(best, point_segment_distance(p, pl[i], pl[i + 1]));
-  }
-  return best;
-}
 
 std::vector<Eigen::Vector2d> samples(const std::vector<Eigen::Vector2d>& pl, double step) {
   std::vector<Eigen::Vector2d> out;
@@ -47,8 +31,8 @@ double line_distance(const std::vector<Eigen::Vector2d>& a, const std::vector<Ei
                      double step) {
   double sum = 0.0;
   std::size_t n = 0;
-  for (const auto& p : samples(a, step)) sum += polyline_distance(b, p), ++n;
-  for (const auto& p : samples(b, step)) sum += polyline_distance(a, p), ++n;
+  for (const auto& p : samples(a, step)) sum += point_polyline_distance(p, b), ++n;
+  for (const auto& p : samples(b, step)) sum += point_polyline_distance(p, a), ++n;
   return n ? sum / static_cast<double>(n) : 0.0;
 }
 

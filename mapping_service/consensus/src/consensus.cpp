@@ -17,6 +17,7 @@
 #include <set>
 #include <unordered_map>
 
+#include "polmap/mapping_service/polyline_distance.hpp"
 #include "polmap/schema/errors.hpp"
 
 namespace polmap::mapping {
@@ -289,24 +290,6 @@ struct Seg {
   [[nodiscard]] Eigen::Vector2d dir() const { return b - a; }
   [[nodiscard]] double length() const { return (b - a).norm(); }
 };
-
-double point_segment_distance(const Eigen::Vector2d& p, const Eigen::Vector2d& a,
-                              const Eigen::Vector2d& b) {
-  const Eigen::Vector2d ab = b - a;
-  const double l2 = ab.squaredNorm();
-  if (l2 <= 0.0) return (p - a).norm();
-  const double t = std::clamp((p - a).dot(ab) / l2, 0.0, 1.0);
-  return (p - (a + t * ab)).norm();
-}
-
-double point_polyline_distance(const Eigen::Vector2d& p, const std::vector<Eigen::Vector2d>& pl) {
-  if (pl.size() == 1) return (p - pl[0]).norm();
-  double best = std::numeric_limits<double>::infinity();
-  for (std::size_t i = 0; i + 1 < pl.size(); ++i) {
-    best = std::min(best, point_segment_distance(p, pl[i], pl[i + 1]));
-  }
-  return best;
-}
 
 /// Ramer–Douglas–Peucker: keeps the dense line's end points and inserts the
 /// farthest vertex until every dense vertex is within eps of the result.

@@ -6,19 +6,11 @@
 #include <limits>
 #include <tuple>
 
+#include "polmap/mapping_service/polyline_distance.hpp"
 #include "polmap/schema/errors.hpp"
 
 namespace polmap::mapping {
 namespace {
-
-double point_segment_distance(const Eigen::Vector2d& p, const Eigen::Vector2d& a,
-                              const Eigen::Vector2d& b) {
-  const Eigen::Vector2d ab = b - a;
-  const double l2 = ab.squaredNorm();
-  if (l2 <= 0.0) return (p - a).norm();
-  const double t = std::clamp((p - a).dot(ab) / l2, 0.0, 1.0);
-  return (p - (a + t * ab)).norm();
-}
 
 /// Ramer–Douglas–Peucker, iterative (paths can have 10^5 samples).
 std::vector<Eigen::Vector2d> simplify(std::span<const Eigen::Vector2d> pts, double eps) {
@@ -52,15 +44,6 @@ std::uint64_t cell_key(std::int64_t cx, std::int64_t cy) {
   return (static_cast<std::uint64_t>(cx) << 32) ^ (static_cast<std::uint64_t>(cy) & 0xffffffffU);
 }
 
-double path_distance(std::span<const Eigen::Vector2d> path, const Eigen::Vector2d& p) {
-  if (path.size() == 1) return (p - path[0]).norm();
-  double best = std::numeric_limits<double>::infinity();
-  for (std::size_t i = 0; i + 1 < path.size(); ++i) {
-    best = std::min(best, point_segment_distance(p, path[i], path[i + 1]));
-  }
-  return best;
-}
-
 }  // namespace
 
 double estimate_view_range_m(std::span<const Eigen::Vector2d> path_m,
@@ -78,7 +61,8 @@ double estimate_view_range_m(std::span<const Eigen::Vector2d> path_m,
   d.reserve(candidate_positions_m.size());
   for (const auto& c : candidate_positions_m) {
     // Outside the maximum range: count as the maximum (clamped below anyway).
-    d.push_back(index.count_in_view(c) == 0 ? cfg.max_view_range_m : path_distance(pass.path_m, c));
+    d.push_back(index.count_in_view(c) == 0 ? cfg.max_view_range_m
+                                            : point_polyline_distance(c, pass.path_m));
   }
   const auto k = static_cast<std::size_t>(
       std::min<double>(static_cast<double>(d.size() - 1),

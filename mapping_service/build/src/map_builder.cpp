@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <ctime>
 #include <fstream>
 #include <iterator>
 #include <map>
@@ -410,7 +411,16 @@ nlohmann::json verdict_json(const SupportVerdict& v) {
       {"support_drives", v.support_drives}, {"drives_in_view", v.drives_in_view},
       {"recent_passes", v.recent_passes},   {"recent_support", v.recent_support},
       {"miss_streak", v.miss_streak},       {"miss_streak_vehicles", v.miss_streak_vehicles}};
-  if (v.last_support_time_s > 0.0) j["last_support_time_s"] = v.last_support_time_s;
+  // The day only: diffs are public, and when some vehicle passed a place is trajectory
+  // data (never public, docs/security.md).
+  if (v.last_support_time_s > 0.0) {
+    const auto t = static_cast<std::time_t>(std::floor(v.last_support_time_s / 86400.0) * 86400.0);
+    std::tm tm{};
+    gmtime_r(&t, &tm);
+    char day[16];
+    std::strftime(day, sizeof day, "%Y-%m-%d", &tm);
+    j["last_support_day"] = day;
+  }
   return j;
 }
 

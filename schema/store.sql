@@ -238,3 +238,6 @@ CREATE TABLE landmark_changes (
 CREATE INDEX landmark_changes_key ON landmark_changes(key);
 ALTER TABLE landmarks ADD COLUMN support_of INTEGER;
 CREATE INDEX landmarks_support_of ON landmarks(support_of) WHERE support_of IS NOT NULL;
+
+-- migration 5: drive paths (Douglas-Peucker 0.25 m, packed little-endian float64 lat, lon pairs)
+ALTER TABLE drive_trajectories ADD COLUMN path_blob BLOB;

@@ -12,17 +12,23 @@
 namespace polmap::tiles {
 namespace {
 
-// The textbook recursive Douglas–Peucker, as the reference for small inputs.
+// Distance of q to the segment [a, b].
+double segment_distance(const Eigen::Vector2d& q, const Eigen::Vector2d& a,
+                        const Eigen::Vector2d& b) {
+  const Eigen::Vector2d d = b - a;
+  const double l2 = d.squaredNorm();
+  const double t = l2 > 0 ? std::clamp((q - a).dot(d) / l2, 0.0, 1.0) : 0.0;
+  return (q - (a + t * d)).norm();
+}
+
+// The textbook recursive Douglas–Peucker (segment distance), as the reference.
 void reference(const std::vector<Eigen::Vector2d>& p, std::size_t a, std::size_t b, double tol,
                std::vector<bool>& keep) {
   if (b <= a + 1) return;
-  const Eigen::Vector2d d = p[b] - p[a];
   double worst = -1.0;
   std::size_t at = a;
   for (std::size_t i = a + 1; i < b; ++i) {
-    const Eigen::Vector2d v = p[i] - p[a];
-    const double dist =
-        d.norm() > 1e-9 ? std::abs(d.x() * v.y() - d.y() * v.x()) / d.norm() : v.norm();
+    const double dist = segment_distance(p[i], p[a], p[b]);
     if (dist > worst) worst = dist, at = i;
   }
   if (worst > tol) {
@@ -32,12 +38,20 @@ void reference(const std::vector<Eigen::Vector2d>& p, std::size_t a, std::size_t
   }
 }
 
-// Douglas–Peucker bounds the distance of a dropped vertex to the line through the kept
-// vertices around it.
+// Douglas–Peucker bounds the distance of a dropped vertex to the kept segment around it.
 double line_distance(const Eigen::Vector2d& q, const Eigen::Vector2d& a, const Eigen::Vector2d& b) {
-  const Eigen::Vector2d d = b - a;
-  const Eigen::Vector2d v = q - a;
-  return std::abs(d.x() * v.y() - d.y() * v.x()) / d.norm();
+  return segment_distance(q, a, b);
+}
+
+TEST(DouglasPeucker, APathThatTurnsBackKeepsItsFarEnd) {
+  // Out 100 m along x and back to x = 40: every vertex lies on the chord's line, but
+  // the turn at x = 100 is 60 m beyond the chord's end.
+  std::vector<Eigen::Vector2d> p;
+  for (int i = 0; i <= 100; ++i) p.emplace_back(i, 0.0);
+  for (int i = 99; i >= 40; --i) p.emplace_back(i, 0.0);
+  const auto keep = douglas_peucker_keep(p, 0.5);
+  EXPECT_TRUE(keep[100]);
+  EXPECT_EQ(std::count(keep.begin(), keep.end(), true), 3);
 }
 
 TEST(DouglasPeucker, EqualsTheRecursiveReference) {

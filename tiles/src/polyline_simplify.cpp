@@ -1,5 +1,6 @@
 #include "polmap/tiles/polyline_simplify.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <utility>
 
@@ -19,12 +20,15 @@ std::vector<bool> douglas_peucker_keep(const std::vector<Eigen::Vector2d>& p, do
     todo.pop_back();
     if (b <= a + 1) continue;
     const Eigen::Vector2d d = p[b] - p[a];
-    const double len = d.norm();
+    const double len2 = d.squaredNorm();
     double worst = -1.0;
     std::size_t at = a;
     for (std::size_t i = a + 1; i < b; ++i) {
+      // Distance to the segment, not to its line: a path that turns back (a U-turn, a
+      // zig-zag) keeps the vertices beyond the chord's ends.
       const Eigen::Vector2d v = p[i] - p[a];
-      const double dist = len > 1e-9 ? std::abs(d.x() * v.y() - d.y() * v.x()) / len : v.norm();
+      const double t = len2 > 1e-18 ? std::clamp(v.dot(d) / len2, 0.0, 1.0) : 0.0;
+      const double dist = (v - t * d).norm();
       if (dist > worst) {
         worst = dist;
         at = i;

@@ -266,9 +266,7 @@ std::vector<DrivePass> drive_passes(const MapStore& store, const std::optional<G
     pass.start_time_s = d.start_time_s;
     pass.vehicle =
         vehicles.emplace(d.vehicle_id, static_cast<std::int64_t>(vehicles.size())).first->second;
-    for (const TrajectorySample& s : store.drive_trajectory(d.drive_id)) {
-      pass.path_m.push_back(frame.to_local(GeoPoint{s.lat_deg, s.lon_deg, 0.0}));
-    }
+    for (const GeoPoint& g : store.drive_path(d.drive_id)) pass.path_m.push_back(frame.to_local(g));
     if (pass.path_m.empty()) continue;  // no trajectory: judged by its candidates alone
     const auto it = cand_of_drive.find(d.row);
     pass.view_range_m = it == cand_of_drive.end()

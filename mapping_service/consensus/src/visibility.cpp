@@ -8,34 +8,19 @@
 
 #include "polmap/mapping_service/polyline_distance.hpp"
 #include "polmap/schema/errors.hpp"
+#include "polmap/tiles/polyline_simplify.hpp"
 
 namespace polmap::mapping {
 namespace {
 
-/// Ramer–Douglas–Peucker, iterative (paths can have 10^5 samples).
+/// Douglas–Peucker (tiles::douglas_peucker_keep); eps 0 keeps every vertex.
 std::vector<Eigen::Vector2d> simplify(std::span<const Eigen::Vector2d> pts, double eps) {
-  if (pts.size() <= 2) return {pts.begin(), pts.end()};
-  std::vector<char> keep(pts.size(), 0);
-  keep.front() = keep.back() = 1;
-  std::vector<std::pair<std::size_t, std::size_t>> todo{{0, pts.size() - 1}};
-  while (!todo.empty()) {
-    const auto [lo, hi] = todo.back();
-    todo.pop_back();
-    double worst = -1.0;
-    std::size_t wi = lo;
-    for (std::size_t i = lo + 1; i < hi; ++i) {
-      const double d = point_segment_distance(pts[i], pts[lo], pts[hi]);
-      if (d > worst) worst = d, wi = i;
-    }
-    if (worst > eps) {
-      keep[wi] = 1;
-      todo.emplace_back(lo, wi);
-      todo.emplace_back(wi, hi);
-    }
-  }
+  if (pts.size() <= 2 || eps <= 0.0) return {pts.begin(), pts.end()};
+  const std::vector<Eigen::Vector2d> in(pts.begin(), pts.end());
+  const std::vector<bool> keep = tiles::douglas_peucker_keep(in, eps);
   std::vector<Eigen::Vector2d> out;
-  for (std::size_t i = 0; i < pts.size(); ++i) {
-    if (keep[i]) out.push_back(pts[i]);
+  for (std::size_t i = 0; i < in.size(); ++i) {
+    if (keep[i]) out.push_back(in[i]);
   }
   return out;
 }

@@ -3,6 +3,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <bit>
 #include <cerrno>
 #include <cmath>
 #include <cstring>
@@ -14,6 +15,7 @@
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/schema/json.hpp"
 #include "polmap/tiles/local_frame.hpp"
+#include "polmap/tiles/polyline_simplify.hpp"
 #include "polmap/util/file.hpp"
 #include "polmap/util/text.hpp"
 #include "sqlite_store_impl.hpp"
@@ -27,6 +29,31 @@ namespace {
 
 /// drive_trajectories.samples_json: a sample is kept kTrajectorySpacingM from the last kept
 /// one or kTrajectoryMaxGapS after it; the first and last samples always.
+/// The trajectory's positions simplified to kDrivePathToleranceM, packed as little-endian
+/// float64 (lat, lon) pairs (drive_trajectories.path_blob).
+std::string packed_path(const std::vector<TrajectorySample>& trajectory) {
+  std::vector<GeoPoint> pl;
+  pl.reserve(trajectory.size());
+  for (const auto& t : trajectory) pl.push_back({t.lat_deg, t.lon_deg, 0.0});
+  if (pl.size() > 2) pl = tiles::simplify_polyline(pl, kDrivePathToleranceM);
+  static_assert(std::endian::native == std::endian::little, "path_blob is little-endian");
+  std::string out(pl.size() * 16, '\0');
+  for (std::size_t i = 0; i < pl.size(); ++i) {
+    std::memcpy(out.data() + 16 * i, &pl[i].lat_deg, 8);
+    std::memcpy(out.data() + 16 * i + 8, &pl[i].lon_deg, 8);
+  }
+  return out;
+}
+
+std::vector<GeoPoint> unpack_path(std::string_view blob) {
+  std::vector<GeoPoint> pl(blob.size() / 16);
+  for (std::size_t i = 0; i < pl.size(); ++i) {
+    std::memcpy(&pl[i].lat_deg, blob.data() + 16 * i, 8);
+    std::memcpy(&pl[i].lon_deg, blob.data() + 16 * i + 8, 8);
+  }
+  return pl;
+}
+
 nlohmann::json decimated_trajectory_json(const std::vector<TrajectorySample>& trajectory) {
   nlohmann::json samples = nlohmann::json::array();
   const TrajectorySample* last = nullptr;
@@ -265,11 +292,12 @@ PutDriveResult SqliteMapStore::put_drive(const DrivePackage& package,
                      std::max(a.lon_deg, b.lon_deg));
       }
       c.stmt(
-           "INSERT INTO drive_trajectories(drive, min_spacing_m, samples_json) VALUES (?1, ?2, "
-           "?3)")
+           "INSERT INTO drive_trajectories(drive, min_spacing_m, samples_json, path_blob) "
+           "VALUES (?1, ?2, ?3, ?4)")
           .bind(1, drive_row)
           .bind(2, kTrajectorySpacingM)
           .bind(3, decimated_trajectory_json(package.trajectory).dump())
+          .bind_blob(4, packed_path(package.trajectory))
           .run();
       I.hook("rows_inserted");
       std::error_code e;
@@ -311,6 +339,23 @@ std::optional<DriveRecord> SqliteMapStore::get_drive(std::string_view drive_id) 
 std::optional<DriveRecord> SqliteMapStore::find_drive_by_hash(std::string_view content_hash) const {
   return impl_->read(
       [&](Connection& c) { return impl_->drive_where(c, "content_hash = ?1", content_hash); });
+}
+
+std::vector<GeoPoint> SqliteMapStore::drive_path(std::string_view drive_id) const {
+  return impl_->read([&](Connection& c) {
+    auto d = impl_->drive_where(c, "drive_id = ?1", drive_id);
+    if (!d) throw NotFoundError("drive '" + std::string(drive_id) + "' is not in the store");
+    auto s = c.stmt("SELECT path_blob, samples_json FROM drive_trajectories WHERE drive = ?1");
+    s.bind(1, d->row);
+    if (!s.step()) return std::vector<GeoPoint>{};  // ingested before migration 2
+    if (!s.is_null(0)) return unpack_path(s.blob(0));
+    // Ingested before migration 5: simplify the decimated samples.
+    std::vector<GeoPoint> pl;
+    for (const auto& v : nlohmann::json::parse(s.text(1))) {
+      pl.push_back({v.at(1).get<double>(), v.at(2).get<double>(), 0.0});
+    }
+    return pl.size() > 2 ? tiles::simplify_polyline(pl, kDrivePathToleranceM) : pl;
+  });
 }
 
 std::vector<TrajectorySample> SqliteMapStore::drive_trajectory(std::string_view drive_id) const {

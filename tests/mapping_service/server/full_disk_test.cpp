@@ -107,6 +107,7 @@ class WriteTriggerStore final : public MapStore {
   std::optional<DriveRecord> find_drive_by_hash(std::string_view h) const override {
     return s_.find_drive_by_hash(h);
   }
+  std::vector<GeoPoint> drive_path(std::string_view id) const override { return s_.drive_path(id); }
   std::vector<TrajectorySample> drive_trajectory(std::string_view id) const override {
     return s_.drive_trajectory(id);
   }

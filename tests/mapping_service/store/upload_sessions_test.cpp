@@ -177,8 +177,9 @@ TEST(UploadSessions, MigrationAddsTheTableToASchema2Store) {
   // What a build before resumable uploads left: schema 2, no upload_sessions.
   exec_sql(db,
            "DROP TABLE upload_sessions; DROP TABLE landmark_changes; DROP INDEX "
-           "landmarks_support_of; ALTER TABLE landmarks DROP COLUMN support_of; DELETE FROM "
-           "schema_migrations WHERE version >= 3;");
+           "landmarks_support_of; ALTER TABLE landmarks DROP COLUMN support_of; ALTER TABLE "
+           "drive_trajectories DROP COLUMN path_blob; DELETE FROM schema_migrations WHERE "
+           "version >= 3;");
   SqliteMapStore store(db);
   EXPECT_EQ(store.schema_version(), sqlite_store_migrations().back().version);
   EXPECT_EQ(sqlite_store_migrations().at(3).name, "resumable upload sessions");

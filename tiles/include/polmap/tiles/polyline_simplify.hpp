@@ -1,6 +1,7 @@
 #pragma once
 /// @file polyline_simplify.hpp
-/// Douglas–Peucker simplification of polylines for display (MVT trajectories).
+/// Douglas–Peucker simplification of polylines (MVT trajectories, stored drive paths),
+/// with the distance to the chord *segment*, so paths that turn back keep their ends.
 /// Iterative with an explicit stack: the depth of the recursion it replaces grows with
 /// the number of vertices on hostile input (a zig-zag), the stack here lives on the heap.
 #include <Eigen/Core>
@@ -11,8 +12,8 @@
 namespace polmap::tiles {
 
 /// Which vertices of `points_m` (metric, one frame) Douglas–Peucker keeps at tolerance
-/// `tol_m` > 0: every dropped vertex is within tol_m of the kept polyline. The first and
-/// last vertex are always kept. O(n log n) typical, O(n^2) worst case, O(n) memory.
+/// `tol_m` > 0: every dropped vertex is within tol_m of the kept polyline (segment distance). The
+/// first and last vertex are always kept. O(n log n) typical, O(n^2) worst case, O(n) memory.
 [[nodiscard]] std::vector<bool> douglas_peucker_keep(const std::vector<Eigen::Vector2d>& points_m,
                                                      double tol_m);
 

@@ -111,6 +111,7 @@ class SqliteMapStore final : public MapStore {
   [[nodiscard]] std::optional<DriveRecord> get_drive(std::string_view drive_id) const override;
   [[nodiscard]] std::optional<DriveRecord> find_drive_by_hash(
       std::string_view content_hash) const override;
+  [[nodiscard]] std::vector<GeoPoint> drive_path(std::string_view drive_id) const override;
   [[nodiscard]] std::vector<TrajectorySample> drive_trajectory(
       std::string_view drive_id) const override;
   [[nodiscard]] std::vector<DriveRecord> drives_in(const GeoBox& box) const override;

@@ -44,6 +44,9 @@
 
 namespace polmap::mapping {
 
+/// Tolerance of MapStore::drive_path (metres).
+inline constexpr double kDrivePathToleranceM = 0.25;
+
 /// The request conflicts with stored state (HTTP 409), e.g. a drive_id that is
 /// already stored with a different content hash.
 class ConflictError : public ValidationError {
@@ -289,6 +292,10 @@ class MapStore {
   /// yaw and speed are kept. NotFoundError for unknown drives.
   [[nodiscard]] virtual std::vector<TrajectorySample> drive_trajectory(
       std::string_view drive_id) const = 0;
+  /// The drive's path: its whole trajectory's positions simplified by Douglas–Peucker to
+  /// kDrivePathToleranceM (kept at ingest as packed doubles: what map builds read, cheap
+  /// to decode for long drives). NotFoundError for unknown drives.
+  [[nodiscard]] virtual std::vector<GeoPoint> drive_path(std::string_view drive_id) const = 0;
   /// Drives whose bounding box intersects the box.
   [[nodiscard]] virtual std::vector<DriveRecord> drives_in(const GeoBox& box) const = 0;
   /// Removes the drive's rows (candidates, support links of old map versions)

@@ -671,6 +671,41 @@ std::vector<Row> request_rows(const tiles::TileKey& tile) {
     add("build request excluding 50000 unknown drives",
         json_post("/v1/maps", json{{"exclude_drives", ex}}.dump()), 422, "exclude_drives[0]");
   }
+  // Map diffs (public reads: every parameter checked before two maps are read).
+  add("diff from 10^20", get_request("/v1/maps/current/diff?from=100000000000000000000"), 400,
+      "\"field\":\"from\"");
+  add("diff from %00", get_request("/v1/maps/current/diff?from=1%00"), 400, "\"field\":\"from\"");
+  add("diff of version -1", get_request("/v1/maps/-1/diff?from=1"), 400, "\"field\":\"version\"");
+  add("diff from an unknown version", get_request("/v1/maps/current/diff?from=999999"), 404,
+      "\"field\":\"from\"");
+  add("diff bbox of NaN", get_request("/v1/maps/current/diff?from=current&bbox=nan,nan,nan,nan"),
+      400, "\"field\":\"bbox\"");
+  add("diff format with markup",
+      get_request("/v1/maps/current/diff?from=current&format=%3Cscript%3E"), 400,
+      "\"field\":\"format\"");
+  // Resumable uploads (refused before any session or file exists).
+  auto upload_open = [](const std::string& length_header) {
+    return "POST /v1/uploads HTTP/1.1\r\nHost: corpus\r\n" + key_header() + length_header +
+           "Content-Length: 0\r\nConnection: close\r\n\r\n";
+  };
+  add("upload session of 10^30 bytes",
+      upload_open("Upload-Length: 1000000000000000000000000000000\r\n"), 400, "Upload-Length");
+  add("upload session of -1 bytes", upload_open("Upload-Length: -1\r\n"), 400, "Upload-Length");
+  add("upload session of 1 TB", upload_open("Upload-Length: 1000000000000\r\n"), 413,
+      "Upload-Length");
+  add("upload session with a short digest",
+      upload_open("Upload-Length: 100\r\nUpload-Sha256: abc\r\n"), 400, "Upload-Sha256");
+  add("chunk for a session id with a path",
+      "PATCH /v1/uploads/..%2F..%2Fetc HTTP/1.1\r\nHost: corpus\r\n" + key_header() +
+          "Upload-Offset: 0\r\nContent-Type: application/offset+octet-stream\r\n"
+          "Content-Length: 4\r\nConnection: close\r\n\r\nabcd",
+      404, "");  // decoded, the id has slashes: no route matches
+  add("chunk for an unknown session",
+      "PATCH /v1/uploads/0123456789abcdef0123456789abcdef HTTP/1.1\r\nHost: corpus\r\n" +
+          key_header() +
+          "Upload-Offset: 0\r\nContent-Type: application/offset+octet-stream\r\n"
+          "Content-Length: 4\r\nConnection: close\r\n\r\nabcd",
+      404, "upload_id");
   return rows;
 }
 

@@ -71,9 +71,9 @@ TEST(DrivePath, DrivesStoredBeforeThePathColumnAreSimplifiedOnRead) {
   }
   sqlite3* h = nullptr;
   ASSERT_EQ(sqlite3_open(db.c_str(), &h), SQLITE_OK);
-  ASSERT_EQ(sqlite3_exec(h, "UPDATE drive_trajectories SET path_blob = NULL", nullptr, nullptr,
-                         nullptr),
-            SQLITE_OK);
+  ASSERT_EQ(
+      sqlite3_exec(h, "UPDATE drive_trajectories SET path_blob = NULL", nullptr, nullptr, nullptr),
+      SQLITE_OK);
   sqlite3_close(h);
   SqliteMapStore store(db);
   expect_l_path(store.drive_path("old"));

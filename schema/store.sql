@@ -42,6 +42,8 @@
 --                     removes its links; landmarks of published versions stay. A landmark
 --                     copied unchanged by an incremental build has support_of = the landmark
 --                     whose links it shares (deleting that version hands them to the copy).
+--   gridmap_mechanism_tiles  (migration 6) the fleet gridmap's scattering-mechanism
+--                     colouring, like gridmap_tiles (fleet_gridmap.hpp).
 --   landmark_changes  per map version: landmarks added, moved or retired against the version
 --                     current when its build started, with the builder's reason (JSON).
 --   tile_blobs        content-addressed tile payloads: etag = SHA-256 hex of payload, unique,
@@ -241,3 +243,16 @@ CREATE INDEX landmarks_support_of ON landmarks(support_of) WHERE support_of IS N
 
 -- migration 5: drive paths (Douglas-Peucker 0.25 m, packed little-endian float64 lat, lon pairs)
 ALTER TABLE drive_trajectories ADD COLUMN path_blob BLOB;
+
+-- migration 6: fleet gridmap scattering-mechanism tiles (odd bounce green, even magenta)
+CREATE TABLE gridmap_mechanism_tiles (
+  version    INTEGER NOT NULL REFERENCES map_versions(version) ON DELETE CASCADE,
+  z          INTEGER NOT NULL,
+  x          INTEGER NOT NULL,
+  y          INTEGER NOT NULL,
+  blob       INTEGER NOT NULL REFERENCES tile_blobs(id),
+  num_points INTEGER NOT NULL DEFAULT 0,
+  num_lines  INTEGER NOT NULL DEFAULT 0,
+  PRIMARY KEY (version, z, x, y)
+) WITHOUT ROWID;
+CREATE INDEX gridmap_mechanism_tiles_blob ON gridmap_mechanism_tiles(blob);

@@ -779,38 +779,44 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version, const MapB
           }
           if (!pkg.manifest.has_gridmap) continue;  // landmarks only: candidates, no gridmap
           const tiles::LocalFrame drive_frame(pkg.manifest.origin);
-          for_each_gridmap_block(pkg,
-                                 [&](const GridmapRaster& block) { acc.add(block, drive_frame); });
+          for_each_gridmap_block(pkg, [&](const GridmapRaster& block) {
+            acc.add(block, drive_frame, pkg.manifest.pol_level);
+          });
           ++st.gridmap_drives;
         } catch (const std::exception& e) {
           // A drive without a readable gridmap still contributes its candidates.
           errors.push_back(d.drive_id + ": " + e.what());
         }
       }
-      std::map<tiles::TileKey, std::string> prev_grid;
-      if (st.previous_version) {
-        for (const auto& t : store.list_tiles(*st.previous_version, TileLayer::Gridmap)) {
-          prev_grid.emplace(t.key, t.etag);
+      // Both raster layers: amplitude and scattering mechanisms; a tile whose bytes equal
+      // the previous version's keeps its blob (and ETag).
+      for (const TileLayer layer : {TileLayer::Gridmap, TileLayer::GridmapMechanism}) {
+        std::map<tiles::TileKey, std::string> prev_grid;
+        if (st.previous_version) {
+          for (const auto& t : store.list_tiles(*st.previous_version, layer)) {
+            prev_grid.emplace(t.key, t.etag);
+          }
         }
+        for (auto& [key, png] : layer == TileLayer::Gridmap ? acc.encode_png_tiles()
+                                                            : acc.encode_mechanism_png_tiles()) {
+          TileWrite w;
+          w.key = key;
+          w.etag = content_etag(png);
+          if (auto it = prev_grid.find(key); it != prev_grid.end() && it->second == w.etag) {
+            w.reuse_blob = true;
+          } else {
+            w.payload = std::move(png);
+          }
+          batch_bytes += w.payload.size();
+          batch.push_back(std::move(w));
+          if (layer == TileLayer::Gridmap) ++st.gridmap_tiles;
+          if (batch.size() >= cfg_.write_batch || batch_bytes > (16U << 20)) {
+            flush(layer);
+            stage("gridmap", 0.9);
+          }
+        }
+        flush(layer);
       }
-      for (auto& [key, png] : acc.encode_png_tiles()) {
-        TileWrite w;
-        w.key = key;
-        w.etag = content_etag(png);
-        if (auto it = prev_grid.find(key); it != prev_grid.end() && it->second == w.etag) {
-          w.reuse_blob = true;
-        } else {
-          w.payload = std::move(png);
-        }
-        batch_bytes += w.payload.size();
-        batch.push_back(std::move(w));
-        ++st.gridmap_tiles;
-        if (batch.size() >= cfg_.write_batch || batch_bytes > (16U << 20)) {
-          flush(TileLayer::Gridmap);
-          stage("gridmap", 0.9);
-        }
-      }
-      flush(TileLayer::Gridmap);
       gridmap_info = {{"base_zoom", cfg_.gridmap.base_zoom},
                       {"min_zoom", cfg_.gridmap.min_zoom},
                       {"db_min", cfg_.gridmap.db_min},

@@ -15,16 +15,50 @@ constexpr int kPx = kGridmapTilePixels;
 constexpr int kAffineBlock = 64;  // cells per affine fit (6.4 m at 0.1 m cells)
 }  // namespace
 
+std::pair<double, double> cell_mechanism_powers(std::span<const cdouble> c, PolLevel level,
+                                                double noise_power) {
+  const int q = pol_dimension(level);
+  POLMAP_EXPECT(static_cast<int>(c.size()) == q * (q + 1) / 2);
+  auto diag = [&](int i) {
+    return std::max(
+        0.0, c[static_cast<std::size_t>(GridmapRaster::layer_index(q, i, i))].real() - noise_power);
+  };
+  switch (level) {
+    case PolLevel::Full:
+      return {diag(1), diag(0) + diag(2)};
+    case PolLevel::DualLLLR:
+      return {diag(1), diag(0)};
+    case PolLevel::DualHHVV: {
+      const double hh = diag(0), vv = diag(1);
+      const double cross = c[static_cast<std::size_t>(GridmapRaster::layer_index(q, 0, 1))].real();
+      return {std::max(0.0, 0.5 * (hh + vv + 2.0 * cross)),
+              std::max(0.0, 0.5 * (hh + vv - 2.0 * cross))};
+    }
+    default:
+      return {0.0, 0.0};
+  }
+}
+
+void FleetGridmapAccumulator::Acc::resize() {
+  power.assign(kPx * kPx, 0.0F);
+  count.assign(kPx * kPx, 0.0F);
+  odd.assign(kPx * kPx, 0.0F);
+  even.assign(kPx * kPx, 0.0F);
+}
+
 FleetGridmapAccumulator::FleetGridmapAccumulator(FleetGridmapConfig cfg) : cfg_(cfg) {
   POLMAP_EXPECT(cfg_.min_zoom >= 0 && cfg_.min_zoom <= cfg_.base_zoom &&
                 cfg_.base_zoom <= tiles::kMaxZoom);
   POLMAP_EXPECT(cfg_.db_max > cfg_.db_min);
 }
 
-void FleetGridmapAccumulator::add(const GridmapRaster& r, const tiles::LocalFrame& frame) {
+void FleetGridmapAccumulator::add(const GridmapRaster& r, const tiles::LocalFrame& frame,
+                                  PolLevel level) {
   if (r.width <= 0 || r.height <= 0) return;
   POLMAP_EXPECT(r.count.size() == static_cast<std::size_t>(r.width) * r.height);
   POLMAP_EXPECT(static_cast<int>(r.layers.size()) == r.q * (r.q + 1) / 2);
+  POLMAP_EXPECT(pol_dimension(level) == r.q);
+  std::vector<cdouble> cell(r.layers.size());
   std::vector<int> diag;
   for (int i = 0; i < r.q; ++i) diag.push_back(i * r.q - i * (i - 1) / 2);
   const int z = cfg_.base_zoom;
@@ -71,16 +105,17 @@ void FleetGridmapAccumulator::add(const GridmapRaster& r, const tiles::LocalFram
           const tiles::TileKey key{z, static_cast<int>(gx / kPx), static_cast<int>(gy / kPx)};
           if (key != acc_key) {
             auto [it, inserted] = base_.try_emplace(key);
-            if (inserted) {
-              it->second.power.assign(kPx * kPx, 0.0F);
-              it->second.count.assign(kPx * kPx, 0.0F);
-            }
+            if (inserted) it->second.resize();
             acc = &it->second;
             acc_key = key;
           }
           const std::size_t pi = static_cast<std::size_t>(gy % kPx) * kPx + (gx % kPx);
           acc->power[pi] += static_cast<float>(n * std::max(0.0, trace));
           acc->count[pi] += static_cast<float>(n);
+          for (std::size_t l = 0; l < cell.size(); ++l) cell[l] = r.layers[l][i];
+          const auto [odd, even] = cell_mechanism_powers(cell, level, r.noise_power);
+          acc->odd[pi] += static_cast<float>(n * odd);
+          acc->even[pi] += static_cast<float>(n * even);
         }
       }
     }
@@ -109,8 +144,18 @@ std::uint8_t gridmap_gray(double mean_power, const FleetGridmapConfig& cfg) {
 
 std::vector<std::pair<tiles::TileKey, std::string>> FleetGridmapAccumulator::encode_png_tiles()
     const {
+  return encode(false);
+}
+
+std::vector<std::pair<tiles::TileKey, std::string>>
+FleetGridmapAccumulator::encode_mechanism_png_tiles() const {
+  return encode(true);
+}
+
+std::vector<std::pair<tiles::TileKey, std::string>> FleetGridmapAccumulator::encode(
+    bool mechanism) const {
   std::vector<std::pair<tiles::TileKey, std::string>> out;
-  auto encode = [&](const tiles::TileKey& key, const Acc& a) {
+  auto encode_tile = [&](const tiles::TileKey& key, const Acc& a) {
     cv::Mat img(kPx, kPx, CV_8UC4, cv::Scalar(0, 0, 0, 0));
     for (int y = 0; y < kPx; ++y) {
       auto* row = img.ptr<cv::Vec4b>(y);
@@ -118,7 +163,15 @@ std::vector<std::pair<tiles::TileKey, std::string>> FleetGridmapAccumulator::enc
         const std::size_t i = static_cast<std::size_t>(y) * kPx + x;
         if (a.count[i] <= 0.0F) continue;
         const std::uint8_t g = gridmap_gray(static_cast<double>(a.power[i]) / a.count[i], cfg_);
-        row[x] = cv::Vec4b(g, g, g, 255);
+        const double mech = static_cast<double>(a.odd[i]) + a.even[i];
+        if (!mechanism || !(mech > 0.0)) {
+          row[x] = cv::Vec4b(g, g, g, 255);
+          continue;
+        }
+        // OpenCV's channel order is B, G, R, A.
+        const auto m = static_cast<std::uint8_t>(std::lround(g * a.even[i] / mech));
+        const auto o = static_cast<std::uint8_t>(std::lround(g * a.odd[i] / mech));
+        row[x] = cv::Vec4b(m, o, m, 255);
       }
     }
     std::vector<unsigned char> buf;
@@ -127,16 +180,13 @@ std::vector<std::pair<tiles::TileKey, std::string>> FleetGridmapAccumulator::enc
   };
   std::map<tiles::TileKey, Acc> level = base_;
   for (int z = cfg_.base_zoom;; --z) {
-    for (const auto& [key, a] : level) encode(key, a);
+    for (const auto& [key, a] : level) encode_tile(key, a);
     if (z == cfg_.min_zoom) break;
     std::map<tiles::TileKey, Acc> up;
     for (const auto& [key, a] : level) {
       const tiles::TileKey pk = tiles::parent(key);
       auto [it, inserted] = up.try_emplace(pk);
-      if (inserted) {
-        it->second.power.assign(kPx * kPx, 0.0F);
-        it->second.count.assign(kPx * kPx, 0.0F);
-      }
+      if (inserted) it->second.resize();
       const int ox = (key.x % 2) * (kPx / 2), oy = (key.y % 2) * (kPx / 2);
       for (int y = 0; y < kPx; ++y) {
         for (int x = 0; x < kPx; ++x) {
@@ -144,6 +194,8 @@ std::vector<std::pair<tiles::TileKey, std::string>> FleetGridmapAccumulator::enc
           const std::size_t j = static_cast<std::size_t>(oy + y / 2) * kPx + (ox + x / 2);
           it->second.power[j] += a.power[i];
           it->second.count[j] += a.count[i];
+          it->second.odd[j] += a.odd[i];
+          it->second.even[j] += a.even[i];
         }
       }
     }

@@ -360,6 +360,9 @@ std::shared_ptr<const VersionIndex> Server::Impl::version_index(std::int64_t ver
     idx->gridmap.emplace(t.key, t);
     idx->gridmap_max_zoom = std::max(idx->gridmap_max_zoom, t.key.z);
   }
+  for (const TileInfo& t : store.list_tiles(version, TileLayer::GridmapMechanism)) {
+    idx->gridmap_mechanism.emplace(t.key, t);
+  }
   std::lock_guard lock(version_mutex);
   return indexes.try_emplace(version, std::move(idx)).first->second;
 }

@@ -39,8 +39,9 @@ struct VersionIndex {
   std::map<tiles::TileKey, TileInfo> localization;  ///< tiles with payload
   std::set<tiles::TileKey> covered;                 ///< tiles with payload + 1-tile margin
   std::map<tiles::TileKey, TileInfo> gridmap;
-  int gridmap_max_zoom = -1;            ///< base zoom of the fleet gridmap
-  std::optional<tiles::GeoBox> bounds;  ///< of the localization tiles
+  std::map<tiles::TileKey, TileInfo> gridmap_mechanism;  ///< same keys, mechanism colouring
+  int gridmap_max_zoom = -1;                             ///< base zoom of the fleet gridmap
+  std::optional<tiles::GeoBox> bounds;                   ///< of the localization tiles
   nlohmann::json parameters;
 };
 
@@ -190,6 +191,9 @@ struct Server::Impl {
   void get_mvt_tile(const httplib::Request& req, httplib::Response& res);
   void get_tilejson(const httplib::Request& req, httplib::Response& res);
   void get_gridmap_tile(const httplib::Request& req, httplib::Response& res);
+  void get_gridmap_mechanism_tile(const httplib::Request& req, httplib::Response& res);
+  /// Either fleet gridmap raster layer (Gridmap or GridmapMechanism).
+  void serve_gridmap_layer(const httplib::Request& req, httplib::Response& res, TileLayer layer);
   /// Cache-Control of a tile: immutable for an explicit ?version=, revalidated otherwise.
   [[nodiscard]] std::string tile_cache_control(bool is_explicit) const;
   /// Answers 304 (with ETag and Cache-Control) when If-None-Match matches `etag`.

@@ -302,10 +302,12 @@ void Server::Impl::get_tilejson(const httplib::Request& req, httplib::Response& 
          {"fields", {{"drive_id", "String"}, {"vehicle_id", "String"}}}}}},
   };
   if (idx) {
-    j["polmap"] = {{"map_version", idx->version},
-                   {"localization_tiles", base + "/v1/tiles/{z}/{x}/{y}" + query},
-                   {"localization_zoom", tiles::kLocalizationZoom},
-                   {"gridmap_tiles", base + "/v1/gridmap/{z}/{x}/{y}.png" + query}};
+    j["polmap"] = {
+        {"map_version", idx->version},
+        {"localization_tiles", base + "/v1/tiles/{z}/{x}/{y}" + query},
+        {"localization_zoom", tiles::kLocalizationZoom},
+        {"gridmap_tiles", base + "/v1/gridmap/{z}/{x}/{y}.png" + query},
+        {"gridmap_mechanism_tiles", base + "/v1/gridmap/mechanism/{z}/{x}/{y}.png" + query}};
   }
   res.status = 200;
   res.set_content(j.dump(), kJson);
@@ -314,18 +316,30 @@ void Server::Impl::get_tilejson(const httplib::Request& req, httplib::Response& 
 
 // ---- fleet gridmap raster tiles
 void Server::Impl::get_gridmap_tile(const httplib::Request& req, httplib::Response& res) {
-  set_route("gridmap");
+  serve_gridmap_layer(req, res, TileLayer::Gridmap);
+}
+
+void Server::Impl::get_gridmap_mechanism_tile(const httplib::Request& req, httplib::Response& res) {
+  serve_gridmap_layer(req, res, TileLayer::GridmapMechanism);
+}
+
+void Server::Impl::serve_gridmap_layer(const httplib::Request& req, httplib::Response& res,
+                                       TileLayer layer) {
+  const bool mech = layer == TileLayer::GridmapMechanism;
+  const char* name = mech ? "gridmap_mechanism" : "gridmap";
+  set_route(name);
   const auto key = parse_key(req);
   if (!key) {
-    metrics.tile_served("gridmap", 400);
+    metrics.tile_served(name, 400);
     return reply_error(res, 400, "malformed tile address: expected z/x/y.png", "z/x/y");
   }
   bool is_explicit = false;
   const auto idx = resolve_version(req, res, is_explicit);
-  if (!idx) return metrics.tile_served("gridmap", res.status);
+  if (!idx) return metrics.tile_served(name, res.status);
   const std::string cache_control = tile_cache_control(is_explicit);
-  if (idx->gridmap.empty()) {
-    metrics.tile_served("gridmap", 404);
+  const auto& layer_tiles = mech ? idx->gridmap_mechanism : idx->gridmap;
+  if (layer_tiles.empty()) {
+    metrics.tile_served(name, 404);
     return reply_error(res, 404,
                        "map version " + std::to_string(idx->version) + " has no fleet gridmap");
   }
@@ -335,11 +349,11 @@ void Server::Impl::get_gridmap_tile(const httplib::Request& req, httplib::Respon
     const int dz = key->z - idx->gridmap_max_zoom;
     source = {idx->gridmap_max_zoom, key->x >> dz, key->y >> dz};
   }
-  const auto it = idx->gridmap.find(source);
-  if (it == idx->gridmap.end()) {
+  const auto it = layer_tiles.find(source);
+  if (it == layer_tiles.end()) {
     res.status = 204;  // transparent: no drive observed this area
     res.set_header("Cache-Control", cache_control);
-    return metrics.tile_served("gridmap", 204);
+    return metrics.tile_served(name, 204);
   }
   std::string etag = "\"" + it->second.etag;
   if (source != *key)
@@ -347,14 +361,15 @@ void Server::Impl::get_gridmap_tile(const httplib::Request& req, httplib::Respon
         "-" + std::to_string(key->z) + "-" + std::to_string(key->x) + "-" + std::to_string(key->y);
   etag += "\"";
   if (reply_not_modified(req, res, etag, cache_control)) {
-    return metrics.tile_served("gridmap", 304);
+    return metrics.tile_served(name, 304);
   }
-  const std::string ck = "G/" + std::to_string(idx->version) + "/" + key_cache_id(*key);
+  const std::string ck =
+      (mech ? "M/" : "G/") + std::to_string(idx->version) + "/" + key_cache_id(*key);
   auto blob = cache.get(ck);
   if (!blob) {
-    const auto tile = store.get_tile(idx->version, TileLayer::Gridmap, source);
+    const auto tile = store.get_tile(idx->version, layer, source);
     if (!tile) {
-      metrics.tile_served("gridmap", 404);
+      metrics.tile_served(name, 404);
       return reply_error(res, 404, "gridmap tile vanished from the store");
     }
     auto b = std::make_shared<http::CachedBlob>();
@@ -365,7 +380,7 @@ void Server::Impl::get_gridmap_tile(const httplib::Request& req, httplib::Respon
     cache.put(ck, b);
     blob = std::move(b);
   }
-  metrics.tile_served("gridmap", reply_blob(req, res, *blob, cache_control));
+  metrics.tile_served(name, reply_blob(req, res, *blob, cache_control));
 }
 
 void Server::Impl::register_tile_routes() {
@@ -377,6 +392,8 @@ void Server::Impl::register_tile_routes() {
   http.Get(R"(/v1/mvt/([^/]+)/([^/]+)/([^/.]+)\.mvt)", route(&Impl::get_mvt_tile));
   http.Get("/v1/tilejson.json", route(&Impl::get_tilejson));
   http.Get(R"(/v1/gridmap/([^/]+)/([^/]+)/([^/.]+)\.png)", route(&Impl::get_gridmap_tile));
+  http.Get(R"(/v1/gridmap/mechanism/([^/]+)/([^/]+)/([^/.]+)\.png)",
+           route(&Impl::get_gridmap_mechanism_tile));
 }
 
 }  // namespace polmap::mapping

@@ -103,7 +103,14 @@ std::int64_t dir_bytes(const fs::path& p) {
 }
 
 const char* tile_table(TileLayer layer) {
-  return layer == TileLayer::Localization ? "tiles" : "gridmap_tiles";
+  switch (layer) {
+    case TileLayer::Localization:
+      return "tiles";
+    case TileLayer::GridmapMechanism:
+      return "gridmap_mechanism_tiles";
+    default:
+      return "gridmap_tiles";
+  }
 }
 
 MapVersionStatus parse_status(const std::string& s) {

@@ -139,14 +139,16 @@ struct SqliteMapStore::Impl {
         "DELETE FROM gridmap_tiles WHERE version IN (SELECT version FROM map_versions WHERE "
         "status = 'failed'); "
         "DELETE FROM landmark_changes WHERE version IN (SELECT version FROM map_versions WHERE "
-        "status = 'failed');");
+        "status = 'failed'); "
+        "DELETE FROM gridmap_mechanism_tiles WHERE version IN (SELECT version FROM map_versions "
+        "WHERE status = 'failed');");
     gc_blobs(c);
   }
 
   static void gc_blobs(Connection& c) {
     c.exec(
         "DELETE FROM tile_blobs WHERE id NOT IN (SELECT blob FROM tiles) AND id NOT IN (SELECT "
-        "blob FROM gridmap_tiles)");
+        "blob FROM gridmap_tiles) AND id NOT IN (SELECT blob FROM gridmap_mechanism_tiles)");
   }
 
   DriveRecord drive_from_row(Stmt& s) const {

@@ -440,8 +440,9 @@ TEST(FleetGridmap, AccumulatesPowerAndCountsIntoWebMercatorPixels) {
   }
   FleetGridmapConfig cfg;
   FleetGridmapAccumulator acc(cfg);
-  acc.add(r, frame);
-  acc.add(r, frame);  // a second drive on the same cells doubles N, keeps the mean
+  acc.add(r, frame, PolLevel::DualLLLR);
+  acc.add(r, frame,
+          PolLevel::DualLLLR);  // a second drive on the same cells doubles N, keeps the mean
   ASSERT_GT(acc.num_base_tiles(), 0U);
   const auto png_tiles = acc.encode_png_tiles();
   double counted = 0;

@@ -261,7 +261,7 @@ TEST_F(ExportTest, ExportMapFromStoreAllFormatsAndBbox) {
   // Fleet gridmap tiles from a synthetic drive raster.
   const auto d = testing::make_synthetic_drive();
   FleetGridmapAccumulator acc;
-  acc.add(d.raster, tiles::LocalFrame(d.pkg.manifest.origin));
+  acc.add(d.raster, tiles::LocalFrame(d.pkg.manifest.origin), d.pkg.manifest.pol_level);
   std::vector<TileWrite> tw;
   int base_tiles = 0;
   for (auto& [key, png] : acc.encode_png_tiles()) {

@@ -847,6 +847,25 @@ TEST_F(ServerTest, VectorTilesTileJsonAndGridmap) {
   EXPECT_EQ(c.Get("/v1/gridmap/" + tiles::to_string(tiles::tile_at(-40, 100, base_zoom)) + ".png")
                 ->status,
             204);
+  // The scattering-mechanism layer beside it: the same tiles, its own ETags where the
+  // drives carry mechanism information (the scene is fully polarimetric).
+  const auto mech_tiles = store_->list_tiles(version, TileLayer::GridmapMechanism);
+  ASSERT_EQ(mech_tiles.size(), gridmap_tiles.size());
+  for (std::size_t i = 0; i < mech_tiles.size(); ++i)
+    EXPECT_EQ(mech_tiles[i].key, gridmap_tiles[i].key);
+  r = c.Get("/v1/gridmap/mechanism/" + tiles::to_string(gk) + ".png");
+  ASSERT_EQ(r->status, 200) << r->body;
+  EXPECT_EQ(r->get_header_value("Content-Type"), "image/png");
+  EXPECT_EQ(r->body.substr(1, 3), "PNG");
+  EXPECT_NE(r->get_header_value("ETag"),
+            c.Get("/v1/gridmap/" + tiles::to_string(gk) + ".png")->get_header_value("ETag"));
+  EXPECT_EQ(
+      c.Get("/v1/gridmap/mechanism/" + tiles::to_string(tiles::children(gk)[0]) + ".png")->status,
+      200);
+  EXPECT_EQ(c.Get("/v1/gridmap/mechanism/x/0/0.png")->status, 400);
+  EXPECT_EQ(tj["polmap"]["gridmap_mechanism_tiles"],
+            "http://127.0.0.1:" + std::to_string(port_) +
+                "/v1/gridmap/mechanism/{z}/{x}/{y}.png?version=" + std::to_string(version));
 }
 
 TEST_F(ServerTest, ExportStreamsGisFiles) {

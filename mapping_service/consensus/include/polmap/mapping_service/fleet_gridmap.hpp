@@ -24,11 +24,20 @@
 /// A GeoTIFF export reads the base-zoom tiles back (decode_gridmap_png_db) into
 /// an EPSG:3857 raster whose geotransform follows from tile_bounds().
 ///
+/// Scattering mechanisms (TileLayer::GridmapMechanism, the paper's colouring): per
+/// pixel also Σ N·odd and Σ N·even, the odd- and even-bounce powers of each cell's
+/// covariance (noise power subtracted; radar::mechanism_powers, per level). The
+/// mechanism tile's colour is the amplitude tile's gray g times the mechanism mix:
+/// R = B = g·even/(odd+even), G = g·odd/(odd+even) — odd bounce green, even bounce
+/// magenta, brightness from amplitude; gray where the drives carry no mechanism
+/// information (single polarization).
+///
 /// Pure core (no file I/O): the map builder feeds drive gridmap blocks read
 /// with for_each_gridmap_block (drive_package_io.hpp).
 #include <cstdint>
 #include <map>
 #include <optional>
+#include <span>
 #include <string>
 #include <string_view>
 #include <utility>
@@ -63,7 +72,8 @@ class FleetGridmapAccumulator {
   /// whose frame is `drive_frame`. Cells with N = 0 are skipped. Each cell goes
   /// to the base-zoom pixel containing its centre (drive frame -> Web-Mercator
   /// pixel mapped by an affine fit per 64-cell block; error < 1 mm).
-  void add(const GridmapRaster& raster, const tiles::LocalFrame& drive_frame);
+  /// `level`: the drive's polarimetric level (which components the layers hold).
+  void add(const GridmapRaster& raster, const tiles::LocalFrame& drive_frame, PolLevel level);
 
   /// Number of base-zoom tiles with at least one observed pixel.
   [[nodiscard]] std::size_t num_base_tiles() const { return base_.size(); }
@@ -73,8 +83,11 @@ class FleetGridmapAccumulator {
   /// Σ N of a base-zoom pixel.
   [[nodiscard]] double count(const tiles::TileKey& base_tile, int px, int py) const;
 
-  /// PNG tiles of all zooms min_zoom..base_zoom, ordered by (z, x, y).
+  /// Amplitude PNG tiles of all zooms min_zoom..base_zoom, ordered by (z, x, y).
   [[nodiscard]] std::vector<std::pair<tiles::TileKey, std::string>> encode_png_tiles() const;
+  /// Scattering-mechanism PNG tiles (file comment), same keys as encode_png_tiles().
+  [[nodiscard]] std::vector<std::pair<tiles::TileKey, std::string>> encode_mechanism_png_tiles()
+      const;
 
   [[nodiscard]] const FleetGridmapConfig& config() const { return cfg_; }
 
@@ -82,10 +95,21 @@ class FleetGridmapAccumulator {
   struct Acc {
     std::vector<float> power;  ///< Σ N·tr(C), row-major 256 × 256
     std::vector<float> count;  ///< Σ N
+    std::vector<float> odd;    ///< Σ N·odd-bounce power
+    std::vector<float> even;   ///< Σ N·even-bounce power
+    void resize();
   };
+  [[nodiscard]] std::vector<std::pair<tiles::TileKey, std::string>> encode(bool mechanism) const;
   FleetGridmapConfig cfg_;
   std::map<tiles::TileKey, Acc> base_;
 };
+
+/// Odd- and even-bounce power of one gridmap cell: the layers' values at a cell (upper
+/// triangle, row-major, as GridmapRaster::layers) of a covariance of `level`, noise power
+/// subtracted from each component (clamped at 0). The same as radar::mechanism_powers
+/// without building a matrix per cell.
+std::pair<double, double> cell_mechanism_powers(std::span<const cdouble> layers_at_cell,
+                                                PolLevel level, double noise_power);
 
 /// Gray value of a mean power (see file comment); 0 never (it means unobserved).
 std::uint8_t gridmap_gray(double mean_power, const FleetGridmapConfig& cfg);

@@ -179,8 +179,9 @@ struct LandmarkChange {
 
 /// Tile layers kept per map version.
 enum class TileLayer {
-  Localization,  ///< localization tiles (tiles/localization_tile.hpp), z = kLocalizationZoom
-  Gridmap,       ///< fleet gridmap amplitude tiles (fleet_gridmap.hpp)
+  Localization,      ///< localization tiles (tiles/localization_tile.hpp), z = kLocalizationZoom
+  Gridmap,           ///< fleet gridmap amplitude tiles (fleet_gridmap.hpp)
+  GridmapMechanism,  ///< fleet gridmap scattering-mechanism tiles (fleet_gridmap.hpp)
 };
 
 /// A tile to store with a map version. Blobs are content-addressed by etag:

@@ -29,13 +29,29 @@ namespace {
 
 /// drive_trajectories.samples_json: a sample is kept kTrajectorySpacingM from the last kept
 /// one or kTrajectoryMaxGapS after it; the first and last samples always.
+/// Douglas–Peucker in windows of 1024 vertices (window ends kept): within tolerance like
+/// the whole-path run, but its worst case (a hostile zig-zag) stays linear in the length.
+std::vector<GeoPoint> simplify_path(const std::vector<GeoPoint>& pl) {
+  constexpr std::size_t kWindow = 1024;
+  if (pl.size() <= 2) return pl;
+  std::vector<GeoPoint> out;
+  for (std::size_t a = 0; a + 1 < pl.size(); a += kWindow) {
+    const std::size_t b = std::min(pl.size() - 1, a + kWindow);
+    const std::vector<GeoPoint> part(pl.begin() + static_cast<std::ptrdiff_t>(a),
+                                     pl.begin() + static_cast<std::ptrdiff_t>(b) + 1);
+    const std::vector<GeoPoint> s = tiles::simplify_polyline(part, kDrivePathToleranceM);
+    out.insert(out.end(), s.begin() + (out.empty() ? 0 : 1), s.end());  // shared end once
+  }
+  return out;
+}
+
 /// The trajectory's positions simplified to kDrivePathToleranceM, packed as little-endian
 /// float64 (lat, lon) pairs (drive_trajectories.path_blob).
 std::string packed_path(const std::vector<TrajectorySample>& trajectory) {
   std::vector<GeoPoint> pl;
   pl.reserve(trajectory.size());
   for (const auto& t : trajectory) pl.push_back({t.lat_deg, t.lon_deg, 0.0});
-  if (pl.size() > 2) pl = tiles::simplify_polyline(pl, kDrivePathToleranceM);
+  pl = simplify_path(pl);
   static_assert(std::endian::native == std::endian::little, "path_blob is little-endian");
   std::string out(pl.size() * 16, '\0');
   for (std::size_t i = 0; i < pl.size(); ++i) {
@@ -354,7 +370,7 @@ std::vector<GeoPoint> SqliteMapStore::drive_path(std::string_view drive_id) cons
     for (const auto& v : nlohmann::json::parse(s.text(1))) {
       pl.push_back({v.at(1).get<double>(), v.at(2).get<double>(), 0.0});
     }
-    return pl.size() > 2 ? tiles::simplify_polyline(pl, kDrivePathToleranceM) : pl;
+    return simplify_path(pl);
   });
 }
 

@@ -16,8 +16,8 @@ namespace {
 TEST(FleetGridmapMechanism, CellPowersEqualTheRadarReferenceAtEveryLevel) {
   std::mt19937 rng(8);
   std::normal_distribution<double> g(0.0, 1.0);
-  for (PolLevel level : {PolLevel::Full, PolLevel::DualLLLR, PolLevel::DualHHVV,
-                         PolLevel::SingleLR, PolLevel::SingleHH}) {
+  for (PolLevel level : {PolLevel::Full, PolLevel::DualLLLR, PolLevel::DualHHVV, PolLevel::SingleLR,
+                         PolLevel::SingleHH}) {
     const int q = pol_dimension(level);
     for (int trial = 0; trial < 50; ++trial) {
       // C = 1/n Σ w w^H: Hermitian, positive semi-definite.

@@ -103,6 +103,14 @@ bool acceptable_upload_type(const std::string& content_type) {
 
 }  // namespace
 
+void Server::Impl::reply_uploads_busy(httplib::Response& res) const {
+  res.set_header("Retry-After", "5");
+  reply_error(res, 503,
+              "the server is receiving " + std::to_string(cfg.max_concurrent_uploads) +
+                  " uploads already; retry later",
+              "body");
+}
+
 nlohmann::json drive_to_json(const DriveRecord& d, bool with_manifest) {
   nlohmann::json j{{"drive_id", d.drive_id},
                    {"content_hash", d.content_hash},
@@ -256,11 +264,7 @@ void Server::Impl::register_drive_routes() {
     // At most max_concurrent_uploads at once; the slot is held until this request ends.
     const ConcurrencySlot slot(uploads_in_flight, cfg.max_concurrent_uploads);
     if (!slot.acquired()) {
-      res.set_header("Retry-After", "5");
-      reply_error(res, 503,
-                  "the server is receiving " + std::to_string(cfg.max_concurrent_uploads) +
-                      " uploads already; retry later",
-                  "body");
+      reply_uploads_busy(res);
       return reject_unread("busy");
     }
     const std::filesystem::path dir = upload_scratch_dir();

@@ -190,6 +190,8 @@ struct Server::Impl {
   void get_localization_tile(const httplib::Request& req, httplib::Response& res);
   void get_mvt_tile(const httplib::Request& req, httplib::Response& res);
   void get_tilejson(const httplib::Request& req, httplib::Response& res);
+  /// 503 with Retry-After: max_concurrent_uploads uploads are being received already.
+  void reply_uploads_busy(httplib::Response& res) const;
   void get_gridmap_tile(const httplib::Request& req, httplib::Response& res);
   void get_gridmap_mechanism_tile(const httplib::Request& req, httplib::Response& res);
   /// Either fleet gridmap raster layer (Gridmap or GridmapMechanism).

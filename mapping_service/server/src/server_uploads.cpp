@@ -290,11 +290,7 @@ void Server::Impl::register_upload_routes() {
     }
     const ConcurrencySlot slot(uploads_in_flight, cfg.max_concurrent_uploads);
     if (!slot.acquired()) {
-      res.set_header("Retry-After", "5");
-      reply_error(res, 503,
-                  "the server is receiving " + std::to_string(cfg.max_concurrent_uploads) +
-                      " uploads already; retry later",
-                  "body");
+      reply_uploads_busy(res);
       return reject_unread("busy");
     }
     const LockedSessionFile file(session->file);

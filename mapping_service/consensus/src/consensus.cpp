@@ -1,10 +1,8 @@
 // Landmark consensus (paper §III-D). The only translation unit of polmap that
-// includes CGAL (it is slow to compile): convex hulls and line intersections.
+// includes CGAL (it is slow to compile): robust line intersections for end snapping.
 #include "polmap/mapping_service/consensus.hpp"
 
 #include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
-#include <CGAL/Polygon_2_algorithms.h>
-#include <CGAL/convex_hull_2.h>
 #include <CGAL/intersections.h>
 
 #include <algorithm>
@@ -668,17 +666,24 @@ LinePairDistance line_pair_distance(const LineCandidate& a, const LineCandidate&
   LinePairDistance out;
   out.projection_m = std::max(0.0, std::max(alo, blo) - std::min(ahi, bhi));
   const double merged = std::max(ahi, bhi) - std::min(alo, blo);
-  // Hull in coordinates relative to a's start: keeps the area well conditioned
-  // far from the frame origin.
+  // Hull in coordinates relative to a's start: keeps the area well conditioned far from
+  // the frame origin. The convex hull of four points is the largest of their three
+  // quadrilaterals (shoelace; a crossed or concave one is smaller) and four triangles (one
+  // point inside the others' triangle): closed form, no allocation, no hull algorithm
+  // (this runs for every candidate pair of a fleet).
   const Eigen::Vector2d o = a.start_m;
-  const std::array<CPoint, 4> in{CPoint(0.0, 0.0), CPoint(a.end_m.x() - o.x(), a.end_m.y() - o.y()),
-                                 CPoint(b.start_m.x() - o.x(), b.start_m.y() - o.y()),
-                                 CPoint(b.end_m.x() - o.x(), b.end_m.y() - o.y())};
-  std::vector<CPoint> hull;
-  CGAL::convex_hull_2(in.begin(), in.end(), std::back_inserter(hull));
-  double area = 0.0;
-  if (hull.size() >= 3)
-    area = std::abs(CGAL::to_double(CGAL::polygon_area_2(hull.begin(), hull.end(), K())));
+  const std::array<Eigen::Vector2d, 4> p{Eigen::Vector2d::Zero(), a.end_m - o, b.start_m - o,
+                                         b.end_m - o};
+  auto cross = [](const Eigen::Vector2d& u, const Eigen::Vector2d& v) {
+    return u.x() * v.y() - u.y() * v.x();
+  };
+  auto quad = [&](int i, int j, int k, int l) {
+    return 0.5 *
+           std::abs(cross(p[i], p[j]) + cross(p[j], p[k]) + cross(p[k], p[l]) + cross(p[l], p[i]));
+  };
+  auto tri = [&](int i, int j, int k) { return 0.5 * std::abs(cross(p[j] - p[i], p[k] - p[i])); };
+  const double area = std::max({quad(0, 1, 2, 3), quad(0, 2, 1, 3), quad(0, 1, 3, 2), tri(0, 1, 2),
+                                tri(0, 1, 3), tri(0, 2, 3), tri(1, 2, 3)});
   if (merged <= 1e-12) {
     out.hull_m = (b.start_m - a.start_m).norm();
   } else {
@@ -733,6 +738,9 @@ LineConsensusResult consensus_lines(std::span<const TaggedLineCandidate> candida
             static_cast<std::int64_t>(std::floor(iy0 / cell)) != c.second) {
           continue;
         }
+        // Already joined through other pairs: the components do not change, so the
+        // (costly) pair test is skipped. In a dense fleet most pairs of one wall are.
+        if (uf.find(i) == uf.find(j)) continue;
         const auto dist = line_pair_distance(lines[i].candidate, lines[j].candidate);
         if (dist.hull_m < cfg.max_hull_distance_m &&
             dist.projection_m < cfg.max_projection_distance_m) {

@@ -3,6 +3,7 @@
 // snapping of crossing / nearly crossing ends.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <numbers>
 #include <random>
 
@@ -169,6 +170,67 @@ TEST(ConsensusLines, ManyWallsScaleAndStayDeterministic) {
   EXPECT_EQ(r.landmarks.size(), 2000U);
   std::shuffle(in.begin(), in.end(), rng);
   EXPECT_EQ(consensus_lines(in).support, r.support);
+}
+
+}  // namespace
+}  // namespace polmap::mapping
+
+namespace polmap::mapping {
+namespace {
+
+/// Area of the convex hull of points (Andrew's monotone chain), the reference.
+double hull_area(std::vector<Eigen::Vector2d> p) {
+  std::sort(p.begin(), p.end(), [](const auto& a, const auto& b) {
+    return a.x() != b.x() ? a.x() < b.x() : a.y() < b.y();
+  });
+  auto cross = [](const Eigen::Vector2d& o, const Eigen::Vector2d& a, const Eigen::Vector2d& b) {
+    return (a.x() - o.x()) * (b.y() - o.y()) - (a.y() - o.y()) * (b.x() - o.x());
+  };
+  std::vector<Eigen::Vector2d> h(2 * p.size());
+  std::size_t k = 0;
+  for (std::size_t i = 0; i < p.size(); ++i) {
+    while (k >= 2 && cross(h[k - 2], h[k - 1], p[i]) <= 0) --k;
+    h[k++] = p[i];
+  }
+  for (std::size_t i = p.size() - 1, t = k + 1; i-- > 0;) {
+    while (k >= t && cross(h[k - 2], h[k - 1], p[i]) <= 0) --k;
+    h[k++] = p[i];
+  }
+  h.resize(k > 0 ? k - 1 : 0);
+  double area = 0.0;
+  for (std::size_t i = 0; i < h.size(); ++i) {
+    const auto& a = h[i];
+    const auto& b = h[(i + 1) % h.size()];
+    area += a.x() * b.y() - a.y() * b.x();
+  }
+  return 0.5 * std::abs(area);
+}
+
+TEST(LinePairDistance, HullAreaEqualsAConvexHullReference) {
+  std::mt19937 rng(21);
+  std::uniform_real_distribution<double> u(-5.0, 5.0);
+  for (int trial = 0; trial < 2000; ++trial) {
+    LineCandidate a, b;
+    a.start_m = {1000.0 + u(rng), -2000.0 + u(rng)};
+    a.end_m = {1000.0 + u(rng), -2000.0 + u(rng)};
+    b.start_m = {1000.0 + u(rng), -2000.0 + u(rng)};
+    b.end_m = trial % 5 == 0 ? (a.start_m + a.end_m) / 2.0  // inside: a triangle hull
+                             : Eigen::Vector2d(1000.0 + u(rng), -2000.0 + u(rng));
+    const auto d = line_pair_distance(a, b);
+    // merged length along the common direction (as line_pair_distance defines it)
+    Eigen::Vector2d ua = a.end_m - a.start_m, ub = b.end_m - b.start_m;
+    if (ua.dot(ub) < 0.0) ub = -ub;
+    const Eigen::Vector2d dir = (ua + ub).normalized();
+    double lo = 1e300, hi = -1e300;
+    for (const auto& p : {a.start_m, a.end_m, b.start_m, b.end_m}) {
+      lo = std::min(lo, p.dot(dir));
+      hi = std::max(hi, p.dot(dir));
+    }
+    const double expect = hull_area({a.start_m - a.start_m, a.end_m - a.start_m,
+                                     b.start_m - a.start_m, b.end_m - a.start_m}) /
+                          (hi - lo);
+    ASSERT_NEAR(d.hull_m, expect, 1e-9 * std::max(1.0, expect)) << trial;
+  }
 }
 
 }  // namespace

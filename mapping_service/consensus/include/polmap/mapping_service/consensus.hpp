@@ -174,7 +174,7 @@ struct LineConsensusResult {
   std::vector<SupportVerdict> retired_verdicts;
   struct Stats {
     std::size_t candidates = 0;
-    std::size_t pairs = 0;
+    std::size_t pairs = 0;  ///< joining pairs found (pairs already joined are not tested)
     std::size_t groups = 0;
     std::size_t rejected_groups = 0;
     std::size_t retired_groups = 0;

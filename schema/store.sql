@@ -44,7 +44,7 @@
 --                     whose links it shares (deleting that version hands them to the copy).
 --   gridmap_mechanism_tiles  (migration 6) the fleet gridmap's scattering-mechanism
 --                     colouring, like gridmap_tiles (fleet_gridmap.hpp).
---   landmark_changes  per map version: landmarks added, moved or retired against the version
+--   landmark_changes  (migration 4) per map version: landmarks added, moved or retired against the version
 --                     current when its build started, with the builder's reason (JSON).
 --   tile_blobs        content-addressed tile payloads: etag = SHA-256 hex of payload, unique,
 --                     so an unchanged tile shared by many versions is stored once (and keeps
@@ -57,7 +57,10 @@
 --                     metre travelled (at least one per 5 s): samples_json = [[time_s, lat_deg,
 --                     lon_deg, yaw_enu_rad, speed_mps], ...]; for map display (MVT, TileJSON
 --                     bounds) without opening the package. Drives ingested before migration 2
---                     have no row.
+--                     have no row. path_blob (migration 5): the whole trajectory's positions
+--                     simplified by Douglas-Peucker to 0.25 m, little-endian float64 (lat, lon)
+--                     pairs: what map builds read (MapStore::drive_path); NULL for drives
+--                     ingested before migration 5 (simplified from samples_json on read).
 --   upload_sessions   (migration 3) resumable uploads in progress (POST /v1/uploads): id = 128
 --                     random bits as 32 lower-case hex digits; owner = fingerprint (SHA-256 hex)
 --                     of the API key that created it, never the key; the package's declared

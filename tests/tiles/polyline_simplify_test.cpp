@@ -43,6 +43,24 @@ double line_distance(const Eigen::Vector2d& q, const Eigen::Vector2d& a, const E
   return segment_distance(q, a, b);
 }
 
+TEST(DouglasPeucker, WindowsKeepTheirEndsAndTheTolerance) {
+  std::mt19937 rng(4);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  std::vector<Eigen::Vector2d> p;
+  for (int i = 0; i < 2500; ++i) p.emplace_back(0.2 * i, 3.0 * u(rng));
+  EXPECT_EQ(douglas_peucker_keep(p, 0.5, 0), douglas_peucker_keep(p, 0.5));
+  EXPECT_EQ(douglas_peucker_keep(p, 0.5, 5000), douglas_peucker_keep(p, 0.5));
+  const auto keep = douglas_peucker_keep(p, 0.5, 1000);
+  for (std::size_t e : {0U, 1000U, 2000U, 2499U}) EXPECT_TRUE(keep[e]) << e;
+  std::size_t last = 0;
+  for (std::size_t i = 1; i < p.size(); ++i) {
+    if (!keep[i]) continue;
+    for (std::size_t j = last + 1; j < i; ++j)
+      EXPECT_LE(line_distance(p[j], p[last], p[i]), 0.5 + 1e-9);
+    last = i;
+  }
+}
+
 TEST(DouglasPeucker, APathThatTurnsBackKeepsItsFarEnd) {
   // Out 100 m along x and back to x = 40: every vertex lies on the chord's line, but
   // the turn at x = 100 is 60 m beyond the chord's end.

@@ -9,12 +9,20 @@
 
 namespace polmap::tiles {
 
-std::vector<bool> douglas_peucker_keep(const std::vector<Eigen::Vector2d>& p, double tol_m) {
+std::vector<bool> douglas_peucker_keep(const std::vector<Eigen::Vector2d>& p, double tol_m,
+                                       std::size_t window) {
   POLMAP_EXPECT(tol_m > 0.0);
   std::vector<bool> keep(p.size(), false);
   if (p.empty()) return keep;
   keep.front() = keep.back() = true;
-  std::vector<std::pair<std::size_t, std::size_t>> todo{{0, p.size() - 1}};
+  // Each window [a, b] is simplified on its own, its ends kept.
+  const std::size_t step = window == 0 ? p.size() : window;
+  std::vector<std::pair<std::size_t, std::size_t>> todo;
+  for (std::size_t a = 0; a + 1 < p.size(); a += step) {
+    const std::size_t b = std::min(p.size() - 1, a + step);
+    keep[a] = keep[b] = true;
+    todo.emplace_back(a, b);
+  }
   while (!todo.empty()) {
     const auto [a, b] = todo.back();
     todo.pop_back();
@@ -43,13 +51,14 @@ std::vector<bool> douglas_peucker_keep(const std::vector<Eigen::Vector2d>& p, do
   return keep;
 }
 
-std::vector<GeoPoint> simplify_polyline(const std::vector<GeoPoint>& polyline, double tol_m) {
+std::vector<GeoPoint> simplify_polyline(const std::vector<GeoPoint>& polyline, double tol_m,
+                                        std::size_t window) {
   if (polyline.size() < 3) return polyline;
   const LocalFrame frame(polyline.front());
   std::vector<Eigen::Vector2d> xy;
   xy.reserve(polyline.size());
   for (const GeoPoint& g : polyline) xy.push_back(frame.to_local(g));
-  const std::vector<bool> keep = douglas_peucker_keep(xy, tol_m);
+  const std::vector<bool> keep = douglas_peucker_keep(xy, tol_m, window);
   std::vector<GeoPoint> out;
   for (std::size_t i = 0; i < polyline.size(); ++i) {
     if (keep[i]) out.push_back(polyline[i]);

@@ -13,21 +13,15 @@
 namespace polmap::mapping {
 namespace {
 
-/// Douglas–Peucker (tiles::douglas_peucker_keep) in windows of 1024 vertices (window
-/// ends kept): a hostile zig-zag path costs linear, not quadratic, time. eps 0 keeps
-/// every vertex.
+/// Douglas–Peucker in windows of 1024 edges (tiles::douglas_peucker_keep): a hostile
+/// zig-zag path costs linear, not quadratic, time. eps 0 keeps every vertex.
 std::vector<Eigen::Vector2d> simplify(std::span<const Eigen::Vector2d> pts, double eps) {
-  constexpr std::size_t kWindow = 1024;
   if (pts.size() <= 2 || eps <= 0.0) return {pts.begin(), pts.end()};
+  const std::vector<Eigen::Vector2d> in(pts.begin(), pts.end());
+  const std::vector<bool> keep = tiles::douglas_peucker_keep(in, eps, 1024);
   std::vector<Eigen::Vector2d> out;
-  for (std::size_t a = 0; a + 1 < pts.size(); a += kWindow) {
-    const std::size_t b = std::min(pts.size() - 1, a + kWindow);
-    const std::vector<Eigen::Vector2d> part(pts.begin() + static_cast<std::ptrdiff_t>(a),
-                                            pts.begin() + static_cast<std::ptrdiff_t>(b) + 1);
-    const std::vector<bool> keep = tiles::douglas_peucker_keep(part, eps);
-    for (std::size_t i = out.empty() ? 0 : 1; i < part.size(); ++i) {
-      if (keep[i]) out.push_back(part[i]);
-    }
+  for (std::size_t i = 0; i < in.size(); ++i) {
+    if (keep[i]) out.push_back(in[i]);
   }
   return out;
 }

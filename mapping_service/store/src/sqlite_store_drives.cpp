@@ -29,20 +29,10 @@ namespace {
 
 /// drive_trajectories.samples_json: a sample is kept kTrajectorySpacingM from the last kept
 /// one or kTrajectoryMaxGapS after it; the first and last samples always.
-/// Douglas–Peucker in windows of 1024 vertices (window ends kept): within tolerance like
-/// the whole-path run, but its worst case (a hostile zig-zag) stays linear in the length.
+/// Douglas–Peucker in windows of 1024 edges: within tolerance like the whole-path run,
+/// but a hostile zig-zag trajectory stays linear in its length.
 std::vector<GeoPoint> simplify_path(const std::vector<GeoPoint>& pl) {
-  constexpr std::size_t kWindow = 1024;
-  if (pl.size() <= 2) return pl;
-  std::vector<GeoPoint> out;
-  for (std::size_t a = 0; a + 1 < pl.size(); a += kWindow) {
-    const std::size_t b = std::min(pl.size() - 1, a + kWindow);
-    const std::vector<GeoPoint> part(pl.begin() + static_cast<std::ptrdiff_t>(a),
-                                     pl.begin() + static_cast<std::ptrdiff_t>(b) + 1);
-    const std::vector<GeoPoint> s = tiles::simplify_polyline(part, kDrivePathToleranceM);
-    out.insert(out.end(), s.begin() + (out.empty() ? 0 : 1), s.end());  // shared end once
-  }
-  return out;
+  return tiles::simplify_polyline(pl, kDrivePathToleranceM, 1024);
 }
 
 /// The trajectory's positions simplified to kDrivePathToleranceM, packed as little-endian

@@ -790,6 +790,7 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version, const MapB
       }
       // Both raster layers: amplitude and scattering mechanisms; a tile whose bytes equal
       // the previous version's keeps its blob (and ETag).
+      FleetGridmapAccumulator::PngTiles pngs = acc.encode_all_png_tiles();
       for (const TileLayer layer : {TileLayer::Gridmap, TileLayer::GridmapMechanism}) {
         std::map<tiles::TileKey, std::string> prev_grid;
         if (st.previous_version) {
@@ -797,8 +798,7 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version, const MapB
             prev_grid.emplace(t.key, t.etag);
           }
         }
-        for (auto& [key, png] : layer == TileLayer::Gridmap ? acc.encode_png_tiles()
-                                                            : acc.encode_mechanism_png_tiles()) {
+        for (auto& [key, png] : layer == TileLayer::Gridmap ? pngs.amplitude : pngs.mechanism) {
           TileWrite w;
           w.key = key;
           w.etag = content_etag(png);

@@ -144,18 +144,23 @@ std::uint8_t gridmap_gray(double mean_power, const FleetGridmapConfig& cfg) {
 
 std::vector<std::pair<tiles::TileKey, std::string>> FleetGridmapAccumulator::encode_png_tiles()
     const {
-  return encode(false);
+  return encode(true, false).amplitude;
 }
 
 std::vector<std::pair<tiles::TileKey, std::string>>
 FleetGridmapAccumulator::encode_mechanism_png_tiles() const {
-  return encode(true);
+  return encode(false, true).mechanism;
 }
 
-std::vector<std::pair<tiles::TileKey, std::string>> FleetGridmapAccumulator::encode(
-    bool mechanism) const {
-  std::vector<std::pair<tiles::TileKey, std::string>> out;
-  auto encode_tile = [&](const tiles::TileKey& key, const Acc& a) {
+FleetGridmapAccumulator::PngTiles FleetGridmapAccumulator::encode_all_png_tiles() const {
+  return encode(true, true);
+}
+
+FleetGridmapAccumulator::PngTiles FleetGridmapAccumulator::encode(bool amplitude,
+                                                                  bool mechanism) const {
+  PngTiles out;
+  auto encode_tile = [&](const tiles::TileKey& key, const Acc& a, bool mech,
+                         std::vector<std::pair<tiles::TileKey, std::string>>& to) {
     cv::Mat img(kPx, kPx, CV_8UC4, cv::Scalar(0, 0, 0, 0));
     for (int y = 0; y < kPx; ++y) {
       auto* row = img.ptr<cv::Vec4b>(y);
@@ -163,24 +168,27 @@ std::vector<std::pair<tiles::TileKey, std::string>> FleetGridmapAccumulator::enc
         const std::size_t i = static_cast<std::size_t>(y) * kPx + x;
         if (a.count[i] <= 0.0F) continue;
         const std::uint8_t g = gridmap_gray(static_cast<double>(a.power[i]) / a.count[i], cfg_);
-        const double mech = static_cast<double>(a.odd[i]) + a.even[i];
-        if (!mechanism || !(mech > 0.0)) {
+        const double sum = static_cast<double>(a.odd[i]) + a.even[i];
+        if (!mech || !(sum > 0.0)) {
           row[x] = cv::Vec4b(g, g, g, 255);
           continue;
         }
         // OpenCV's channel order is B, G, R, A.
-        const auto m = static_cast<std::uint8_t>(std::lround(g * a.even[i] / mech));
-        const auto o = static_cast<std::uint8_t>(std::lround(g * a.odd[i] / mech));
+        const auto m = static_cast<std::uint8_t>(std::lround(g * a.even[i] / sum));
+        const auto o = static_cast<std::uint8_t>(std::lround(g * a.odd[i] / sum));
         row[x] = cv::Vec4b(m, o, m, 255);
       }
     }
     std::vector<unsigned char> buf;
     if (!cv::imencode(".png", img, buf)) throw Error("PNG encoding of gridmap tile failed");
-    out.emplace_back(key, std::string(buf.begin(), buf.end()));
+    to.emplace_back(key, std::string(buf.begin(), buf.end()));
   };
   std::map<tiles::TileKey, Acc> level = base_;
   for (int z = cfg_.base_zoom;; --z) {
-    for (const auto& [key, a] : level) encode_tile(key, a);
+    for (const auto& [key, a] : level) {
+      if (amplitude) encode_tile(key, a, false, out.amplitude);
+      if (mechanism) encode_tile(key, a, true, out.mechanism);
+    }
     if (z == cfg_.min_zoom) break;
     std::map<tiles::TileKey, Acc> up;
     for (const auto& [key, a] : level) {
@@ -201,7 +209,9 @@ std::vector<std::pair<tiles::TileKey, std::string>> FleetGridmapAccumulator::enc
     }
     level = std::move(up);
   }
-  std::sort(out.begin(), out.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+  const auto by_key = [](const auto& a, const auto& b) { return a.first < b.first; };
+  std::sort(out.amplitude.begin(), out.amplitude.end(), by_key);
+  std::sort(out.mechanism.begin(), out.mechanism.end(), by_key);
   return out;
 }
 

@@ -103,6 +103,16 @@ TEST(FleetGridmapMechanism, OddIsGreenEvenMagentaBrightnessFromAmplitude) {
   EXPECT_NEAR(o[0] + o[1], a[0], 2);
 }
 
+TEST(FleetGridmapMechanism, OnePassGivesTheSameTilesAsEachLayerAlone) {
+  const tiles::LocalFrame frame({48.7758, 9.1829, 0.0});
+  FleetGridmapAccumulator acc;
+  acc.add(two_mechanisms(PolLevel::Full), frame, PolLevel::Full);
+  const auto all = acc.encode_all_png_tiles();
+  EXPECT_EQ(all.amplitude, acc.encode_png_tiles());
+  EXPECT_EQ(all.mechanism, acc.encode_mechanism_png_tiles());
+  EXPECT_FALSE(all.mechanism.empty());
+}
+
 TEST(FleetGridmapMechanism, SinglePolarizationStaysGray) {
   const tiles::LocalFrame frame({48.7758, 9.1829, 0.0});
   FleetGridmapAccumulator acc;

@@ -88,6 +88,12 @@ class FleetGridmapAccumulator {
   /// Scattering-mechanism PNG tiles (file comment), same keys as encode_png_tiles().
   [[nodiscard]] std::vector<std::pair<tiles::TileKey, std::string>> encode_mechanism_png_tiles()
       const;
+  /// Both layers from one pass over the zoom pyramid (what a map build writes).
+  struct PngTiles {
+    std::vector<std::pair<tiles::TileKey, std::string>> amplitude;
+    std::vector<std::pair<tiles::TileKey, std::string>> mechanism;
+  };
+  [[nodiscard]] PngTiles encode_all_png_tiles() const;
 
   [[nodiscard]] const FleetGridmapConfig& config() const { return cfg_; }
 
@@ -99,7 +105,7 @@ class FleetGridmapAccumulator {
     std::vector<float> even;   ///< Σ N·even-bounce power
     void resize();
   };
-  [[nodiscard]] std::vector<std::pair<tiles::TileKey, std::string>> encode(bool mechanism) const;
+  [[nodiscard]] PngTiles encode(bool amplitude, bool mechanism) const;
   FleetGridmapConfig cfg_;
   std::map<tiles::TileKey, Acc> base_;
 };

@@ -311,11 +311,16 @@ std::vector<std::int64_t> drive_rows(const std::vector<DriveRecord>& drives,
 /// view range (their passes change verdicts that far) and the consensus margin.
 /// nullopt: a full build (drives were removed, parameters changed, or the new drives
 /// touch most of the map).
-std::optional<tiles::GeoBox> incremental_area(const MapStore& store, const MapBuildRequest& req,
-                                              const nlohmann::json& request_params,
-                                              std::int64_t current,
-                                              const std::vector<DriveRecord>& drives,
-                                              double margin_m) {
+struct IncrementalPlan {
+  tiles::GeoBox area;                ///< rebuilt; the rest is copied
+  std::int64_t previous_points = 0;  ///< landmark counts of the current version
+  std::int64_t previous_lines = 0;
+};
+std::optional<IncrementalPlan> incremental_plan(const MapStore& store, const MapBuildRequest& req,
+                                                const nlohmann::json& request_params,
+                                                std::int64_t current,
+                                                const std::vector<DriveRecord>& drives,
+                                                double margin_m) {
   if (!req.incremental || req.region) return std::nullopt;
   const auto info = store.get_map_version(current);
   if (!info || !info->statistics.is_object() || !info->statistics.contains("drive_rows")) {
@@ -347,8 +352,9 @@ std::optional<tiles::GeoBox> incremental_area(const MapStore& store, const MapBu
   }
   // Mostly new drives: a full build costs about the same and has no seams.
   if (!added || 2 * n_added >= now.size()) return std::nullopt;
-  const tiles::GeoBox area = grow_box(*added, req.visibility.max_view_range_m + margin_m);
-  return area;
+  return IncrementalPlan{grow_box(*added, req.visibility.max_view_range_m + margin_m),
+                         info->statistics.value("point_landmarks", std::int64_t{0}),
+                         info->statistics.value("line_landmarks", std::int64_t{0})};
 }
 
 /// The frame position as a geodetic point quantized to 1e-8 degrees (stable keys).
@@ -563,9 +569,11 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version, const MapB
     const std::vector<DriveRecord> all_drives = store.list_drives();
     const nlohmann::json params = request_json(req, cfg_);
     // Incremental: only `area` is rebuilt; the rest of the current version carries over.
-    const std::optional<tiles::GeoBox> area =
-        current ? incremental_area(store, req, params, *current, all_drives, margin_m)
+    const std::optional<IncrementalPlan> plan =
+        current ? incremental_plan(store, req, params, *current, all_drives, margin_m)
                 : std::nullopt;
+    const std::optional<tiles::GeoBox> area =
+        plan ? std::optional<tiles::GeoBox>(plan->area) : std::nullopt;
     const std::optional<tiles::GeoBox> build_region = area ? area : req.region;
     st.incremental_from = area ? current : std::nullopt;
     std::optional<tiles::GeoBox> query;
@@ -613,12 +621,9 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version, const MapB
       for (const auto& p : replaced.points) ids.push_back(p.id);
       for (const auto& l : replaced.lines) ids.push_back(l.id);
       st.landmarks_copied = store.copy_landmarks(*current, version, ids);
-      const auto prev_info = store.get_map_version(*current);
-      const auto& ps = prev_info->statistics;
-      st.point_landmarks += ps.value("point_landmarks", std::int64_t{0}) -
-                            static_cast<std::int64_t>(replaced.points.size());
-      st.line_landmarks += ps.value("line_landmarks", std::int64_t{0}) -
-                           static_cast<std::int64_t>(replaced.lines.size());
+      st.point_landmarks +=
+          plan->previous_points - static_cast<std::int64_t>(replaced.points.size());
+      st.line_landmarks += plan->previous_lines - static_cast<std::int64_t>(replaced.lines.size());
     }
     for (std::size_t b = 0; b < points.size(); b += cfg_.write_batch) {
       stage("landmarks", 0.4);

@@ -10,6 +10,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <nlohmann/json.hpp>
 #include <random>
 #include <string>
 #include <thread>
@@ -19,6 +20,7 @@
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/mapping_service/server.hpp"
 #include "polmap/mapping_service/sqlite_store.hpp"
+#include "polmap/mapping_service/ustar.hpp"
 #include "polmap/tiles/local_frame.hpp"
 #include "test_dir.hpp"
 
@@ -70,6 +72,20 @@ inline std::filesystem::path write_scene_package(const std::filesystem::path& di
   const auto out = dir / drive_id;
   write_drive_package(d.pkg, d.raster, out);
   return out;
+}
+
+/// The package archive `tar` with one field of its manifest.json set to `value`.
+inline std::string with_manifest_field(const std::string& tar, const std::string& field,
+                                       const nlohmann::json& value) {
+  auto members = read_ustar(tar);
+  for (auto& m : members) {
+    if (m.name == "manifest.json") {
+      nlohmann::json mf = nlohmann::json::parse(m.data);
+      mf[field] = value;
+      m.data = mf.dump(2);
+    }
+  }
+  return write_ustar(members);
 }
 
 /// The drive frame shared by all scene packages.

@@ -19,20 +19,6 @@ namespace {
 using nlohmann::json;
 constexpr const char* kChunkType = "application/offset+octet-stream";
 
-/// The package archive `tar` with one field of its manifest.json set to `value`.
-std::string with_manifest_field(const std::string& tar, const std::string& field,
-                                const json& value) {
-  auto members = read_ustar(tar);
-  for (auto& m : members) {
-    if (m.name == "manifest.json") {
-      json mf = json::parse(m.data);
-      mf[field] = value;
-      m.data = mf.dump(2);
-    }
-  }
-  return write_ustar(members);
-}
-
 /// Sends raw bytes on a new connection and returns the status of the reply (0: none).
 int raw_status(int port, const std::string& bytes) {
   const int fd = connect_loopback(port);

@@ -22,20 +22,6 @@ namespace {
 
 using nlohmann::json;
 
-/// The package archive `tar` with one field of its manifest.json set to `value`.
-std::string with_manifest_field(const std::string& tar, const std::string& field,
-                                const json& value) {
-  auto members = read_ustar(tar);
-  for (auto& m : members) {
-    if (m.name == "manifest.json") {
-      json mf = json::parse(m.data);
-      mf[field] = value;
-      m.data = mf.dump(2);
-    }
-  }
-  return write_ustar(members);
-}
-
 // Sends raw bytes on a fresh connection; optionally half-closes; returns what the server sent.
 std::string raw_exchange(int port, const std::string& bytes, bool read_reply = true) {
   const int fd = ::socket(AF_INET, SOCK_STREAM, 0);

@@ -1,10 +1,10 @@
 // Drive paths: the trajectory simplified at ingest (Douglas–Peucker, segment distance),
 // packed, and the same from the decimated samples for drives stored before migration 5.
 #include <gtest/gtest.h>
-#include <sqlite3.h>
 
 #include <fstream>
 
+#include "mapping_service/store/exec_sql.hpp"
 #include "polmap/mapping_service/sqlite_store.hpp"
 #include "polmap/mapping_service/ustar.hpp"
 #include "polmap/tiles/local_frame.hpp"

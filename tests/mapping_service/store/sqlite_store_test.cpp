@@ -13,6 +13,7 @@
 #include <thread>
 
 #include "mapping_service/package_fixture.hpp"
+#include "mapping_service/store/exec_sql.hpp"
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/mapping_service/ustar.hpp"
 #include "polmap/tiles/local_frame.hpp"
@@ -20,6 +21,7 @@
 
 namespace polmap::mapping {
 namespace {
+using testing::exec_sql;
 namespace fs = std::filesystem;
 
 struct TempDir : polmap::test::TestDir {
@@ -122,15 +124,6 @@ TEST(SqliteStore, OpensWithWalForeignKeysAndMigrationsOnce) {
             static_cast<std::int64_t>(sqlite_store_migrations().size() - 1));
   EXPECT_EQ(count_rows(db, "SELECT COUNT(*) FROM sqlite_master WHERE name = 'candidates_rtree'"),
             1);
-}
-
-void exec_sql(const fs::path& db, const std::string& sql) {
-  sqlite3* h = nullptr;
-  ASSERT_EQ(sqlite3_open(db.c_str(), &h), SQLITE_OK);
-  char* err = nullptr;
-  EXPECT_EQ(sqlite3_exec(h, sql.c_str(), nullptr, nullptr, &err), SQLITE_OK) << (err ? err : "");
-  sqlite3_free(err);
-  sqlite3_close(h);
 }
 
 TEST(SqliteStore, UpgradesAnOlderDatabaseByApplyingOnlyMissingMigrations) {

@@ -6,11 +6,13 @@
 
 #include <fstream>
 
+#include "mapping_service/store/exec_sql.hpp"
 #include "polmap/mapping_service/sqlite_store.hpp"
 #include "test_dir.hpp"
 
 namespace polmap::mapping {
 namespace {
+using testing::exec_sql;
 namespace fs = std::filesystem;
 using Clock = std::chrono::system_clock;
 using Status = CreateUploadSessionResult::Status;
@@ -26,15 +28,6 @@ UploadSessionRequest request(const std::string& owner, std::uint64_t bytes,
   r.now = now;
   r.ttl_s = ttl_s;
   return r;
-}
-
-void exec_sql(const fs::path& db, const std::string& sql) {
-  sqlite3* h = nullptr;
-  ASSERT_EQ(sqlite3_open(db.c_str(), &h), SQLITE_OK);
-  char* err = nullptr;
-  EXPECT_EQ(sqlite3_exec(h, sql.c_str(), nullptr, nullptr, &err), SQLITE_OK) << (err ? err : "");
-  sqlite3_free(err);
-  sqlite3_close(h);
 }
 
 TEST(UploadSessions, CreateGetAdvanceAndDelete) {

@@ -44,6 +44,17 @@
 --                     whose links it shares (deleting that version hands them to the copy).
 --   gridmap_mechanism_tiles  (migration 6) the fleet gridmap's scattering-mechanism
 --                     colouring, like gridmap_tiles (fleet_gridmap.hpp).
+--   gridmap_sums      (migration 7) the merged PreCFAR gridmap, state of the store rather than
+--                     of a version: per polarimetric level and z20 Web-Mercator tile (256 × 256
+--                     cells of ≈ 0.1 m) the per-cell sums Σ N, Σ N·σ² and Σ N·C_ij over every
+--                     drive in gridmap_sum_inputs (bytes: gridmap_sums_codec.hpp). updated_by =
+--                     the map version whose build last wrote the tile, so a build re-renders only
+--                     what changed since the version it follows. A tile whose drives are all
+--                     removed stays as an empty tile (it keeps its updated_by).
+--   gridmap_sum_inputs (migration 7) the drives (by package hash) whose gridmap is in the sums;
+--                     gridmap_sum_cover the sum tiles each touched. Not tied to drives by a
+--                     foreign key: a deleted drive stays an input until the next build takes
+--                     its contribution out (recomputing its tiles from the remaining inputs).
 --   landmark_changes  (migration 4) per map version: landmarks added, moved or retired against the version
 --                     current when its build started, with the builder's reason (JSON).
 --   tile_blobs        content-addressed tile payloads: etag = SHA-256 hex of payload, unique,
@@ -259,3 +270,27 @@ CREATE TABLE gridmap_mechanism_tiles (
   PRIMARY KEY (version, z, x, y)
 ) WITHOUT ROWID;
 CREATE INDEX gridmap_mechanism_tiles_blob ON gridmap_mechanism_tiles(blob);
+
+-- migration 7: the merged PreCFAR gridmap: per-cell covariance sums over all drives
+CREATE TABLE gridmap_sums (
+  level      INTEGER NOT NULL,
+  x          INTEGER NOT NULL,
+  y          INTEGER NOT NULL,
+  data       BLOB NOT NULL,
+  updated_by INTEGER NOT NULL,
+  PRIMARY KEY (level, x, y)
+) WITHOUT ROWID;
+CREATE INDEX gridmap_sums_updated ON gridmap_sums(updated_by);
+CREATE TABLE gridmap_sum_inputs (
+  content_hash TEXT PRIMARY KEY,
+  tiles        INTEGER NOT NULL,
+  added_at     TEXT NOT NULL
+) WITHOUT ROWID;
+CREATE TABLE gridmap_sum_cover (
+  content_hash TEXT NOT NULL REFERENCES gridmap_sum_inputs(content_hash) ON DELETE CASCADE,
+  level        INTEGER NOT NULL,
+  x            INTEGER NOT NULL,
+  y            INTEGER NOT NULL,
+  PRIMARY KEY (content_hash, level, x, y)
+) WITHOUT ROWID;
+CREATE INDEX gridmap_sum_cover_tile ON gridmap_sum_cover(level, x, y);

@@ -12,6 +12,7 @@
 #include <set>
 #include <unordered_map>
 
+#include "gridmap_build.hpp"
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/mapping_service/landmark_diff.hpp"
 #include "polmap/schema/json.hpp"
@@ -159,6 +160,11 @@ nlohmann::json to_json(const MapBuildStats& s) {
   j["tile_bytes"] = s.tile_bytes;
   j["gridmap_tiles"] = s.gridmap_tiles;
   j["gridmap_drives"] = s.gridmap_drives;
+  j["gridmap_sums"] = {{"drives_added", s.gridmap_drives_added},
+                       {"drives_removed", s.gridmap_drives_removed},
+                       {"sum_tiles_written", s.gridmap_sum_tiles_written},
+                       {"regions_rendered", s.gridmap_regions_rendered},
+                       {"tiles_copied", s.gridmap_tiles_copied}};
   j["previous_version"] =
       s.previous_version ? nlohmann::json(*s.previous_version) : nlohmann::json();
   j["incremental_from"] =
@@ -530,6 +536,137 @@ MapBuilder::MapBuilder(MapBuilderConfig cfg) : cfg_(std::move(cfg)) {
   POLMAP_EXPECT(cfg_.write_batch > 0 && cfg_.line_tile_sample_m > 0.0);
 }
 
+namespace {
+
+/// The merged gridmap stage: brings the store's sum tiles up to date with its drives, then
+/// renders the version's raster tiles (amplitude, mechanism) from them, one min-zoom region
+/// at a time. Regions without changed sums since the current version (when it was rendered
+/// completely from the sums with this config) are copied from it. Returns the version's
+/// `gridmap` statistics.
+nlohmann::json build_gridmap(MapStore& store, std::int64_t version, const MapBuildRequest& req,
+                             const MapBuilderConfig& cfg,
+                             const std::vector<DriveRecord>& all_drives,
+                             const std::optional<std::int64_t>& current, MapBuildStats& st,
+                             const std::function<void()>& tick) {
+  const FleetGridmapConfig& gc = cfg.gridmap;
+  std::set<std::string> stored_hashes;
+  for (const auto& d : all_drives) stored_hashes.insert(d.content_hash);
+  const std::vector<DriveRecord> drives = req.region ? store.drives_in(*req.region) : all_drives;
+  detail::GridmapSumsUpdate up =
+      detail::update_gridmap_sums(store, version, drives, stored_hashes, tick);
+  st.gridmap_drives_added = up.drives_added;
+  st.gridmap_drives_removed = up.drives_removed;
+  st.gridmap_sum_tiles_written = up.tiles_written;
+  for (const auto& in : store.gridmap_sum_inputs()) {
+    if (in.tiles > 0) ++st.gridmap_drives;  // landmarks-only drives are inputs without tiles
+  }
+
+  const bool complete = !req.region && req.excluded_drive_ids.empty();
+  nlohmann::json info = {{"base_zoom", gc.base_zoom},  {"min_zoom", gc.min_zoom},
+                         {"db_min", gc.db_min},        {"db_max", gc.db_max},
+                         {"sums_through", version},    {"complete", complete},
+                         {"sum_zoom", kGridmapSumZoom}};
+  // Incremental rendering: the current version was rendered completely, with this config,
+  // from the sums as they were after its own build (tiles written later say updated_by >
+  // its number).
+  std::optional<std::int64_t> from;
+  if (req.incremental && complete && current) {
+    if (const auto prev = store.get_map_version(*current)) {
+      const auto& g = prev->statistics.value("gridmap", nlohmann::json::object());
+      if (g.is_object() && g.value("complete", false) && g.contains("sums_through") &&
+          g.value("base_zoom", -1) == gc.base_zoom && g.value("min_zoom", -1) == gc.min_zoom &&
+          g.value("db_min", 0.0) == gc.db_min && g.value("db_max", 0.0) == gc.db_max) {
+        from = *current;
+      }
+    }
+  }
+  const std::vector<GridmapSumRow> all_keys = store.gridmap_sum_keys(std::nullopt);
+  std::map<tiles::TileKey, std::vector<GridmapSumKey>> regions;
+  for (const auto& r : all_keys) {
+    const GridmapSumKey k{static_cast<PolLevel>(r.level), r.x, r.y};
+    const tiles::TileKey reg = detail::sum_tile_ancestor(k, gc.min_zoom);
+    if (req.region && !tiles::tile_bounds(reg).intersects(*req.region)) continue;
+    regions[reg].push_back(k);
+  }
+  std::set<tiles::TileKey> dirty;
+  if (from) {
+    for (const auto& r : store.gridmap_sum_keys(*from)) {
+      dirty.insert(
+          detail::sum_tile_ancestor({static_cast<PolLevel>(r.level), r.x, r.y}, gc.min_zoom));
+    }
+  } else {
+    for (const auto& [reg, ks] : regions) dirty.insert(reg);
+  }
+  // Drives left out of this version: the tiles they touched, recomputed without them.
+  GridmapSumTiles without;
+  if (!req.excluded_drive_ids.empty()) {
+    std::set<std::string> hashes;
+    std::set<GridmapSumKey> keys;
+    for (const auto& id : req.excluded_drive_ids) {
+      const auto d = store.get_drive(id);
+      if (!d) continue;
+      hashes.insert(d->content_hash);
+      for (const auto& c : store.gridmap_sum_cover(d->content_hash)) {
+        keys.insert({static_cast<PolLevel>(c[0]), c[1], c[2]});
+      }
+    }
+    without = detail::recompute_sum_tiles(store, keys, hashes, up.errors);
+  }
+  for (const TileLayer layer : {TileLayer::Gridmap, TileLayer::GridmapMechanism}) {
+    if (!from) break;
+    // Tiles of untouched regions carry over; those of re-rendered regions are replaced.
+    std::vector<tiles::TileKey> except;
+    for (const auto& t : store.list_tiles(*from, layer)) {
+      const int up_z = t.key.z - gc.min_zoom;
+      if (up_z >= 0 && dirty.contains({gc.min_zoom, t.key.x >> up_z, t.key.y >> up_z})) {
+        except.push_back(t.key);
+      }
+    }
+    const std::int64_t n = store.copy_tiles(*from, version, layer, except);
+    if (layer == TileLayer::Gridmap) {
+      st.gridmap_tiles += n;
+      st.gridmap_tiles_copied = n;
+    }
+  }
+  // Previous ETags: a re-rendered tile with the same bytes keeps its blob.
+  std::map<std::pair<TileLayer, tiles::TileKey>, std::string> prev_etags;
+  if (current) {
+    for (const TileLayer layer : {TileLayer::Gridmap, TileLayer::GridmapMechanism}) {
+      for (const auto& t : store.list_tiles(*current, layer)) {
+        prev_etags.emplace(std::make_pair(layer, t.key), t.etag);
+      }
+    }
+  }
+  for (const auto& reg : dirty) {
+    const auto it = regions.find(reg);
+    if (it == regions.end()) continue;  // every sum tile of it is gone
+    if (tick) tick();
+    FleetGridmapAccumulator::PngTiles pngs =
+        detail::render_gridmap_region(store, gc, it->second, without);
+    ++st.gridmap_regions_rendered;
+    for (const TileLayer layer : {TileLayer::Gridmap, TileLayer::GridmapMechanism}) {
+      std::vector<TileWrite> batch;
+      for (auto& [key, png] : layer == TileLayer::Gridmap ? pngs.amplitude : pngs.mechanism) {
+        TileWrite w;
+        w.key = key;
+        w.etag = content_etag(png);
+        if (auto e = prev_etags.find({layer, key}); e != prev_etags.end() && e->second == w.etag) {
+          w.reuse_blob = true;
+        } else {
+          w.payload = std::move(png);
+        }
+        batch.push_back(std::move(w));
+        if (layer == TileLayer::Gridmap) ++st.gridmap_tiles;
+      }
+      if (!batch.empty()) store.put_tiles(version, layer, batch);
+    }
+  }
+  info["errors"] = up.errors;
+  return info;
+}
+
+}  // namespace
+
 std::int64_t MapBuilder::begin(MapStore& store, const MapBuildRequest& request) const {
   for (const auto& id : request.excluded_drive_ids) {
     if (!store.get_drive(id))
@@ -759,74 +896,8 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version, const MapB
     nlohmann::json gridmap_info;
     if (req.build_gridmap) {
       stage("gridmap", 0.8);
-      FleetGridmapAccumulator acc(cfg_.gridmap);
-      std::vector<std::string> errors;
-      const std::set<std::string> excluded(req.excluded_drive_ids.begin(),
-                                           req.excluded_drive_ids.end());
-      const auto drives = req.region ? store.drives_in(*req.region) : store.list_drives();
-      for (const auto& d : drives) {
-        if (excluded.contains(d.drive_id)) continue;
-        stage("gridmap", 0.8);
-        try {
-          DrivePackage pkg;
-          pkg.location = d.package_path;
-          // The stored package's manifest.json (validated at upload; the canonical copy)
-          // says whether there is a gridmap and how it is encoded (format 2: codes, codec,
-          // noise power).
-          {
-            const std::filesystem::path mf =
-                std::filesystem::path(d.package_path) / kManifestFileName;
-            std::ifstream in(mf, std::ios::binary);
-            if (!in) throw IoError(mf.string() + ": cannot open for reading");
-            const std::string text((std::istreambuf_iterator<char>(in)),
-                                   std::istreambuf_iterator<char>());
-            pkg.manifest = parse_manifest(text);
-          }
-          if (!pkg.manifest.has_gridmap) continue;  // landmarks only: candidates, no gridmap
-          const tiles::LocalFrame drive_frame(pkg.manifest.origin);
-          for_each_gridmap_block(pkg, [&](const GridmapRaster& block) {
-            acc.add(block, drive_frame, pkg.manifest.pol_level);
-          });
-          ++st.gridmap_drives;
-        } catch (const std::exception& e) {
-          // A drive without a readable gridmap still contributes its candidates.
-          errors.push_back(d.drive_id + ": " + e.what());
-        }
-      }
-      // Both raster layers: amplitude and scattering mechanisms; a tile whose bytes equal
-      // the previous version's keeps its blob (and ETag).
-      FleetGridmapAccumulator::PngTiles pngs = acc.encode_all_png_tiles();
-      for (const TileLayer layer : {TileLayer::Gridmap, TileLayer::GridmapMechanism}) {
-        std::map<tiles::TileKey, std::string> prev_grid;
-        if (st.previous_version) {
-          for (const auto& t : store.list_tiles(*st.previous_version, layer)) {
-            prev_grid.emplace(t.key, t.etag);
-          }
-        }
-        for (auto& [key, png] : layer == TileLayer::Gridmap ? pngs.amplitude : pngs.mechanism) {
-          TileWrite w;
-          w.key = key;
-          w.etag = content_etag(png);
-          if (auto it = prev_grid.find(key); it != prev_grid.end() && it->second == w.etag) {
-            w.reuse_blob = true;
-          } else {
-            w.payload = std::move(png);
-          }
-          batch_bytes += w.payload.size();
-          batch.push_back(std::move(w));
-          if (layer == TileLayer::Gridmap) ++st.gridmap_tiles;
-          if (batch.size() >= cfg_.write_batch || batch_bytes > (16U << 20)) {
-            flush(layer);
-            stage("gridmap", 0.9);
-          }
-        }
-        flush(layer);
-      }
-      gridmap_info = {{"base_zoom", cfg_.gridmap.base_zoom},
-                      {"min_zoom", cfg_.gridmap.min_zoom},
-                      {"db_min", cfg_.gridmap.db_min},
-                      {"db_max", cfg_.gridmap.db_max},
-                      {"errors", errors}};
+      gridmap_info = build_gridmap(store, version, req, cfg_, all_drives, current, st,
+                                   [&] { stage("gridmap", 0.8); });
       st.seconds_gridmap = clock.lap();
     }
 

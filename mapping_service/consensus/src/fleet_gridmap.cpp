@@ -122,6 +122,36 @@ void FleetGridmapAccumulator::add(const GridmapRaster& r, const tiles::LocalFram
   }
 }
 
+void FleetGridmapAccumulator::add_sums(const GridmapSumKey& key, const GridmapSumTile& tile) {
+  const int shift = kGridmapSumZoom - cfg_.base_zoom;
+  POLMAP_EXPECT(shift >= 0 && shift <= 8);
+  const int per = 1 << shift;  // sum tiles a side of a base tile
+  const tiles::TileKey base{cfg_.base_zoom, key.x >> shift, key.y >> shift};
+  const int ox = (key.x % per) * (kPx / per), oy = (key.y % per) * (kPx / per);
+  Acc* acc = nullptr;
+  for (int c = 0; c < kSumChunksPerSide * kSumChunksPerSide; ++c) {
+    if (!tile.has_chunk(c)) continue;
+    if (acc == nullptr) {
+      auto [it, inserted] = base_.try_emplace(base);
+      if (inserted) it->second.resize();
+      acc = &it->second;
+    }
+    const int cx0 = (c % kSumChunksPerSide) * kSumChunkCells;
+    const int cy0 = (c / kSumChunksPerSide) * kSumChunkCells;
+    for (int y = cy0; y < cy0 + kSumChunkCells; ++y) {
+      for (int x = cx0; x < cx0 + kSumChunkCells; ++x) {
+        const CellPowers cp = cell_powers(tile, x, y);
+        if (cp.n <= 0.0) continue;
+        const std::size_t pi = static_cast<std::size_t>(oy + y / per) * kPx + (ox + x / per);
+        acc->power[pi] += static_cast<float>(cp.n_power);
+        acc->count[pi] += static_cast<float>(cp.n);
+        acc->odd[pi] += static_cast<float>(cp.n_odd);
+        acc->even[pi] += static_cast<float>(cp.n_even);
+      }
+    }
+  }
+}
+
 std::optional<double> FleetGridmapAccumulator::mean_power(const tiles::TileKey& key, int px,
                                                           int py) const {
   const auto it = base_.find(key);

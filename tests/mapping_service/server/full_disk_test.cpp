@@ -186,6 +186,25 @@ class WriteTriggerStore final : public MapStore {
   std::size_t sweep_expired_upload_sessions(std::chrono::system_clock::time_point now) override {
     return s_.sweep_expired_upload_sessions(now);
   }
+  std::vector<GridmapSumInput> gridmap_sum_inputs() const override {
+    return s_.gridmap_sum_inputs();
+  }
+  std::vector<GridmapSumRow> gridmap_sums_in(int x0, int y0, int x1, int y1) const override {
+    return s_.gridmap_sums_in(x0, y0, x1, y1);
+  }
+  std::vector<GridmapSumRow> gridmap_sum_keys(std::optional<std::int64_t> after) const override {
+    return s_.gridmap_sum_keys(after);
+  }
+  std::vector<std::array<int, 3>> gridmap_sum_cover(std::string_view hash) const override {
+    return s_.gridmap_sum_cover(hash);
+  }
+  std::vector<std::string> gridmap_sum_contributors(int level, int x, int y) const override {
+    return s_.gridmap_sum_contributors(level, x, y);
+  }
+  void commit_gridmap_sums(std::int64_t version, std::span<const GridmapSumRow> tiles,
+                           const GridmapSumInputChange& change) override {
+    s_.commit_gridmap_sums(version, tiles, change);
+  }
   StoreStats stats() const override { return s_.stats(); }
 
  private:

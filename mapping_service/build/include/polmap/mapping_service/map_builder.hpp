@@ -122,13 +122,20 @@ struct MapBuildStats {
   std::int64_t line_candidates = 0;
   std::int64_t point_landmarks = 0;
   std::int64_t line_landmarks = 0;
-  std::int64_t tiles_total = 0;    ///< localization tiles of the new version
-  std::int64_t tiles_written = 0;  ///< newly encoded (content changed or new)
-  std::int64_t tiles_reused = 0;   ///< byte-identical to the previous version's tile
-  std::int64_t tiles_removed = 0;  ///< tiles of the previous version now empty
-  std::int64_t tile_bytes = 0;     ///< total payload bytes of the version's tiles
-  std::int64_t gridmap_tiles = 0;
-  std::int64_t gridmap_drives = 0;  ///< drives whose gridmap was accumulated
+  std::int64_t tiles_total = 0;     ///< localization tiles of the new version
+  std::int64_t tiles_written = 0;   ///< newly encoded (content changed or new)
+  std::int64_t tiles_reused = 0;    ///< byte-identical to the previous version's tile
+  std::int64_t tiles_removed = 0;   ///< tiles of the previous version now empty
+  std::int64_t tile_bytes = 0;      ///< total payload bytes of the version's tiles
+  std::int64_t gridmap_tiles = 0;   ///< amplitude raster tiles of the new version
+  std::int64_t gridmap_drives = 0;  ///< drives whose gridmap is in the merged sums
+  /// Merged gridmap upkeep: drives added to / taken out of the sums, sum tiles rewritten,
+  /// min-zoom regions rendered and raster tiles copied unchanged from the previous version.
+  std::int64_t gridmap_drives_added = 0;
+  std::int64_t gridmap_drives_removed = 0;
+  std::int64_t gridmap_sum_tiles_written = 0;
+  std::int64_t gridmap_regions_rendered = 0;
+  std::int64_t gridmap_tiles_copied = 0;
   std::optional<std::int64_t> previous_version;
   /// Incremental build: the version whose landmarks outside the rebuilt area were copied.
   std::optional<std::int64_t> incremental_from;

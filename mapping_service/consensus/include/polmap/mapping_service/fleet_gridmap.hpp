@@ -44,6 +44,7 @@
 #include <vector>
 
 #include "polmap/mapping_service/drive_package.hpp"
+#include "polmap/mapping_service/gridmap_sums.hpp"
 #include "polmap/tiles/local_frame.hpp"
 #include "polmap/tiles/tile_key.hpp"
 
@@ -74,6 +75,9 @@ class FleetGridmapAccumulator {
   /// pixel mapped by an affine fit per 64-cell block; error < 1 mm).
   /// `level`: the drive's polarimetric level (which components the layers hold).
   void add(const GridmapRaster& raster, const tiles::LocalFrame& drive_frame, PolLevel level);
+  /// Adds a sum tile of the merged gridmap (gridmap_sums.hpp): each base-zoom pixel
+  /// receives the 4^(20 - base_zoom) grid cells inside it. Needs base_zoom <= 20.
+  void add_sums(const GridmapSumKey& key, const GridmapSumTile& tile);
 
   /// Number of base-zoom tiles with at least one observed pixel.
   [[nodiscard]] std::size_t num_base_tiles() const { return base_.size(); }

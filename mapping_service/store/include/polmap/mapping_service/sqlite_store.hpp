@@ -155,6 +155,18 @@ class SqliteMapStore final : public MapStore {
   bool delete_upload_session(std::string_view id) override;
   std::size_t sweep_expired_upload_sessions(std::chrono::system_clock::time_point now) override;
 
+  [[nodiscard]] std::vector<GridmapSumInput> gridmap_sum_inputs() const override;
+  [[nodiscard]] std::vector<GridmapSumRow> gridmap_sums_in(int x0, int y0, int x1,
+                                                           int y1) const override;
+  [[nodiscard]] std::vector<GridmapSumRow> gridmap_sum_keys(
+      std::optional<std::int64_t> updated_after) const override;
+  [[nodiscard]] std::vector<std::array<int, 3>> gridmap_sum_cover(
+      std::string_view content_hash) const override;
+  [[nodiscard]] std::vector<std::string> gridmap_sum_contributors(int level, int x,
+                                                                  int y) const override;
+  void commit_gridmap_sums(std::int64_t version, std::span<const GridmapSumRow> tiles,
+                           const GridmapSumInputChange& change) override;
+
   [[nodiscard]] StoreStats stats() const override;
 
  private:

@@ -26,6 +26,7 @@
 /// ConflictError (drive_id already present with different content),
 /// ValidationError (bad arguments), StorageFullError (no space left for a write),
 /// IoError (other database or file system failures).
+#include <array>
 #include <chrono>
 #include <cstdint>
 #include <filesystem>
@@ -213,6 +214,32 @@ struct StoredTile {
 };
 
 /// Figures for /metrics.
+/// A stored sum tile of the merged PreCFAR gridmap (gridmap_sums.hpp in polmap_consensus
+/// defines the grid and gridmap_sums_codec.hpp the bytes; the store keeps them opaque).
+struct GridmapSumRow {
+  int level = 0;  ///< PolLevel code
+  int x = 0;      ///< z20 tile column
+  int y = 0;      ///< z20 tile row
+  std::string data;
+  /// Map version whose build wrote the bytes last (which tiles changed since a version).
+  std::int64_t updated_by = 0;
+};
+
+/// A drive whose gridmap is in the sums (or was, until its removal is committed).
+struct GridmapSumInput {
+  std::string content_hash;  ///< the drive's package hash (stable across stores and replicas)
+  std::int64_t tiles = 0;    ///< sum tiles it touched
+};
+
+/// What a commit_gridmap_sums changes besides tile bytes.
+struct GridmapSumInputChange {
+  enum class Kind { Add, Remove, None };
+  Kind kind = Kind::None;
+  std::string content_hash;
+  /// Add: the sum tiles the drive touched, as (level, x, y).
+  std::vector<std::array<int, 3>> cover;
+};
+
 struct StoreStats {
   std::int64_t drives = 0;
   std::int64_t point_candidates = 0;
@@ -394,6 +421,27 @@ class MapStore {
   /// Removes the sessions whose expires_at is at or before `now` (rows, then files), and
   /// only those; returns how many.
   virtual std::size_t sweep_expired_upload_sessions(std::chrono::system_clock::time_point now) = 0;
+
+  // ------------------------------------------------------------ merged gridmap sums
+  /// Drives whose gridmap is in the sums.
+  [[nodiscard]] virtual std::vector<GridmapSumInput> gridmap_sum_inputs() const = 0;
+  /// Sum tiles with x0 <= x <= x1 and y0 <= y <= y1 (all levels), with their bytes.
+  [[nodiscard]] virtual std::vector<GridmapSumRow> gridmap_sums_in(int x0, int y0, int x1,
+                                                                   int y1) const = 0;
+  /// Keys (level, x, y; data empty) of all sum tiles, or of those written after map
+  /// version `updated_after`.
+  [[nodiscard]] virtual std::vector<GridmapSumRow> gridmap_sum_keys(
+      std::optional<std::int64_t> updated_after) const = 0;
+  /// The sum tiles a drive touched (level, x, y), and the drives that touched a sum tile.
+  [[nodiscard]] virtual std::vector<std::array<int, 3>> gridmap_sum_cover(
+      std::string_view content_hash) const = 0;
+  [[nodiscard]] virtual std::vector<std::string> gridmap_sum_contributors(int level, int x,
+                                                                          int y) const = 0;
+  /// One transaction: writes the tiles' bytes (updated_by = version) and records the input
+  /// change (a drive added with its cover, or removed with its cover rows). Adding a drive
+  /// that is already an input is a ConflictError (its gridmap would count twice).
+  virtual void commit_gridmap_sums(std::int64_t version, std::span<const GridmapSumRow> tiles,
+                                   const GridmapSumInputChange& change) = 0;
 
   [[nodiscard]] virtual StoreStats stats() const = 0;
 };

@@ -1,0 +1,172 @@
+// The map build's merged-gridmap stage (gridmap_build.hpp).
+#include "gridmap_build.hpp"
+
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+
+#include "polmap/mapping_service/drive_package_io.hpp"
+#include "polmap/mapping_service/gridmap_sums_codec.hpp"
+#include "polmap/schema/errors.hpp"
+
+namespace polmap::mapping::detail {
+namespace {
+
+/// A stored drive's package as the builder reads it: the manifest.json validated at upload
+/// (the canonical copy) says whether there is a gridmap and how it is encoded.
+DrivePackage stored_package(const DriveRecord& d) {
+  DrivePackage pkg;
+  pkg.location = d.package_path;
+  const std::filesystem::path mf = std::filesystem::path(d.package_path) / kManifestFileName;
+  std::ifstream in(mf, std::ios::binary);
+  if (!in) throw IoError(mf.string() + ": cannot open for reading");
+  const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  pkg.manifest = parse_manifest(text);
+  return pkg;
+}
+
+/// The drive's sum-tile contributions, restricted to `only` when it is given.
+GridmapSumTiles drive_sums(const DrivePackage& pkg, const std::set<GridmapSumKey>* only) {
+  GridmapSumTiles out;
+  if (!pkg.manifest.has_gridmap) return out;
+  const tiles::LocalFrame frame(pkg.manifest.origin);
+  for_each_gridmap_block(pkg, [&](const GridmapRaster& block) {
+    if (only == nullptr) {
+      splat_gridmap(block, frame, pkg.manifest.pol_level, out);
+      return;
+    }
+    GridmapSumTiles part;
+    splat_gridmap(block, frame, pkg.manifest.pol_level, part);
+    for (auto& [k, t] : part) {
+      if (!only->contains(k)) continue;
+      auto [it, inserted] = out.try_emplace(k, k.level);
+      it->second.add(t);
+    }
+  });
+  return out;
+}
+
+GridmapSumRow row_of(const GridmapSumKey& k, const GridmapSumTile& t) {
+  return {static_cast<int>(k.level), k.x, k.y, encode_gridmap_sum_tile(t), 0};
+}
+
+GridmapSumKey key_of(const GridmapSumRow& r) {
+  return {static_cast<PolLevel>(r.level), r.x, r.y};
+}
+
+std::string source_of(const GridmapSumRow& r) {
+  return "gridmap sum tile (level " + std::to_string(r.level) + ", z20 " + std::to_string(r.x) +
+         "/" + std::to_string(r.y) + ")";
+}
+
+}  // namespace
+
+tiles::TileKey sum_tile_ancestor(const GridmapSumKey& key, int zoom) {
+  POLMAP_EXPECT(zoom >= 0 && zoom <= kGridmapSumZoom);
+  const int shift = kGridmapSumZoom - zoom;
+  return {zoom, key.x >> shift, key.y >> shift};
+}
+
+GridmapSumTiles recompute_sum_tiles(const MapStore& store, const std::set<GridmapSumKey>& keys,
+                                    const std::set<std::string>& without,
+                                    std::vector<std::string>& errors) {
+  GridmapSumTiles out;
+  std::set<std::string> contributors;
+  for (const auto& k : keys) {
+    out.try_emplace(k, k.level);  // a tile with no remaining contributor is empty
+    for (auto& h : store.gridmap_sum_contributors(static_cast<int>(k.level), k.x, k.y)) {
+      if (!without.contains(h)) contributors.insert(std::move(h));
+    }
+  }
+  for (const auto& h : contributors) {
+    const auto d = store.find_drive_by_hash(h);
+    if (!d) continue;  // removed too; its own removal handles it
+    try {
+      for (auto& [k, t] : drive_sums(stored_package(*d), &keys)) out.at(k).add(t);
+    } catch (const std::exception& e) {
+      errors.push_back(d->drive_id + ": " + e.what());
+    }
+  }
+  return out;
+}
+
+GridmapSumsUpdate update_gridmap_sums(MapStore& store, std::int64_t version,
+                                      const std::vector<DriveRecord>& drives,
+                                      const std::set<std::string>& stored_hashes,
+                                      const std::function<void()>& tick) {
+  GridmapSumsUpdate up;
+  std::set<std::string> inputs;
+  for (auto& in : store.gridmap_sum_inputs()) inputs.insert(std::move(in.content_hash));
+  // Inputs whose drive was deleted: their tiles recomputed from the others.
+  for (const auto& h : inputs) {
+    if (stored_hashes.contains(h)) continue;
+    if (tick) tick();
+    std::set<GridmapSumKey> keys;
+    for (const auto& c : store.gridmap_sum_cover(h)) {
+      keys.insert({static_cast<PolLevel>(c[0]), c[1], c[2]});
+    }
+    const GridmapSumTiles fresh = recompute_sum_tiles(store, keys, {h}, up.errors);
+    std::vector<GridmapSumRow> rows;
+    for (const auto& [k, t] : fresh) rows.push_back(row_of(k, t));
+    GridmapSumInputChange change;
+    change.kind = GridmapSumInputChange::Kind::Remove;
+    change.content_hash = h;
+    store.commit_gridmap_sums(version, rows, change);
+    up.tiles_written += static_cast<std::int64_t>(rows.size());
+    ++up.drives_removed;
+  }
+  for (const auto& d : drives) {
+    if (inputs.contains(d.content_hash)) continue;
+    if (tick) tick();
+    GridmapSumTiles mine;
+    try {
+      mine = drive_sums(stored_package(d), nullptr);
+    } catch (const std::exception& e) {
+      // A drive without a readable gridmap still contributes its candidates.
+      up.errors.push_back(d.drive_id + ": " + e.what());
+      continue;
+    }
+    GridmapSumInputChange change;
+    change.kind = GridmapSumInputChange::Kind::Add;
+    change.content_hash = d.content_hash;
+    std::vector<GridmapSumRow> rows;
+    for (auto& [k, t] : mine) {
+      change.cover.push_back({static_cast<int>(k.level), k.x, k.y});
+      for (const auto& old : store.gridmap_sums_in(k.x, k.y, k.x, k.y)) {
+        if (key_of(old) == k) t.add(decode_gridmap_sum_tile(old.data, source_of(old)));
+      }
+      rows.push_back(row_of(k, t));
+    }
+    store.commit_gridmap_sums(version, rows, change);
+    up.tiles_written += static_cast<std::int64_t>(rows.size());
+    ++up.drives_added;
+  }
+  return up;
+}
+
+FleetGridmapAccumulator::PngTiles render_gridmap_region(const MapStore& store,
+                                                        const FleetGridmapConfig& cfg,
+                                                        const std::vector<GridmapSumKey>& keys,
+                                                        const GridmapSumTiles& override_tiles) {
+  FleetGridmapAccumulator acc(cfg);
+  // One base-zoom tile's sums at a time: the decoded sums of a whole region could be
+  // hundreds of MB, the accumulator holds 1 MB per base tile.
+  std::map<tiles::TileKey, std::vector<GridmapSumKey>> by_base;
+  for (const auto& k : keys) by_base[sum_tile_ancestor(k, cfg.base_zoom)].push_back(k);
+  for (const auto& [base, ks] : by_base) {
+    const int shift = kGridmapSumZoom - cfg.base_zoom;
+    const int x0 = base.x << shift, y0 = base.y << shift;
+    const int x1 = x0 + (1 << shift) - 1, y1 = y0 + (1 << shift) - 1;
+    for (const auto& row : store.gridmap_sums_in(x0, y0, x1, y1)) {
+      const GridmapSumKey k = key_of(row);
+      if (override_tiles.contains(k)) continue;
+      acc.add_sums(k, decode_gridmap_sum_tile(row.data, source_of(row)));
+    }
+    for (const auto& k : ks) {
+      if (auto it = override_tiles.find(k); it != override_tiles.end()) acc.add_sums(k, it->second);
+    }
+  }
+  return acc.encode_all_png_tiles();
+}
+
+}  // namespace polmap::mapping::detail

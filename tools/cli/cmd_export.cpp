@@ -1,8 +1,9 @@
-// `polmap export --db FILE --format gpkg|geojson|shp|gtiff --out FILE [--version V]
+// `polmap export --db FILE --format gpkg|geojson|shp|gtiff|cog --out FILE [--version V]
 //  [--bbox MINLON,MINLAT,MAXLON,MAXLAT]`: writes a published map version of a local store
 // as GIS files (mapping_service/export.hpp): landmarks as GeoPackage (layers points,
 // lines), GeoJSON (one FeatureCollection) or Shapefile (points.* + lines.*; a zip when
-// --out ends in .zip, else a directory), or the fleet gridmap as a GeoTIFF (EPSG:3857, dB).
+// --out ends in .zip, else a directory), or the fleet gridmap as a GeoTIFF (EPSG:3857, dB),
+// or (cog) the store's merged covariance gridmap as a multi-band Cloud Optimized GeoTIFF.
 #include <CLI/CLI.hpp>
 #include <cmath>
 #include <cstdio>
@@ -53,14 +54,19 @@ std::optional<mapping::GeoBox> parse_bbox(const std::string& s) {
 void run(const ExportOptions& o) {
   const auto format = mapping::parse_export_format(o.format);
   if (!format) {
-    throw ValidationError("--format '" + o.format + "': expected gpkg, geojson, shp or gtiff");
+    throw ValidationError("--format '" + o.format +
+                          "': expected gpkg, geojson, shp, gtiff or cog");
   }
   const auto bbox = parse_bbox(o.bbox);
   require_map_db(o.db);
   mapping::SqliteMapStore store(o.db);
   const std::int64_t version = map_version_or_current(store, o.db, o.version);
   const auto s = mapping::export_map(store, version, *format, bbox, o.out);
-  if (*format == mapping::ExportFormat::GeoTiff) {
+  if (*format == mapping::ExportFormat::MergedGridmapCog) {
+    std::printf("merged gridmap of the store: %llu sum tiles -> %s (%llu bytes, COG)\n",
+                static_cast<unsigned long long>(s.gridmap_tiles), o.out.c_str(),
+                static_cast<unsigned long long>(s.bytes));
+  } else if (*format == mapping::ExportFormat::GeoTiff) {
     std::printf("map version %lld: fleet gridmap, %llu tiles -> %s (%llu bytes)\n",
                 static_cast<long long>(version), static_cast<unsigned long long>(s.gridmap_tiles),
                 o.out.c_str(), static_cast<unsigned long long>(s.bytes));
@@ -76,9 +82,11 @@ void run(const ExportOptions& o) {
 void setup(CLI::App& app) {
   auto opts = std::make_shared<ExportOptions>();
   CLI::App* cmd = app.add_subcommand(
-      "export", "Export a map version's landmarks (gpkg, geojson, shp) or fleet gridmap (gtiff)");
+      "export",
+      "Export a map version's landmarks (gpkg, geojson, shp), its fleet gridmap (gtiff) or the "
+      "store's merged covariance gridmap (cog)");
   cmd->add_option("--db", opts->db, "Map store database (SQLite)")->required();
-  cmd->add_option("--format", opts->format, "gpkg | geojson | shp | gtiff")->required();
+  cmd->add_option("--format", opts->format, "gpkg | geojson | shp | gtiff | cog")->required();
   cmd->add_option("--out", opts->out,
                   "Output file (.gpkg, .geojson, .tif; shp: .zip or a directory)")
       ->required();

@@ -17,7 +17,7 @@ constexpr int kAffineBlock = 64;  // drive cells per affine fit (6.4 m at 0.1 m 
 
 int gridmap_sum_planes(PolLevel level) {
   const int q = pol_dimension(level);
-  return 2 + q + q * (q - 1);  // N, N·σ², q real diagonals, q(q-1)/2 complex off-diagonals
+  return 3 + q + q * (q - 1);  // N, hits, N·σ², q real diagonals, q(q-1)/2 complex off-diagonals
 }
 
 GridmapSumTile::GridmapSumTile(PolLevel level)
@@ -116,9 +116,11 @@ void splat_gridmap(const GridmapRaster& r, const tiles::LocalFrame& frame, PolLe
           const std::size_t i = static_cast<std::size_t>(row) * r.width + col;
           const double n = r.count[i];
           if (n == 0) continue;
+          // Format 1 packages carry no hits: every look counts as one.
           v[0] = 1.0;
-          v[1] = r.noise_power;
-          std::size_t p = 2;
+          v[1] = r.hits.empty() ? 1.0 : static_cast<double>(r.hits[i]) / n;
+          v[2] = r.noise_power;
+          std::size_t p = 3;
           for (int a = 0; a < r.q; ++a) {
             for (int b = a; b < r.q; ++b) {
               const cdouble c = r.layers[static_cast<std::size_t>(r.layer_index(r.q, a, b))][i];
@@ -151,8 +153,9 @@ MergedCell merged_cell(const GridmapSumTile& tile, int x, int y) {
     m.n = 0.0;
     return m;
   }
-  m.noise_power = tile.at(1, x, y) / m.n;
-  int p = 2;
+  m.hits = tile.at(1, x, y);
+  m.noise_power = tile.at(2, x, y) / m.n;
+  int p = 3;
   std::size_t l = 0;
   for (int a = 0; a < q; ++a) {
     for (int b = a; b < q; ++b) {
@@ -171,7 +174,7 @@ CellPowers cell_powers(const GridmapSumTile& tile, int x, int y) {
   if (!(n > 0.0)) return out;
   const int q = pol_dimension(tile.level());
   std::array<cdouble, 6> layers{};
-  int p = 2;
+  int p = 3;
   std::size_t l = 0;
   double trace = 0.0;
   for (int a = 0; a < q; ++a) {
@@ -183,7 +186,7 @@ CellPowers cell_powers(const GridmapSumTile& tile, int x, int y) {
     }
   }
   const auto [odd, even] = cell_mechanism_powers(std::span<const cdouble>(layers.data(), l),
-                                                 tile.level(), tile.at(1, x, y) / n);
+                                                 tile.level(), tile.at(2, x, y) / n);
   out.n = n;
   out.n_power = n * std::max(0.0, trace);
   out.n_odd = n * odd;

@@ -105,7 +105,9 @@ GridmapSumTile decode_gridmap_sum_tile(std::string_view in, std::string_view sou
       if (!std::isfinite(ch[i])) bad(source, "non-finite value in chunk " + std::to_string(c));
     }
     for (std::size_t i = 0; i < kChunkArea; ++i) {
-      if (ch[i] < 0.0F) bad(source, "negative observation count in chunk " + std::to_string(c));
+      if (ch[i] < 0.0F || ch[kChunkArea + i] < 0.0F) {
+        bad(source, "negative observation or hit count in chunk " + std::to_string(c));
+      }
     }
     base += floats * 4;
   }

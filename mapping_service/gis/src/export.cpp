@@ -11,6 +11,7 @@
 #include <numbers>
 #include <set>
 
+#include "gdal_output.hpp"
 #include "polmap/mapping_service/detail/gdal.hpp"
 #include "polmap/mapping_service/detail/gridmap_tiff.hpp"
 #include "polmap/mapping_service/drive_package_io.hpp"
@@ -32,13 +33,15 @@ std::string_view to_string(ExportFormat f) {
       return "shp";
     case ExportFormat::GeoTiff:
       return "gtiff";
+    case ExportFormat::MergedGridmapCog:
+      return "cog";
   }
   return "gpkg";
 }
 
 std::optional<ExportFormat> parse_export_format(std::string_view s) {
   for (auto f : {ExportFormat::GeoPackage, ExportFormat::GeoJson, ExportFormat::Shapefile,
-                 ExportFormat::GeoTiff}) {
+                 ExportFormat::GeoTiff, ExportFormat::MergedGridmapCog}) {
     if (to_string(f) == s) return f;
   }
   return std::nullopt;
@@ -53,6 +56,7 @@ std::string_view export_content_type(ExportFormat f) {
     case ExportFormat::Shapefile:
       return "application/zip";
     case ExportFormat::GeoTiff:
+    case ExportFormat::MergedGridmapCog:
       return "image/tiff";
   }
   return "application/octet-stream";
@@ -67,6 +71,7 @@ std::string_view export_file_extension(ExportFormat f) {
     case ExportFormat::Shapefile:
       return ".zip";
     case ExportFormat::GeoTiff:
+    case ExportFormat::MergedGridmapCog:
       return ".tif";
   }
   return "";
@@ -75,6 +80,10 @@ std::string_view export_file_extension(ExportFormat f) {
 namespace {
 
 using detail::GdalErrorCapture;
+using gis_detail::close_dataset;
+using gis_detail::driver;
+using gis_detail::remove_file;
+using gis_detail::total_size;
 
 constexpr const char* kShapefileExts[] = {".shp", ".shx", ".dbf", ".prj", ".cpg"};
 
@@ -192,27 +201,8 @@ void write_line_features(OGRLayer* layer, const std::vector<StoredLineLandmark>&
   }
 }
 
-GDALDriver* driver(const char* name) {
-  detail::ensure_gdal();
-  GDALDriver* d = GetGDALDriverManager()->GetDriverByName(name);
-  if (d == nullptr) throw IoError(std::string("GDAL has no ") + name + " driver");
-  return d;
-}
 
-void close_dataset(GDALDatasetUniquePtr ds, const GdalErrorCapture& capture,
-                   const std::string& out) {
-  CPLErrorReset();
-  GDALClose(ds.release());
-  if (CPLGetLastErrorType() >= CE_Failure) {
-    throw IoError(out + ": cannot finish: " + capture.last_message());
-  }
-}
 
-void remove_file(const fs::path& p) {
-  std::error_code ec;
-  fs::remove(p, ec);
-  if (ec) throw IoError(p.string() + ": cannot replace: " + ec.message());
-}
 
 /// Writes the two Shapefile sets into directory `dir`; returns the files written.
 std::vector<fs::path> write_shapefiles(const LandmarkSet& lm, const fs::path& dir,
@@ -265,15 +255,6 @@ void write_zip(const std::vector<fs::path>& files, const fs::path& zip) {
   if (!ok) throw IoError(zip.string() + ": cannot write zip: " + capture.last_message());
 }
 
-std::uint64_t total_size(const std::vector<fs::path>& files) {
-  std::uint64_t n = 0;
-  for (const auto& f : files) {
-    std::error_code ec;
-    const auto s = fs::file_size(f, ec);
-    if (!ec) n += s;
-  }
-  return n;
-}
 
 bool ends_with_zip(const fs::path& p) {
   std::string s = p.filename().string();
@@ -339,9 +320,10 @@ ExportSummary export_landmarks(const LandmarkSet& lm, ExportFormat format, const
       break;
     }
     case ExportFormat::GeoTiff:
+    case ExportFormat::MergedGridmapCog:
       throw ValidationError(
           "export_landmarks: landmarks cannot be written as GeoTIFF "
-          "(use export_mercator_gridmap_geotiff for the gridmap)");
+          "(use export_mercator_gridmap_geotiff or export_merged_gridmap_cog for gridmaps)");
   }
   summary.bytes = total_size(summary.files);
   return summary;
@@ -438,6 +420,10 @@ ExportSummary export_map(const MapStore& store, std::int64_t version, ExportForm
   const auto info = store.get_map_version(version);
   if (!info || info->status != MapVersionStatus::Published) {
     throw NotFoundError("map version " + std::to_string(version) + " is not published");
+  }
+  if (format == ExportFormat::MergedGridmapCog) {
+    // The store's merged gridmap (the sums every build keeps current), not the version's.
+    return export_merged_gridmap_cog(store, bbox, std::nullopt, out);
   }
   if (format != ExportFormat::GeoTiff) {
     const LandmarkSet lm = store.landmarks_in(version, bbox, /*with_support=*/true);

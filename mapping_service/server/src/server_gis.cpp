@@ -79,7 +79,7 @@ void Server::Impl::register_gis_routes() {
     const std::string fmt = req.get_param_value("format");
     const auto format = parse_export_format(fmt);
     if (!format) {
-      return reply_error(res, 400, "format must be gpkg, geojson, shp or gtiff", "format");
+      return reply_error(res, 400, "format must be gpkg, geojson, shp, gtiff or cog", "format");
     }
     std::optional<GeoBox> bbox;
     if (req.has_param("bbox")) {

@@ -26,6 +26,7 @@ GridmapSumTile sample_tile(PolLevel level, std::uint32_t seed) {
     const int y = (chunk / 4) * 64 + static_cast<int>(u(rng)) % 64;
     for (auto& e : v) e = u(rng) - 10.0;
     v[0] = u(rng);  // N >= 0
+    v[1] = u(rng);  // hits >= 0
     t.add(x, y, 1.0, v.data());
   }
   return t;
@@ -93,11 +94,11 @@ TEST(GridmapSumsCodec, RefusesMalformedBytesNamingTheSource) {
 
 TEST(GridmapSumsCodec, RefusesNonFiniteValuesAndNegativeCounts) {
   GridmapSumTile nan_tile(PolLevel::SingleRR);
-  std::vector<double> v{1.0, std::numeric_limits<double>::quiet_NaN(), 1.0};
+  std::vector<double> v{1.0, 1.0, std::numeric_limits<double>::quiet_NaN(), 1.0};
   nan_tile.add(3, 3, 1.0, v.data());
   expect_refused(encode_gridmap_sum_tile(nan_tile), "non-finite");
   GridmapSumTile neg(PolLevel::SingleRR);
-  v = {-1.0, 0.0, 1.0};
+  v = {-1.0, 0.0, 0.0, 1.0};
   neg.add(3, 3, 1.0, v.data());
   expect_refused(encode_gridmap_sum_tile(neg), "negative");
 }

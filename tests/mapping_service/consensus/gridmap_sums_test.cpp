@@ -29,10 +29,12 @@ GridmapRaster random_raster(int w, int h, std::uint32_t seed, double x0 = -3.0, 
   r.origin_y_m = y0;
   r.noise_power = 0.25;
   r.count.resize(static_cast<std::size_t>(w) * h);
+  r.hits.resize(r.count.size());
   r.layers.assign(6, std::vector<cdouble>(r.count.size()));
   for (std::size_t i = 0; i < r.count.size(); ++i) {
     const int n = looks(rng);
     r.count[i] = n < 5 ? 0 : static_cast<std::uint32_t>(n);
+    r.hits[i] = r.count[i] / 3;
     Eigen::Vector3cd v({g(rng), g(rng)}, {g(rng), g(rng)}, {g(rng), g(rng)});
     const Eigen::Matrix3cd c = v * v.adjoint();
     int l = 0;
@@ -52,10 +54,10 @@ double plane_total(const GridmapSumTiles& tiles, int p) {
 }
 
 TEST(GridmapSums, PlanesPerLevel) {
-  EXPECT_EQ(gridmap_sum_planes(PolLevel::Full), 11);
-  EXPECT_EQ(gridmap_sum_planes(PolLevel::DualLLLR), 6);
-  EXPECT_EQ(gridmap_sum_planes(PolLevel::DualHHVV), 6);
-  EXPECT_EQ(gridmap_sum_planes(PolLevel::SingleRR), 3);
+  EXPECT_EQ(gridmap_sum_planes(PolLevel::Full), 12);
+  EXPECT_EQ(gridmap_sum_planes(PolLevel::DualLLLR), 7);
+  EXPECT_EQ(gridmap_sum_planes(PolLevel::DualHHVV), 7);
+  EXPECT_EQ(gridmap_sum_planes(PolLevel::SingleRR), 4);
 }
 
 TEST(GridmapSums, SplattingConservesEveryPlanesTotal) {
@@ -64,13 +66,14 @@ TEST(GridmapSums, SplattingConservesEveryPlanesTotal) {
   GridmapSumTiles tiles;
   splat_gridmap(r, tiles::LocalFrame(kOrigin), PolLevel::Full, tiles);
   EXPECT_GE(tiles.size(), 4U);
-  // Reference totals straight from the raster: Σ N, Σ N σ², Σ N C_ij.
-  std::vector<double> ref(11, 0.0);
+  // Reference totals straight from the raster: Σ N, Σ hits, Σ N σ², Σ N C_ij.
+  std::vector<double> ref(12, 0.0);
   for (std::size_t i = 0; i < r.count.size(); ++i) {
     const double n = r.count[i];
     ref[0] += n;
-    ref[1] += n * r.noise_power;
-    int p = 2, l = 0;
+    ref[1] += r.hits[i];
+    ref[2] += n * r.noise_power;
+    int p = 3, l = 0;
     for (int a = 0; a < 3; ++a) {
       for (int b = a; b < 3; ++b, ++l) {
         ref[static_cast<std::size_t>(p++)] += n * r.layers[static_cast<std::size_t>(l)][i].real();
@@ -78,7 +81,7 @@ TEST(GridmapSums, SplattingConservesEveryPlanesTotal) {
       }
     }
   }
-  for (int p = 0; p < 11; ++p) {
+  for (int p = 0; p < 12; ++p) {
     EXPECT_NEAR(plane_total(tiles, p), ref[static_cast<std::size_t>(p)],
                 1e-5 * std::max(1.0, std::abs(ref[static_cast<std::size_t>(p)])))
         << "plane " << p;
@@ -137,6 +140,7 @@ TEST(GridmapSums, MergingTwoDrivesGivesTheirCountWeightedMeanCovariance) {
         const MergedCell ma = sa.contains(k) ? merged_cell(sa.at(k), x, y) : MergedCell{};
         const MergedCell mb = sb.contains(k) ? merged_cell(sb.at(k), x, y) : MergedCell{};
         EXPECT_NEAR(m.n, ma.n + mb.n, 1e-3);
+        EXPECT_NEAR(m.hits, ma.hits + mb.hits, 1e-3);
         EXPECT_NEAR(m.noise_power, (ma.n * 0.25 + mb.n * 0.5) / m.n, 1e-5);
         for (std::size_t l = 0; l < m.layers.size(); ++l) {
           const cdouble ref =

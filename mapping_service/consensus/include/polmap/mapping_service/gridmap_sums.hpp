@@ -14,11 +14,12 @@
 /// Planes per cell (float32, for the drives of one polarimetric level — circular and
 /// linear bases are never summed together; each level has its own sum tiles):
 ///   0  Σ N          observation count (looks)
-///   1  Σ N·σ²       noise power of the contributing drives (so merged noise = plane1/plane0)
+///   1  Σ hits       looks with a stored bin (persistence = plane1/plane0, what pCFAR tests)
+///   2  Σ N·σ²       noise power of the contributing drives (so merged noise = plane2/plane0)
 ///   then, for every covariance component C_ij, i <= j, upper triangle row-major
 ///   (GridmapRaster::layer_index order): Σ N·C_ii (real, one plane) or
 ///   Re Σ N·C_ij, Im Σ N·C_ij (two planes).
-/// So full polarimetry has 2 + 3 + 2·3 = 11 planes, dual 2 + 2 + 2 = 6, single 3.
+/// So full polarimetry has 3 + 3 + 2·3 = 12 planes, dual 3 + 2 + 2 = 7, single 4.
 ///
 /// Resampling (drive frame -> grid): each drive cell's N and N·C are split among the 4
 /// grid cells around its centre with bilinear weights ("splatting"), so totals are
@@ -27,7 +28,7 @@
 /// (error < 1 mm, as for the amplitude tiles).
 ///
 /// Memory: a sum tile holds 16 chunks of 64 × 64 cells, allocated when first touched, so
-/// a drive's working set follows its observed area (≈ 45 bytes per 0.01 m² at full
+/// a drive's working set follows its observed area (≈ 50 bytes per 0.01 m² at full
 /// polarimetry), not its bounding box.
 ///
 /// Pure core: no I/O. The store keeps the encoded tiles (gridmap_sums_codec.hpp), the map
@@ -100,10 +101,11 @@ using GridmapSumTiles = std::map<GridmapSumKey, GridmapSumTile>;
 void splat_gridmap(const GridmapRaster& raster, const tiles::LocalFrame& drive_frame,
                    PolLevel level, GridmapSumTiles& out);
 
-/// Merged covariance of one cell: N and the mean covariance layers (GridmapRaster layer
+/// Merged covariance of one cell: N, hits, the mean covariance layers (GridmapRaster layer
 /// order) and mean noise power. `n` = 0 where nothing was observed.
 struct MergedCell {
   double n = 0.0;
+  double hits = 0.0;
   double noise_power = 0.0;
   std::vector<cdouble> layers;
 };

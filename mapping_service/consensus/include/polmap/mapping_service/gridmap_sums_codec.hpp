@@ -14,7 +14,7 @@
 ///
 /// The decoder checks everything before use: magic, version, level, the exact inflated
 /// size (the output buffer is that size, so a stream cannot inflate beyond it), and that
-/// every value is finite with N >= 0. Errors are FormatError naming `source`.
+/// every value is finite with N >= 0 and hits >= 0. Errors are FormatError naming `source`.
 #include <string>
 #include <string_view>
 

@@ -24,6 +24,15 @@
 /// no data; each XYZ tile is one 256 x 256 GeoTIFF block (DEFLATE, sparse), so a
 /// city-sized export never holds more than one tile in memory. A drive-frame covariance
 /// raster (GridmapRaster) exports with the drive package's band layout.
+/// Merged gridmap (`cog`): the store's merged PreCFAR gridmap (gridmap_sums.hpp: the
+/// covariance sums of all drives, store state rather than a version's) as a multi-band
+/// Float32 Cloud Optimized GeoTIFF, EPSG:3857, pixels = the z20 sum grid (0.149 m ×
+/// cos(lat)); bands N (Σ looks), hits (Σ looks with a stored bin), noise_power (Σ N σ² /
+/// Σ N), then the fleet covariance
+/// Σ N C / Σ N with the drive package's names (C_LL_LL, C_LL_LR.re, C_LL_LR.im, ...); NaN
+/// where no drive looked. ZSTD with the floating-point predictor, 256 × 256 blocks,
+/// AVERAGE overviews. One polarimetric level per file (the one with most tiles, or the
+/// requested one).
 #include <cstdint>
 #include <filesystem>
 #include <functional>
@@ -39,13 +48,13 @@
 
 namespace polmap::mapping {
 
-enum class ExportFormat { GeoPackage, GeoJson, Shapefile, GeoTiff };
+enum class ExportFormat { GeoPackage, GeoJson, Shapefile, GeoTiff, MergedGridmapCog };
 
-/// "gpkg", "geojson", "shp", "gtiff".
+/// "gpkg", "geojson", "shp", "gtiff", "cog".
 [[nodiscard]] std::string_view to_string(ExportFormat f);
 [[nodiscard]] std::optional<ExportFormat> parse_export_format(std::string_view s);
 /// MIME type of the single-file form: application/geopackage+sqlite3, application/geo+json,
-/// application/zip (shp), image/tiff.
+/// application/zip (shp), image/tiff (gtiff, cog).
 [[nodiscard]] std::string_view export_content_type(ExportFormat f);
 /// File name extension of the single-file form: ".gpkg", ".geojson", ".zip", ".tif".
 [[nodiscard]] std::string_view export_file_extension(ExportFormat f);
@@ -85,6 +94,16 @@ ExportSummary export_mercator_gridmap_geotiff(
 /// GeoTIFF with the drive package's gridmap.tif band layout (schema/drive_package.md).
 ExportSummary export_covariance_geotiff(const GridmapRaster& raster, PolLevel level,
                                         const std::string& crs_proj,
+                                        const std::filesystem::path& out);
+
+/// Band names of the merged-gridmap COG of a level (file comment).
+[[nodiscard]] std::vector<std::string> merged_gridmap_band_names(PolLevel level);
+
+/// Writes the store's merged gridmap inside `bbox` (all if nullopt) of `level` (the level
+/// with most sum tiles if nullopt) as a COG (file comment). NotFoundError when there is
+/// none; ValidationError when the extent exceeds one GeoTIFF.
+ExportSummary export_merged_gridmap_cog(const MapStore& store, const std::optional<GeoBox>& bbox,
+                                        std::optional<PolLevel> level,
                                         const std::filesystem::path& out);
 
 /// Store-level export (CLI `polmap export`, `GET /v1/export`): landmarks of a published

@@ -42,6 +42,7 @@
 #include "polmap/eval/study.hpp"
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/mapping_service/map_builder.hpp"
+#include "polmap/mapping_service/merged_gridmap_extract.hpp"
 #include "polmap/mapping_service/polyline_distance.hpp"
 #include "polmap/mapping_service/sqlite_store.hpp"
 #include "polmap/mapping_service/ustar.hpp"
@@ -172,7 +173,9 @@ struct Truth {
 struct Accuracy {
   double point_precision = 0, point_recall = 0, point_recall_all = 0, point_rmse_m = 0;
   double line_precision = 0, line_recall = 0, line_recall_all = 0;
-  std::size_t detectable_points = 0;
+  /// Recall of the weak objects: those fewer than half of the drives detected.
+  double point_recall_weak = 0, line_recall_weak = 0;
+  std::size_t detectable_points = 0, points = 0;
 };
 
 /// Grid of polyline pieces for near-distance queries (cell = 1 m).
@@ -245,10 +248,8 @@ class PointIndex {
 /// samples) with a candidate within the radius in at least half of the drives: what
 /// any consensus of these candidates can find; recall is against it, recall_all against
 /// all truth.
-Accuracy accuracy(const MapStore& store, std::int64_t version, const Truth& truth,
+Accuracy accuracy(const LandmarkSet& lms, const CandidateSet& cands, const Truth& truth,
                   const tiles::LocalFrame& world, double radius_m) {
-  const LandmarkSet lms = store.landmarks_in(version, std::nullopt, false);
-  const CandidateSet cands = store.candidates_in(std::nullopt);
   std::set<std::int64_t> drive_set;
   for (const auto& c : cands.points) drive_set.insert(c.drive);
   for (const auto& c : cands.lines) drive_set.insert(c.drive);
@@ -281,6 +282,7 @@ Accuracy accuracy(const MapStore& store, std::int64_t version, const Truth& trut
   });
   std::vector<char> lu(lp.size(), 0), ou(truth.points.size(), 0);
   std::size_t matched = 0, matched_detectable = 0;
+  a.points = lp.size();
   double ss = 0;
   for (const Pair& p : pairs) {
     if (lu[p.l] || ou[p.o]) continue;
@@ -294,6 +296,8 @@ Accuracy accuracy(const MapStore& store, std::int64_t version, const Truth& trut
       a.detectable_points ? double(matched_detectable) / double(a.detectable_points) : 0.0;
   a.point_recall_all = truth.points.empty() ? 0.0 : double(matched) / double(truth.points.size());
   a.point_rmse_m = matched ? std::sqrt(ss / double(matched)) : 0.0;
+  const std::size_t weak = truth.points.size() - a.detectable_points;
+  a.point_recall_weak = weak ? double(matched - matched_detectable) / double(weak) : 0.0;
   // Lines, by length.
   std::vector<std::vector<Eigen::Vector2d>> ll;
   for (const auto& l : lms.lines) {
@@ -331,10 +335,43 @@ Accuracy accuracy(const MapStore& store, std::int64_t version, const Truth& trut
     ++wn, wok += ok ? 1 : 0;
     if (static_cast<double>(covered_by[i].size()) >= half) ++dn, dok += ok ? 1 : 0;
   }
+  a.line_recall_weak = wn > dn ? double(wok - dok) / double(wn - dn) : 0.0;
   a.line_precision = ln ? double(lok) / double(ln) : 0.0;
   a.line_recall = dn ? double(dok) / double(dn) : 0.0;
   a.line_recall_all = wn ? double(wok) / double(wn) : 0.0;
   return a;
+}
+
+Accuracy accuracy(const MapStore& store, std::int64_t version, const Truth& truth,
+                  const tiles::LocalFrame& world, double radius_m) {
+  return accuracy(store.landmarks_in(version, std::nullopt, false),
+                  store.candidates_in(std::nullopt), truth, world, radius_m);
+}
+
+/// Landmarks extracted from the store's merged gridmap over the truth's extent, as a
+/// LandmarkSet for accuracy().
+LandmarkSet merged_landmarks(const MapStore& store, const Truth& truth,
+                             const tiles::LocalFrame& world, const MergedExtractionConfig& cfg) {
+  Eigen::Vector2d lo(1e18, 1e18), hi(-1e18, -1e18);
+  for (const auto& p : truth.points) lo = lo.cwiseMin(p), hi = hi.cwiseMax(p);
+  for (const auto& l : truth.lines)
+    for (const auto& p : l) lo = lo.cwiseMin(p), hi = hi.cwiseMax(p);
+  const GeoPoint sw = world.to_geo(lo - Eigen::Vector2d(5, 5));
+  const GeoPoint ne = world.to_geo(hi + Eigen::Vector2d(5, 5));
+  const MergedExtraction x =
+      extract_from_merged_gridmap(store, {sw.lat_deg, sw.lon_deg, ne.lat_deg, ne.lon_deg}, cfg);
+  LandmarkSet out;
+  for (const auto& g : x.points) {
+    StoredPointLandmark p;
+    p.position = g;
+    out.points.push_back(p);
+  }
+  for (const auto& [a, b] : x.lines) {
+    StoredLineLandmark l;
+    l.polyline = {a, b};
+    out.lines.push_back(l);
+  }
+  return out;
 }
 
 double seconds_since(std::chrono::steady_clock::time_point t) {
@@ -406,7 +443,8 @@ class SyntheticSource final : public DriveSource {
 /// facades, guardrails, fences); parked cars and bins are not truth.
 class SimSource final : public DriveSource {
  public:
-  SimSource(const std::string& world, double length_m, unsigned seed, fs::path cache)
+  SimSource(const std::string& world, double length_m, unsigned seed, fs::path cache,
+            bool with_gridmap)
       : cache_(std::move(cache)) {
     sim_.seed = seed;
     world_ = sim::load_world(world, length_m, seed, sim_);
@@ -439,7 +477,7 @@ class SimSource final : public DriveSource {
           break;
       }
     }
-    study_.landmarks_only = true;
+    study_.landmarks_only = !with_gridmap;
     std::printf("simulated world %s, %.0f m, seed %u: %zu permanent point objects, %zu lines\n",
                 world.c_str(), world_->route.length_m(), seed, truth_.points.size(),
                 truth_.lines.size());
@@ -562,7 +600,19 @@ int main(int argc, char** argv) {
   app.add_flag("--explain", explain, "print what false point landmarks are near (simulator)");
   app.add_option("--sim-cache", sim_cache,
                  "simulated packages are kept here and reused (default: KEEP/packages)");
+  bool merged = false;
+  app.add_flag("--merged", merged,
+               "simulated drives with their gridmaps: also extract landmarks from the merged "
+               "gridmap (pCFAR, lines) and compare them with candidate consensus");
+  std::vector<double> merged_thresholds{2.0};
+  app.add_option("--merged-thresholds", merged_thresholds,
+                 "pCFAR thresholds (d_ex) for the merged gridmap, one row each")
+      ->delimiter(',');
   CLI11_PARSE(app, argc, argv);
+  if (merged && world.empty()) {
+    std::fprintf(stderr, "--merged needs --world (the synthetic route has no gridmaps)\n");
+    return 2;
+  }
 
   const fs::path root =
       keep.empty() ? fs::temp_directory_path() / ("polmap_bench_map_build_" + std::to_string(seed))
@@ -575,7 +625,8 @@ int main(int argc, char** argv) {
                                                temporaries_per_km, seed);
   } else {
     const fs::path cache = sim_cache.empty() ? root / "packages" : fs::path(sim_cache);
-    source = std::make_unique<SimSource>(world, length_km * 1000.0, seed, cache);
+    source = std::make_unique<SimSource>(world, length_km * 1000.0, seed,
+                                         merged ? cache / "with_gridmap" : cache, merged);
   }
 
   std::printf(
@@ -593,7 +644,7 @@ int main(int argc, char** argv) {
     for (int k = 0; k < n; ++k) cand += source->ingest(store, dir, n, k);
     const double ingest_s = seconds_since(t0);
     MapBuildRequest req;
-    req.build_gridmap = false;
+    req.build_gridmap = merged;
     if (view_fraction)
       req.points.support.min_view_fraction = req.lines.support.min_view_fraction = *view_fraction;
     const MapBuilder builder;
@@ -604,6 +655,33 @@ int main(int argc, char** argv) {
     }
     const Accuracy acc = accuracy(store, r.version, source->truth(), source->frame(), radius_m);
     if (explain) source->explain(store, r.version, radius_m);
+    if (merged) {
+      // The same drives' merged gridmap, the vehicle's detectors on it (weak = objects fewer
+      // than half of the drives detected on their own).
+      const CandidateSet cands = store.candidates_in(std::nullopt);
+      std::printf(
+          "  %-22s %6s %6s %6s %6s %7s | %6s %6s %6s %6s   (n = %d drives, gridmap %.1f s)\n",
+          "source", "points", "P_pts", "R_pts", "Rw_pts", "rmse_cm", "P_lin", "R_lin", "Rw_lin",
+          "lines", n, r.stats.seconds_gridmap);
+      std::printf("  %-22s %6zu %6.3f %6.3f %6.3f %7.2f | %6.3f %6.3f %6.3f %6lld\n",
+                  "candidate consensus", acc.points, acc.point_precision, acc.point_recall,
+                  acc.point_recall_weak, 100.0 * acc.point_rmse_m, acc.line_precision,
+                  acc.line_recall, acc.line_recall_weak,
+                  static_cast<long long>(r.stats.line_landmarks));
+      for (double th : merged_thresholds) {
+        MergedExtractionConfig mc;
+        mc.points.threshold = th;
+        const LandmarkSet ml = merged_landmarks(store, source->truth(), source->frame(), mc);
+        const Accuracy m = accuracy(ml, cands, source->truth(), source->frame(), radius_m);
+        char label[64];
+        std::snprintf(label, sizeof label, "merged gridmap d_ex>%.1f", th);
+        std::printf("  %-22s %6zu %6.3f %6.3f %6.3f %7.2f | %6.3f %6.3f %6.3f %6zu\n", label,
+                    m.points, m.point_precision, m.point_recall, m.point_recall_weak,
+                    100.0 * m.point_rmse_m, m.line_precision, m.line_recall, m.line_recall_weak,
+                    ml.lines.size());
+      }
+      std::fflush(stdout);
+    }
     (void)source->ingest(store, dir, n, n);
     const auto inc = builder.build(store, req);
     (void)source->ingest(store, dir, n, n + 1);

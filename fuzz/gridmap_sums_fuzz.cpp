@@ -13,12 +13,12 @@
 using namespace polmap;
 using namespace polmap::mapping;
 
-#define FUZZ_CHECK(cond)                                                         \
-  do {                                                                           \
-    if (!(cond)) {                                                               \
+#define FUZZ_CHECK(cond)                                                        \
+  do {                                                                          \
+    if (!(cond)) {                                                              \
       std::fprintf(stderr, "fuzz_gridmap_sums: invariant failed: %s\n", #cond); \
-      std::abort();                                                              \
-    }                                                                            \
+      std::abort();                                                             \
+    }                                                                           \
   } while (0)
 
 extern "C" int LLVMFuzzerInitialize(int*, char***) {

@@ -54,8 +54,7 @@ std::optional<mapping::GeoBox> parse_bbox(const std::string& s) {
 void run(const ExportOptions& o) {
   const auto format = mapping::parse_export_format(o.format);
   if (!format) {
-    throw ValidationError("--format '" + o.format +
-                          "': expected gpkg, geojson, shp, gtiff or cog");
+    throw ValidationError("--format '" + o.format + "': expected gpkg, geojson, shp, gtiff or cog");
   }
   const auto bbox = parse_bbox(o.bbox);
   require_map_db(o.db);

@@ -50,9 +50,7 @@ GridmapSumRow row_of(const GridmapSumKey& k, const GridmapSumTile& t) {
   return {static_cast<int>(k.level), k.x, k.y, encode_gridmap_sum_tile(t), 0};
 }
 
-GridmapSumKey key_of(const GridmapSumRow& r) {
-  return {static_cast<PolLevel>(r.level), r.x, r.y};
-}
+GridmapSumKey key_of(const GridmapSumRow& r) { return {static_cast<PolLevel>(r.level), r.x, r.y}; }
 
 std::string source_of(const GridmapSumRow& r) {
   return "gridmap sum tile (level " + std::to_string(r.level) + ", z20 " + std::to_string(r.x) +

@@ -39,9 +39,10 @@ GridmapSumTiles recompute_sum_tiles(const MapStore& store, const std::set<Gridma
 /// Renders min-zoom region `region` (a tile at cfg.min_zoom) from the store's sum tiles in it
 /// (`keys`: those of the region), replacing the tiles in `override_tiles` (recomputed ones),
 /// and returns both raster layers of the region's zoom pyramid.
-FleetGridmapAccumulator::PngTiles render_gridmap_region(
-    const MapStore& store, const FleetGridmapConfig& cfg, const std::vector<GridmapSumKey>& keys,
-    const GridmapSumTiles& override_tiles);
+FleetGridmapAccumulator::PngTiles render_gridmap_region(const MapStore& store,
+                                                        const FleetGridmapConfig& cfg,
+                                                        const std::vector<GridmapSumKey>& keys,
+                                                        const GridmapSumTiles& override_tiles);
 
 /// The tile at `zoom` that contains sum tile `key` (zoom <= kGridmapSumZoom).
 tiles::TileKey sum_tile_ancestor(const GridmapSumKey& key, int zoom);

@@ -3,8 +3,8 @@
 
 #include <algorithm>
 #include <array>
-#include <span>
 #include <cmath>
+#include <span>
 
 #include "polmap/mapping_service/fleet_gridmap.hpp"
 #include "polmap/schema/errors.hpp"

@@ -79,9 +79,9 @@ GridmapSumTile decode_gridmap_sum_tile(std::string_view in, std::string_view sou
   }
   std::string raw(expected, '\0');
   uLongf raw_len = static_cast<uLongf>(expected);
-  const int rc = uncompress(reinterpret_cast<Bytef*>(raw.data()), &raw_len,
-                            reinterpret_cast<const Bytef*>(packed.data()),
-                            static_cast<uLong>(packed.size()));
+  const int rc =
+      uncompress(reinterpret_cast<Bytef*>(raw.data()), &raw_len,
+                 reinterpret_cast<const Bytef*>(packed.data()), static_cast<uLong>(packed.size()));
   if (rc == Z_BUF_ERROR && raw_len == expected) {
     bad(source, "zlib stream inflates beyond the " + std::to_string(expected) +
                     " bytes its chunk mask announces, or is truncated");

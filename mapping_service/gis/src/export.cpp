@@ -201,9 +201,6 @@ void write_line_features(OGRLayer* layer, const std::vector<StoredLineLandmark>&
   }
 }
 
-
-
-
 /// Writes the two Shapefile sets into directory `dir`; returns the files written.
 std::vector<fs::path> write_shapefiles(const LandmarkSet& lm, const fs::path& dir,
                                        std::int64_t version) {
@@ -254,7 +251,6 @@ void write_zip(const std::vector<fs::path>& files, const fs::path& zip) {
   ok = (CPLCloseZip(h) == CE_None) && ok;
   if (!ok) throw IoError(zip.string() + ": cannot write zip: " + capture.last_message());
 }
-
 
 bool ends_with_zip(const fs::path& p) {
   std::string s = p.filename().string();

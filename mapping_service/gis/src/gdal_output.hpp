@@ -25,7 +25,7 @@ inline GDALDriver* driver(const char* name) {
 
 /// Closes (flushes) a dataset; IoError naming `out` if GDAL reported a failure.
 inline void close_dataset(GDALDatasetUniquePtr ds, const GdalErrorCapture& capture,
-                   const std::string& out) {
+                          const std::string& out) {
   CPLErrorReset();
   GDALClose(ds.release());
   if (CPLGetLastErrorType() >= CE_Failure) {

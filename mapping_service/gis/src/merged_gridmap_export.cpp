@@ -78,15 +78,15 @@ ExportSummary export_merged_gridmap_cog(const MapStore& store, const std::option
   GdalErrorCapture capture;
   detail::ScopedGdalConfig no_pam("GDAL_PAM_ENABLED", "NO");
   {
-    const char* opts[] = {"TILED=YES",      "BLOCKXSIZE=256",   "BLOCKYSIZE=256",
-                          "COMPRESS=ZSTD",  "PREDICTOR=3",      "SPARSE_OK=TRUE",
-                          "INTERLEAVE=BAND", "BIGTIFF=YES",     nullptr};
+    const char* opts[] = {"TILED=YES",       "BLOCKXSIZE=256", "BLOCKYSIZE=256",
+                          "COMPRESS=ZSTD",   "PREDICTOR=3",    "SPARSE_OK=TRUE",
+                          "INTERLEAVE=BAND", "BIGTIFF=YES",    nullptr};
     GDALDatasetUniquePtr ds(driver("GTiff")->Create(staging.c_str(), static_cast<int>(w),
                                                     static_cast<int>(h), bands, GDT_Float32,
                                                     const_cast<char**>(opts)));
     if (!ds) throw IoError(staging + ": cannot create GeoTIFF: " + capture.last_message());
-    double gt[6] = {-kHalf + x0 * tile_m, tile_m / kPx, 0.0, kHalf - y0 * tile_m, 0.0,
-                    -tile_m / kPx};
+    double gt[6] = {-kHalf + x0 * tile_m, tile_m / kPx, 0.0,
+                    kHalf - y0 * tile_m,  0.0,          -tile_m / kPx};
     ds->SetGeoTransform(gt);
     OGRSpatialReference srs;
     srs.importFromEPSG(3857);
@@ -133,8 +133,13 @@ ExportSummary export_merged_gridmap_cog(const MapStore& store, const std::option
   {
     GDALDatasetUniquePtr src(GDALDataset::Open(staging.c_str(), GDAL_OF_RASTER | GDAL_OF_READONLY));
     if (!src) throw IoError(staging + ": cannot reopen: " + capture.last_message());
-    const char* opts[] = {"COMPRESS=ZSTD", "PREDICTOR=YES", "BLOCKSIZE=256", "OVERVIEWS=AUTO",
-                          "OVERVIEW_RESAMPLING=AVERAGE", "SPARSE_OK=TRUE", "BIGTIFF=YES",
+    const char* opts[] = {"COMPRESS=ZSTD",
+                          "PREDICTOR=YES",
+                          "BLOCKSIZE=256",
+                          "OVERVIEWS=AUTO",
+                          "OVERVIEW_RESAMPLING=AVERAGE",
+                          "SPARSE_OK=TRUE",
+                          "BIGTIFF=YES",
                           nullptr};
     const std::string path = out.string();
     GDALDatasetUniquePtr cog(driver("COG")->CreateCopy(path.c_str(), src.get(), FALSE,

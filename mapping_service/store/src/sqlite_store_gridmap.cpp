@@ -43,8 +43,11 @@ std::vector<GridmapSumRow> SqliteMapStore::gridmap_sum_keys(
       s.bind_null(1);
     }
     while (s.step()) {
-      out.push_back({static_cast<int>(s.i64(0)), static_cast<int>(s.i64(1)),
-                     static_cast<int>(s.i64(2)), {}, s.i64(3)});
+      out.push_back({static_cast<int>(s.i64(0)),
+                     static_cast<int>(s.i64(1)),
+                     static_cast<int>(s.i64(2)),
+                     {},
+                     s.i64(3)});
     }
     return out;
   });
@@ -58,8 +61,8 @@ std::vector<std::array<int, 3>> SqliteMapStore::gridmap_sum_cover(
         "SELECT level, x, y FROM gridmap_sum_cover WHERE content_hash = ?1 ORDER BY level, x, y");
     s.bind(1, content_hash);
     while (s.step()) {
-      out.push_back({static_cast<int>(s.i64(0)), static_cast<int>(s.i64(1)),
-                     static_cast<int>(s.i64(2))});
+      out.push_back(
+          {static_cast<int>(s.i64(0)), static_cast<int>(s.i64(1)), static_cast<int>(s.i64(2))});
     }
     return out;
   });

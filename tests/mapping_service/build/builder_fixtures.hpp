@@ -41,11 +41,10 @@ inline World make_world(unsigned seed, int n_objects, double extent_m) {
   return w;
 }
 
-
 /// A drive observing the objects inside `seen` (a box in world metres) with 3 cm noise,
 /// plus `temporaries` single-drive objects. Its frame origin is offset from the world's.
-inline DrivePackage observe(const World& w, const std::string& id, unsigned seed, Eigen::Vector2d lo,
-                     Eigen::Vector2d hi, int temporaries = 20) {
+inline DrivePackage observe(const World& w, const std::string& id, unsigned seed,
+                            Eigen::Vector2d lo, Eigen::Vector2d hi, int temporaries = 20) {
   const tiles::LocalFrame world(kWorldOrigin);
   const GeoPoint origin = world.to_geo(Eigen::Vector2d(37.0 * (seed % 5), -23.0 * (seed % 3)));
   const tiles::LocalFrame drive(origin);
@@ -85,7 +84,7 @@ inline DrivePackage observe(const World& w, const std::string& id, unsigned seed
 /// A width x height raster of 0.1 m cells with its north-west corner at (origin_x_m,
 /// origin_y_m), q x q covariances, nothing observed yet.
 inline GridmapRaster unobserved_raster(int q, int width, int height, double origin_x_m,
-                                double origin_y_m) {
+                                       double origin_y_m) {
   GridmapRaster r;
   r.q = q;
   r.cell_size_m = 0.1;

@@ -77,7 +77,8 @@ TEST(GridmapSums, SplattingConservesEveryPlanesTotal) {
     for (int a = 0; a < 3; ++a) {
       for (int b = a; b < 3; ++b, ++l) {
         ref[static_cast<std::size_t>(p++)] += n * r.layers[static_cast<std::size_t>(l)][i].real();
-        if (a != b) ref[static_cast<std::size_t>(p++)] += n * r.layers[static_cast<std::size_t>(l)][i].imag();
+        if (a != b)
+          ref[static_cast<std::size_t>(p++)] += n * r.layers[static_cast<std::size_t>(l)][i].imag();
       }
     }
   }
@@ -143,9 +144,9 @@ TEST(GridmapSums, MergingTwoDrivesGivesTheirCountWeightedMeanCovariance) {
         EXPECT_NEAR(m.hits, ma.hits + mb.hits, 1e-3);
         EXPECT_NEAR(m.noise_power, (ma.n * 0.25 + mb.n * 0.5) / m.n, 1e-5);
         for (std::size_t l = 0; l < m.layers.size(); ++l) {
-          const cdouble ref =
-              ((ma.n > 0 ? ma.n * ma.layers[l] : cdouble{}) + (mb.n > 0 ? mb.n * mb.layers[l] : cdouble{})) /
-              m.n;
+          const cdouble ref = ((ma.n > 0 ? ma.n * ma.layers[l] : cdouble{}) +
+                               (mb.n > 0 ? mb.n * mb.layers[l] : cdouble{})) /
+                              m.n;
           EXPECT_NEAR(std::abs(m.layers[l] - ref), 0.0, 1e-4 * (1.0 + std::abs(ref)));
         }
         ++checked;

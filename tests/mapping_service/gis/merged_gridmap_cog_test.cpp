@@ -73,7 +73,8 @@ TEST(MergedGridmapCog, OpensAsACogWithTheSumGridAndTheFleetCovariance) {
   ASSERT_EQ(ds->GetRasterCount(), 12);
   ASSERT_EQ(names.size(), 12U);
   for (int b = 0; b < 12; ++b) {
-    EXPECT_EQ(std::string(ds->GetRasterBand(b + 1)->GetDescription()), names[static_cast<std::size_t>(b)]);
+    EXPECT_EQ(std::string(ds->GetRasterBand(b + 1)->GetDescription()),
+              names[static_cast<std::size_t>(b)]);
   }
   EXPECT_EQ(names[0], "N");
   EXPECT_EQ(names[1], "hits");
@@ -102,10 +103,10 @@ TEST(MergedGridmapCog, OpensAsACogWithTheSumGridAndTheFleetCovariance) {
   std::vector<float> band(256 * 256);
   int observed = 0, empty = 0;
   for (int b : {0, 1, 2, 3, 4, 5, 11}) {
-    ASSERT_EQ(ds->GetRasterBand(b + 1)->RasterIO(GF_Read, (key.x - x0) * 256, (key.y - y0) * 256,
-                                                 256, 256, band.data(), 256, 256, GDT_Float32, 0,
-                                                 0),
-              CE_None);
+    ASSERT_EQ(
+        ds->GetRasterBand(b + 1)->RasterIO(GF_Read, (key.x - x0) * 256, (key.y - y0) * 256, 256,
+                                           256, band.data(), 256, 256, GDT_Float32, 0, 0),
+        CE_None);
     for (int y = 0; y < 256; ++y) {
       for (int x = 0; x < 256; ++x) {
         const MergedCell m = merged_cell(tile, x, y);
@@ -123,7 +124,8 @@ TEST(MergedGridmapCog, OpensAsACogWithTheSumGridAndTheFleetCovariance) {
         if (b == 4) ref = m.layers[1].real();
         if (b == 5) ref = m.layers[1].imag();
         if (b == 11) ref = m.layers[5].real();
-        ASSERT_NEAR(v, ref, 1e-5 * (1.0 + std::abs(ref))) << "band " << b << " at " << x << "," << y;
+        ASSERT_NEAR(v, ref, 1e-5 * (1.0 + std::abs(ref)))
+            << "band " << b << " at " << x << "," << y;
       }
     }
   }

@@ -75,11 +75,15 @@ class GridmapSumTile {
   /// True if no chunk is allocated (nothing was ever added).
   [[nodiscard]] bool empty() const;
   /// Chunk c (row-major, 0..15) allocated?
-  [[nodiscard]] bool has_chunk(int c) const { return chunks_[static_cast<std::size_t>(c)] != nullptr; }
+  [[nodiscard]] bool has_chunk(int c) const {
+    return chunks_[static_cast<std::size_t>(c)] != nullptr;
+  }
   /// The planes of chunk c, plane-major (plane p, cell (y, x) at p·4096 + y·64 + x);
   /// allocates (zeros) on first use.
   float* chunk(int c);
-  [[nodiscard]] const float* chunk(int c) const { return chunks_[static_cast<std::size_t>(c)].get(); }
+  [[nodiscard]] const float* chunk(int c) const {
+    return chunks_[static_cast<std::size_t>(c)].get();
+  }
   /// Value of plane p at cell (x, y) of the tile; 0 where unallocated.
   [[nodiscard]] float at(int p, int x, int y) const;
   /// Adds `w` × values (planes() of them) at cell (x, y).

@@ -36,3 +36,5 @@ polmap_export_target(polmap_opencv)
 
 find_package(pugixml REQUIRED)
 pkg_check_modules(OPENSSL REQUIRED IMPORTED_TARGET openssl)
+# zstd: the merged gridmap's sum tiles (3-5x faster than zlib at a better ratio).
+pkg_check_modules(ZSTD REQUIRED IMPORTED_TARGET libzstd)

@@ -31,10 +31,10 @@ MergedExtraction extract_from_merged_gridmap(const MapStore& store, const GeoBox
   const std::int64_t X0 = static_cast<std::int64_t>(nw.x) * kSumTileCells;
   const std::int64_t Y0 = static_cast<std::int64_t>(nw.y) * kSumTileCells;
   const double mid_lat = 0.5 * (region.min_lat_deg + region.max_lat_deg);
-  const double cell_m = 2.0 * M_PI * 6378137.0 /
-                        (static_cast<double>(tiles::tiles_per_side(kGridmapSumZoom)) *
-                         kSumTileCells) *
-                        std::cos(mid_lat * M_PI / 180.0);
+  const double cell_m =
+      2.0 * M_PI * 6378137.0 /
+      (static_cast<double>(tiles::tiles_per_side(kGridmapSumZoom)) * kSumTileCells) *
+      std::cos(mid_lat * M_PI / 180.0);
   radar::GridmapConfig gc;
   gc.cell_size_m = cell_m;
   gc.level = out.level;

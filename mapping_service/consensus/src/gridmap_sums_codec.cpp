@@ -1,11 +1,12 @@
 // Stored sum tiles of the merged gridmap (layout in gridmap_sums_codec.hpp).
 #include "polmap/mapping_service/gridmap_sums_codec.hpp"
 
-#include <zlib.h>
+#include <zstd.h>
 
 #include <bit>
 #include <cmath>
 #include <cstring>
+#include <memory>
 
 #include "polmap/schema/errors.hpp"
 
@@ -45,14 +46,18 @@ std::string encode_gridmap_sum_tile(const GridmapSumTile& tile) {
   out.push_back(static_cast<char>(mask & 0xFF));
   out.push_back(static_cast<char>(mask >> 8));
   if (raw.empty()) return out;
-  uLongf packed_len = compressBound(static_cast<uLong>(raw.size()));
-  std::string packed(packed_len, '\0');
-  if (compress2(reinterpret_cast<Bytef*>(packed.data()), &packed_len,
-                reinterpret_cast<const Bytef*>(raw.data()), static_cast<uLong>(raw.size()),
-                6) != Z_OK) {
-    throw Error("gridmap sum tile: zlib compress failed");
+  // With the frame checksum: a damaged tile is refused, not added to.
+  std::unique_ptr<ZSTD_CCtx, decltype(&ZSTD_freeCCtx)> cctx(ZSTD_createCCtx(), &ZSTD_freeCCtx);
+  if (!cctx) throw Error("gridmap sum tile: zstd context allocation failed");
+  ZSTD_CCtx_setParameter(cctx.get(), ZSTD_c_compressionLevel, 3);
+  ZSTD_CCtx_setParameter(cctx.get(), ZSTD_c_checksumFlag, 1);
+  std::string packed(ZSTD_compressBound(raw.size()), '\0');
+  const std::size_t n =
+      ZSTD_compress2(cctx.get(), packed.data(), packed.size(), raw.data(), raw.size());
+  if (ZSTD_isError(n)) {
+    throw Error(std::string("gridmap sum tile: zstd compress failed: ") + ZSTD_getErrorName(n));
   }
-  out.append(packed.data(), packed_len);
+  out.append(packed.data(), n);
   return out;
 }
 
@@ -77,18 +82,27 @@ GridmapSumTile decode_gridmap_sum_tile(std::string_view in, std::string_view sou
     if (!packed.empty()) bad(source, "data after the header of an empty tile");
     return tile;
   }
-  std::string raw(expected, '\0');
-  uLongf raw_len = static_cast<uLongf>(expected);
-  const int rc =
-      uncompress(reinterpret_cast<Bytef*>(raw.data()), &raw_len,
-                 reinterpret_cast<const Bytef*>(packed.data()), static_cast<uLong>(packed.size()));
-  if (rc == Z_BUF_ERROR && raw_len == expected) {
-    bad(source, "zlib stream inflates beyond the " + std::to_string(expected) +
-                    " bytes its chunk mask announces, or is truncated");
+  // One frame whose declared size is exactly what the mask announces; the output buffer is
+  // that size, so no frame can decompress beyond it.
+  const unsigned long long declared = ZSTD_getFrameContentSize(packed.data(), packed.size());
+  if (declared == ZSTD_CONTENTSIZE_ERROR || declared == ZSTD_CONTENTSIZE_UNKNOWN) {
+    bad(source, "not a zstd frame with a declared size");
   }
-  if (rc != Z_OK) bad(source, "corrupt zlib stream (" + std::string(zError(rc)) + ")");
-  if (raw_len != expected) {
-    bad(source, "zlib stream inflates to " + std::to_string(raw_len) + " bytes, mask announces " +
+  if (declared != expected) {
+    bad(source, "zstd frame inflates to " + std::to_string(declared) + " bytes, mask announces " +
+                    std::to_string(expected));
+  }
+  const std::size_t frame = ZSTD_findFrameCompressedSize(packed.data(), packed.size());
+  if (ZSTD_isError(frame) || frame != packed.size()) {
+    bad(source, "zstd frame truncated or followed by other bytes");
+  }
+  std::string raw(expected, '\0');
+  const std::size_t got = ZSTD_decompress(raw.data(), raw.size(), packed.data(), packed.size());
+  if (ZSTD_isError(got)) {
+    bad(source, std::string("corrupt zstd frame (") + ZSTD_getErrorName(got) + ")");
+  }
+  if (got != expected) {
+    bad(source, "zstd frame inflates to " + std::to_string(got) + " bytes, mask announces " +
                     std::to_string(expected));
   }
   std::size_t base = 0;

@@ -66,7 +66,8 @@ void put_sums(SqliteMapStore& store, const std::vector<GridmapRaster>& drives) {
 
 GeoBox around_origin() {
   const tiles::LocalFrame f(kOrigin);
-  const GeoPoint sw = f.to_geo(Eigen::Vector2d(-5.0, -5.0)), ne = f.to_geo(Eigen::Vector2d(5.0, 5.0));
+  const GeoPoint sw = f.to_geo(Eigen::Vector2d(-5.0, -5.0)),
+                 ne = f.to_geo(Eigen::Vector2d(5.0, 5.0));
   return {sw.lat_deg, sw.lon_deg, ne.lat_deg, ne.lon_deg};
 }
 

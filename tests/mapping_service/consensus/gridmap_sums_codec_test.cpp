@@ -46,7 +46,7 @@ TEST(GridmapSumsCodec, RoundTripsBitExactlyAtEveryLevel) {
     const GridmapSumTile t = sample_tile(level, 4);
     const std::string bytes = encode_gridmap_sum_tile(t);
     expect_equal(decode_gridmap_sum_tile(bytes), t);
-    // Smaller than the raw floats of its three chunks (shuffle + deflate).
+    // Smaller than the raw floats of its three chunks (shuffle + zstd).
     EXPECT_LT(bytes.size(), 3U * t.planes() * 4096 * 4);
   }
 }
@@ -82,12 +82,16 @@ TEST(GridmapSumsCodec, RefusesMalformedBytesNamingTheSource) {
   expect_refused(b, "level");
   b = good;
   b[6] = static_cast<char>(b[6] | 0x02);  // announces one chunk more than the stream holds
-  expect_refused(b, "inflates");
+  expect_refused(b, "mask announces");
   b = good;
   b[6] = 0x01;  // announces fewer chunks than the stream holds
   b[7] = 0x00;
-  expect_refused(b, "inflates");
-  expect_refused(good.substr(0, good.size() - 10), "zlib");
+  expect_refused(b, "mask announces");
+  expect_refused(good.substr(0, good.size() - 10), "truncated");
+  expect_refused(good + "zz", "followed by other bytes");
+  b = good;
+  b[good.size() / 2] = static_cast<char>(b[good.size() / 2] ^ 0x55);
+  expect_refused(b, "zstd");
   std::string empty_with_data = encode_gridmap_sum_tile(GridmapSumTile(PolLevel::Full)) + "x";
   expect_refused(empty_with_data, "after the header");
 }

@@ -6,14 +6,18 @@
 ///
 /// Layout (little endian):
 ///   "PMGS" | version u8 (= 1) | level u8 (PolLevel) | chunk mask u16 (bit c: chunk c,
-///   row-major 4 × 4, present) | zlib stream
-/// The zlib stream inflates to exactly popcount(mask) × planes × 4096 × 4 bytes: for each
+///   row-major 4 × 4, present) | one zstd frame (level 3, content size
+///   and checksum)
+/// The frame decompresses to exactly popcount(mask) × planes × 4096 × 4 bytes: for each
 /// present chunk in ascending order, its planes × 4096 float32 values (plane-major, as
 /// GridmapSumTile::chunk) byte-shuffled (all first bytes, then all second bytes, ...),
-/// which lets deflate see the slowly varying exponents: 3–5× smaller than plain floats.
+/// which lets the compressor see the slowly varying exponents. zstd rather than zlib: a
+/// map build rewrites every tile a drive touches, and zlib's deflate/adler32 took a third
+/// of a merged-gridmap build.
 ///
-/// The decoder checks everything before use: magic, version, level, the exact inflated
-/// size (the output buffer is that size, so a stream cannot inflate beyond it), and that
+/// The decoder checks everything before use: magic, version, level, the frame's declared
+/// size against the mask (the output buffer is that size, so a frame cannot decompress
+/// beyond it), that the frame is the whole rest with a matching checksum, and that
 /// every value is finite with N >= 0 and hits >= 0. Errors are FormatError naming `source`.
 #include <string>
 #include <string_view>
@@ -22,8 +26,8 @@
 
 namespace polmap::mapping {
 
-/// Encodes a sum tile (an empty tile encodes to the 8-byte header with mask 0 and an
-/// empty zlib stream).
+/// Encodes a sum tile (an empty tile encodes to the 8-byte header with mask 0 and no
+/// frame).
 [[nodiscard]] std::string encode_gridmap_sum_tile(const GridmapSumTile& tile);
 
 /// Decodes bytes written by encode_gridmap_sum_tile. Throws FormatError (with `source`

@@ -8,9 +8,9 @@
 /// count N and the covariance C = 1/N Σ Ω Ω^H; the fleet layer keeps, per
 /// output pixel, Σ N·tr(C) (total received power) and Σ N over all cells of
 /// all drives falling into the pixel. Pixel value = mean power
-/// P = Σ N·tr(C) / Σ N, shown in dB. The full fleet covariance (q(q+1)/2
-/// complex layers) is not stored: it stays in the drives' gridmap.tif files
-/// (drive store), from which any consumer can sum it.
+/// P = Σ N·tr(C) / Σ N, shown in dB. A map build feeds it from the store's merged
+/// gridmap (gridmap_sums.hpp: the full per-cell covariance sums of all drives on a z20
+/// grid, add_sums), one min-zoom region at a time; add() takes a drive raster directly.
 ///
 /// Storage (table gridmap_tiles, TileLayer::Gridmap, content-addressed blobs
 /// like localization tiles): XYZ Web-Mercator tiles, 256 × 256 pixels, at
@@ -32,8 +32,7 @@
 /// magenta, brightness from amplitude; gray where the drives carry no mechanism
 /// information (single polarization).
 ///
-/// Pure core (no file I/O): the map builder feeds drive gridmap blocks read
-/// with for_each_gridmap_block (drive_package_io.hpp).
+/// Pure core (no file I/O).
 #include <cstdint>
 #include <map>
 #include <optional>

@@ -32,9 +32,6 @@ bool if_none_match_matches(std::string_view header, std::string_view etag_quoted
 /// True if Accept-Encoding allows gzip (q > 0 for gzip, x-gzip or "*").
 bool accepts_gzip(std::string_view accept_encoding);
 
-/// gzip (RFC 1952) of bytes, zlib level 6.
-std::string gzip_compress(std::string_view bytes);
-
 /// ISO 8601 UTC with milliseconds, e.g. "2024-05-01T12:00:00.123Z".
 std::string iso8601_now();
 

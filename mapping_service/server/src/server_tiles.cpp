@@ -4,11 +4,13 @@
 #include <cmath>
 
 #include "polmap/mapping_service/drive_package_io.hpp"
+#include "polmap/mapping_service/landmark_mvt.hpp"
 #include "polmap/schema/errors.hpp"
 #include "polmap/tiles/local_frame.hpp"
 #include "polmap/tiles/localization_tile.hpp"
 #include "polmap/tiles/mvt.hpp"
 #include "polmap/tiles/polyline_simplify.hpp"
+#include "polmap/util/gzip.hpp"
 #include "server_impl.hpp"
 
 namespace polmap::mapping {
@@ -23,18 +25,6 @@ std::optional<tiles::TileKey> parse_key(const httplib::Request& req) {
 }
 
 std::string key_cache_id(const tiles::TileKey& k) { return tiles::to_string(k); }
-
-tiles::GeoBox buffered_bounds(const tiles::TileKey& key, double fraction) {
-  tiles::GeoBox b = tiles::tile_bounds(key);
-  const double dlat = (b.max_lat_deg - b.min_lat_deg) * fraction;
-  const double dlon = (b.max_lon_deg - b.min_lon_deg) * fraction;
-  b.min_lat_deg = std::max(-90.0, b.min_lat_deg - dlat);
-  b.max_lat_deg = std::min(90.0, b.max_lat_deg + dlat);
-  // The store does not take antimeridian-crossing boxes: clamp instead of wrapping.
-  b.min_lon_deg = std::max(-180.0, b.min_lon_deg - dlon);
-  b.max_lon_deg = std::min(180.0, b.max_lon_deg + dlon);
-  return b;
-}
 
 /// Douglas-Peucker in pieces of at most kSimplifyPiece vertices. Each piece keeps its end
 /// vertices, so every dropped vertex is still within tol_m of the kept line; the worst
@@ -188,30 +178,10 @@ void Server::Impl::get_mvt_tile(const httplib::Request& req, httplib::Response& 
   if (!blob) {
     const tiles::MvtOptions opt;
     const tiles::GeoBox box =
-        buffered_bounds(*key, static_cast<double>(opt.buffer) / opt.extent + 0.01);
-    tiles::MvtLayer points{"points", {}}, lines{"lines", {}}, trajectories{"trajectories", {}};
-    if (idx) {
-      const LandmarkSet lm = store.landmarks_in(version, box);
-      for (const StoredPointLandmark& p : lm.points) {
-        points.features.push_back({static_cast<std::uint64_t>(p.key),
-                                   tiles::MvtGeometryType::Point,
-                                   {{p.position}},
-                                   {{"id", std::int64_t{p.key}},
-                                    {"class", std::string(to_string(p.scattering))},
-                                    {"support_drives", std::uint64_t{p.support_drives}},
-                                    {"spread_m", p.spread_m},
-                                    {"map_version", version}}});
-      }
-      for (const StoredLineLandmark& l : lm.lines) {
-        lines.features.push_back({static_cast<std::uint64_t>(l.key),
-                                  tiles::MvtGeometryType::LineString,
-                                  {l.polyline},
-                                  {{"id", std::int64_t{l.key}},
-                                   {"support_drives", std::uint64_t{l.support_drives}},
-                                   {"spread_m", l.spread_m},
-                                   {"map_version", version}}});
-      }
-    }
+        buffered_tile_bounds(*key, static_cast<double>(opt.buffer) / opt.extent + 0.01);
+    LandmarkMvtLayers layers;
+    tiles::MvtLayer trajectories{"trajectories", {}};
+    if (idx) layers = landmark_mvt_layers(store.landmarks_in(version, box), version);
     std::uint64_t fid = 1;
     for (const DriveRecord& d :
          with_trajectories ? store.drives_in(box) : std::vector<DriveRecord>{}) {
@@ -223,9 +193,9 @@ void Server::Impl::get_mvt_tile(const httplib::Request& req, httplib::Response& 
                                        {{"drive_id", d.drive_id}, {"vehicle_id", d.vehicle_id}}});
     }
     auto b = std::make_shared<http::CachedBlob>();
-    b->body = tiles::encode_mvt(*key, {points, lines, trajectories}, opt);
+    b->body = tiles::encode_mvt(*key, {layers.points, layers.lines, trajectories}, opt);
     if (!b->body.empty()) {
-      b->gzip_body = http::gzip_compress(b->body);
+      b->gzip_body = util::gzip_compress(b->body);
       b->etag = "\"" + content_etag(b->body).substr(0, 32) + "\"";
     }
     b->content_type = std::string(tiles::kMvtMediaType);

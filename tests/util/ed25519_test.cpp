@@ -48,9 +48,10 @@ TEST(Ed25519, SignVerifyAndEveryChangeRefused) {
 
 TEST(Ed25519, RefusesKeysThatAreNotEd25519) {
   EXPECT_THROW((void)ed25519_sign_hex("not a key", "m"), ValidationError);
-  EXPECT_THROW((void)ed25519_verify_hex("-----BEGIN PUBLIC KEY-----\nAAAA\n-----END PUBLIC KEY-----\n",
-                                        "m", kRfcSignature),
-               ValidationError);
+  EXPECT_THROW(
+      (void)ed25519_verify_hex("-----BEGIN PUBLIC KEY-----\nAAAA\n-----END PUBLIC KEY-----\n", "m",
+                               kRfcSignature),
+      ValidationError);
   // A public key where a private one is needed.
   EXPECT_THROW((void)ed25519_sign_hex(kRfcPublicPem, "m"), ValidationError);
 }

@@ -99,8 +99,9 @@ PublicationManifest parse_publication_manifest(std::string_view text_in,
                                                const ManifestLimits& limits,
                                                std::string_view source) {
   if (text_in.size() > limits.max_bytes) {
-    bad(source, "(file)", std::to_string(text_in.size()) + " bytes exceed the limit of " +
-                              std::to_string(limits.max_bytes));
+    bad(source, "(file)",
+        std::to_string(text_in.size()) + " bytes exceed the limit of " +
+            std::to_string(limits.max_bytes));
   }
   const nlohmann::json j = nlohmann::json::parse(text_in, nullptr, false);
   if (j.is_discarded() || !j.is_object()) bad(source, "(file)", "not a JSON object");
@@ -166,8 +167,8 @@ PublicationManifest parse_publication_manifest(std::string_view text_in,
       pt.key.y = static_cast<int>(integer(t[2], source, tw + ".y", 0, side - 1));
       pt.sha256 = text(t[3], source, tw + ".sha256", 64);
       if (!is_hex64(pt.sha256)) bad(source, tw + ".sha256", "not 64 lower-case hex digits");
-      pt.bytes = static_cast<std::uint64_t>(integer(t[4], source, tw + ".bytes", 1,
-                                                    static_cast<std::int64_t>(limits.max_tile_bytes)));
+      pt.bytes = static_cast<std::uint64_t>(integer(
+          t[4], source, tw + ".bytes", 1, static_cast<std::int64_t>(limits.max_tile_bytes)));
       if (!l.tiles.empty() && !(l.tiles.back().key < pt.key)) {
         bad(source, tw, "tiles not sorted by key or duplicated");
       }

@@ -14,7 +14,11 @@
 
 #include "polmap/localization_client/tile_cache_file.hpp"
 #include "polmap/schema/errors.hpp"
+#include "polmap/tiles/publication_manifest.hpp"
 #include "polmap/util/cpu_time.hpp"
+#include "polmap/util/ed25519.hpp"
+#include "polmap/util/file.hpp"
+#include "polmap/util/sha256.hpp"
 
 namespace polmap::loc {
 namespace {
@@ -122,6 +126,17 @@ bool write_cache_file(const std::filesystem::path& path, const tiles::TileKey& k
 
 struct TileFetcher::Impl {
   explicit Impl(TileFetcherConfig c) : cfg(std::move(c)) {
+    if (!cfg.publication_public_key.empty()) {
+      public_pem = util::read_file_bytes(cfg.publication_public_key);
+      (void)util::ed25519_key_id(public_pem);  // ValidationError unless an Ed25519 key
+      // "scheme://host[:port]/path" -> the client's origin and the publication's path.
+      const auto scheme = cfg.server_url.find("://");
+      const auto slash =
+          scheme == std::string::npos ? std::string::npos : cfg.server_url.find('/', scheme + 3);
+      origin = slash == std::string::npos ? cfg.server_url : cfg.server_url.substr(0, slash);
+      if (slash != std::string::npos) prefix = cfg.server_url.substr(slash);
+      while (!prefix.empty() && prefix.back() == '/') prefix.pop_back();
+    }
     if (!cfg.cache_dir.empty()) {
       std::error_code ec;
       std::filesystem::create_directories(cfg.cache_dir, ec);
@@ -154,6 +169,18 @@ struct TileFetcher::Impl {
   double offline_backoff_s = 0.0;
   TileFetcherStats stats;
   std::thread worker;
+  // ---- signed static publication (publication_public_key set)
+  std::string public_pem;
+  std::string origin;  ///< scheme://host[:port] of server_url
+  std::string prefix;  ///< its path, without a trailing '/'
+  struct Publication {
+    std::string dir;
+    std::int64_t map_version = 0;
+    tiles::PublishedLayer loc;  ///< the localization layer
+    std::map<tiles::TileKey, const tiles::PublishedTile*> index;
+  };
+  std::shared_ptr<const Publication> publication;
+  SteadyClock::time_point publication_checked{};
 
   [[nodiscard]] bool is_stale(const Entry& e) const {
     return e.stale || unix_now_s() - e.fetched_unix_s > cfg.revalidate_after_s;
@@ -263,7 +290,7 @@ struct TileFetcher::Impl {
     const std::string etag = have && it->second.http_status == 200 ? it->second.etag : "";
     lock.unlock();
     if (!client) {
-      client.emplace(cfg.server_url);
+      client.emplace(public_pem.empty() ? cfg.server_url : origin);
       const auto us = [](double s) { return static_cast<time_t>(s * 1e6); };
       client->set_connection_timeout(0, us(cfg.connect_timeout_s));
       client->set_read_timeout(0, us(cfg.read_timeout_s));
@@ -274,6 +301,7 @@ struct TileFetcher::Impl {
         if (!cfg.ca_file.empty()) client->set_ca_cert_path(cfg.ca_file.string());
       }
     }
+    if (!public_pem.empty()) return process_static(lock, key, job, *client, have);
     httplib::Headers headers;
     if (!etag.empty()) headers.emplace("If-None-Match", etag);
     std::string path = "/v1/tiles/" + tiles::to_string(key);
@@ -388,6 +416,192 @@ struct TileFetcher::Impl {
         ++stats.server_errors;
         retry_locked(key, job);
         return;
+    }
+    entries[key] = e;
+    evict_locked();
+    changed.notify_all();
+    if (!cfg.cache_dir.empty()) {
+      lock.unlock();
+      write_cache_file(cache_path(cfg.cache_dir, key), key, e);
+      lock.lock();
+    }
+  }
+
+  /// GET with a body cap: the status, or -1 on a transport error, -2 over the cap or the
+  /// deadline. Called without the lock.
+  int get_capped(httplib::Client& client, const std::string& path, std::size_t cap,
+                 std::string& body) const {
+    body.clear();
+    bool over = false;
+    const auto deadline =
+        SteadyClock::now() + std::chrono::duration_cast<SteadyClock::duration>(
+                                 std::chrono::duration<double>(cfg.request_deadline_s));
+    const httplib::Result res = client.Get(path, [&](const char* data, std::size_t n) {
+      if (body.size() + n > cap || SteadyClock::now() > deadline) {
+        over = true;
+        return false;
+      }
+      body.append(data, n);
+      return true;
+    });
+    if (over) return -2;
+    if (!res) return -1;
+    return res->status;
+  }
+
+  void note_transport_error_locked(const tiles::TileKey& key, bool have, const Job& job) {
+    ++stats.transport_errors;
+    stats.server_reachable = false;
+    offline_backoff_s = offline_backoff_s <= 0.0
+                            ? cfg.backoff_initial_s
+                            : std::min(cfg.backoff_max_s, 2.0 * offline_backoff_s);
+    offline_until = SteadyClock::now() + std::chrono::duration_cast<SteadyClock::duration>(
+                                             std::chrono::duration<double>(offline_backoff_s));
+    if (!have) enqueue_locked(key, job.priority, offline_until);
+  }
+
+  /// Reads latest.json and, when it names another directory, that directory's signed
+  /// manifest (class comment). Returns -1 on a transport error, 0 on a rejected or failed
+  /// answer (counted), 1 when the publication in use is current. Called without the lock.
+  int refresh_publication(httplib::Client& client) {
+    std::string body;
+    const int st = get_capped(client, prefix + "/latest.json", 4096, body);
+    if (st == -1) return -1;
+    if (st != 200) return 0;
+    tiles::PublicationPointer ptr;
+    try {
+      ptr = tiles::parse_publication_pointer(body, cfg.server_url + "/latest.json");
+    } catch (const Error&) {
+      return 0;
+    }
+    std::shared_ptr<const Publication> cur;
+    {
+      std::lock_guard g(mutex);
+      cur = publication;
+    }
+    if (cur && cur->dir == ptr.dir) return 1;
+    std::string manifest, sig;
+    const std::string base = prefix + "/" + ptr.dir + "/";
+    int ms = get_capped(client, base + "manifest.json", cfg.max_manifest_bytes, manifest);
+    if (ms == -1) return -1;
+    const int ss = ms == 200 ? get_capped(client, base + "manifest.sig", 1024, sig) : 0;
+    if (ss == -1) return -1;
+    auto reject = [&] {
+      std::lock_guard g(mutex);
+      ++stats.manifest_rejections;
+      return 0;
+    };
+    if (ms != 200 || ss != 200) return reject();
+    while (!sig.empty() && (sig.back() == '\n' || sig.back() == '\r')) sig.pop_back();
+    // The signature first: only the publisher's bytes are parsed.
+    if (util::sha256_hex(manifest) != ptr.manifest_sha256 ||
+        !util::ed25519_verify_hex(public_pem, manifest, sig)) {
+      return reject();
+    }
+    auto next = std::make_shared<Publication>();
+    try {
+      tiles::ManifestLimits lim;
+      lim.max_bytes = cfg.max_manifest_bytes;
+      lim.max_tile_bytes = cfg.max_tile_bytes;
+      tiles::PublicationManifest m =
+          tiles::parse_publication_manifest(manifest, lim, cfg.server_url + "/" + base);
+      const tiles::PublishedLayer* loc = m.layer("localization");
+      if (loc == nullptr || m.map_version != ptr.map_version) return reject();
+      next->dir = ptr.dir;
+      next->map_version = m.map_version;
+      next->loc = *loc;
+    } catch (const Error&) {
+      return reject();
+    }
+    for (const auto& t : next->loc.tiles) next->index.emplace(t.key, &t);
+    std::lock_guard g(mutex);
+    if (publication && next->map_version < publication->map_version) {
+      ++stats.manifest_rejections;  // an older map: a stale or hostile mirror
+      return 0;
+    }
+    publication = std::move(next);
+    ++stats.manifests_adopted;
+    note_version_locked(static_cast<std::uint64_t>(publication->map_version));
+    return 1;
+  }
+
+  /// One tile from the static publication (lock released on entry, held on return).
+  void process_static(std::unique_lock<std::mutex>& lock, const tiles::TileKey& key, Job job,
+                      httplib::Client& client, bool have) {
+    const bool recheck = SteadyClock::now() - publication_checked >
+                         std::chrono::duration_cast<SteadyClock::duration>(
+                             std::chrono::duration<double>(cfg.revalidate_after_s));
+    if (!publication || recheck) {
+      const int r = refresh_publication(client);
+      lock.lock();
+      if (r == -1) return note_transport_error_locked(key, have, job);
+      stats.server_reachable = true;
+      offline_backoff_s = 0.0;
+      offline_until = {};
+      if (r == 1) publication_checked = SteadyClock::now();
+      if (!publication) {
+        ++stats.server_errors;
+        return retry_locked(key, job);
+      }
+      lock.unlock();
+    }
+    lock.lock();
+    const std::shared_ptr<const Publication> pub = publication;
+    const auto it = entries.find(key);
+    Entry e;
+    e.fetched_unix_s = unix_now_s();
+    e.header_version = static_cast<std::uint64_t>(pub->map_version);
+    e.last_used = it != entries.end() ? it->second.last_used : ++use_tick;
+    const auto listed = pub->index.find(key);
+    if (listed == pub->index.end()) {
+      // Not in the publication: outside the map.
+      ++stats.responses_404;
+      e.http_status = 404;
+      e.tile = empty_tile(key, e.header_version);
+    } else if (it != entries.end() && it->second.http_status == 200 &&
+               it->second.etag == listed->second->sha256) {
+      // The cached bytes are the listed ones: confirmed without a request.
+      ++stats.responses_304;
+      it->second.fetched_unix_s = e.fetched_unix_s;
+      it->second.stale = false;
+      it->second.header_version = e.header_version;
+      changed.notify_all();
+      return;
+    } else {
+      const tiles::PublishedTile want = *listed->second;
+      const std::string path =
+          prefix + "/" + pub->dir + "/" + tiles::published_tile_path(pub->loc, key);
+      lock.unlock();
+      std::string body;
+      const int st =
+          get_capped(client, path, std::min<std::size_t>(cfg.max_tile_bytes, want.bytes), body);
+      lock.lock();
+      if (st == -1) return note_transport_error_locked(key, have, job);
+      stats.server_reachable = true;
+      if (st != 200) {
+        ++stats.server_errors;
+        return retry_locked(key, job);
+      }
+      if (util::sha256_hex(body) != want.sha256) {
+        ++stats.hash_mismatches;  // altered on the way: refused
+        ++stats.server_errors;
+        return retry_locked(key, job);
+      }
+      try {
+        e.tile = tiles::decode_localization_tile(body, cfg.server_url + path);
+      } catch (const Error&) {
+        ++stats.server_errors;
+        return retry_locked(key, job);
+      }
+      if (e.tile.key != key) {
+        ++stats.server_errors;
+        return retry_locked(key, job);
+      }
+      ++stats.responses_200;
+      stats.bytes_downloaded += body.size();
+      e.http_status = 200;
+      e.etag = want.sha256;
+      e.payload = std::move(body);
     }
     entries[key] = e;
     evict_locked();

@@ -3,6 +3,7 @@
 
 #include <sqlite3.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <ctime>
@@ -10,7 +11,6 @@
 #include <set>
 #include <variant>
 #include <vector>
-#include <algorithm>
 
 #include "polmap/mapping_service/landmark_mvt.hpp"
 #include "polmap/schema/errors.hpp"
@@ -38,7 +38,8 @@ std::string utc_now_iso() {
 /// edges left to the MVT buffer.
 std::set<tiles::TileKey> landmark_tiles(const LandmarkSet& lm, int z) {
   std::set<tiles::TileKey> out;
-  for (const auto& p : lm.points) out.insert(tiles::tile_at(p.position.lat_deg, p.position.lon_deg, z));
+  for (const auto& p : lm.points)
+    out.insert(tiles::tile_at(p.position.lat_deg, p.position.lon_deg, z));
   for (const auto& l : lm.lines) {
     for (std::size_t i = 0; i + 1 < l.polyline.size(); ++i) {
       const auto a = tiles::tile_at(l.polyline[i].lat_deg, l.polyline[i].lon_deg, z);
@@ -272,20 +273,20 @@ PublishResult publish_map_version(const MapStore& store, std::int64_t version,
   m.bounds = landmark_bounds(all);
   PublishResult r;
   r.map_version = version;
-  auto add_layer = [&](const std::string& name, const std::string& path,
-                       const std::string& media, int z0, int z1,
-                       const std::function<void(const std::function<void(const tiles::TileKey&,
-                                                                         std::string_view)>&)>&
-                           each) {
-    tiles::PublishedLayer l{name, path, media, z0, z1, {}};
-    each([&](const tiles::TileKey& key, std::string_view bytes) {
-      put_file(dir / tiles::published_tile_path(l, key), bytes);
-      l.tiles.push_back({key, util::sha256_hex(bytes), bytes.size()});
-      r.bytes += bytes.size();
-    });
-    r.tiles[name] = l.tiles.size();
-    m.layers.push_back(std::move(l));
-  };
+  auto add_layer =
+      [&](const std::string& name, const std::string& path, const std::string& media, int z0,
+          int z1,
+          const std::function<void(
+              const std::function<void(const tiles::TileKey&, std::string_view)>&)>& each) {
+        tiles::PublishedLayer l{name, path, media, z0, z1, {}};
+        each([&](const tiles::TileKey& key, std::string_view bytes) {
+          put_file(dir / tiles::published_tile_path(l, key), bytes);
+          l.tiles.push_back({key, util::sha256_hex(bytes), bytes.size()});
+          r.bytes += bytes.size();
+        });
+        r.tiles[name] = l.tiles.size();
+        m.layers.push_back(std::move(l));
+      };
   auto stored_layer = [&](TileLayer layer) {
     return [&store, version, layer](const auto& emit) {
       for (const auto& t : store.list_tiles(version, layer)) {

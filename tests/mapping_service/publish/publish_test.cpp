@@ -38,16 +38,19 @@ std::int64_t make_version(SqliteMapStore& store, int n) {
   std::vector<StoredLineLandmark> lines(2);
   for (int i = 0; i < 2; ++i) {
     lines[i].key = 5000 + i;
-    lines[i].polyline = {f.to_geo(Eigen::Vector2d(0, -4.0 - i)), f.to_geo(Eigen::Vector2d(40, -4.0 - i))};
+    lines[i].polyline = {f.to_geo(Eigen::Vector2d(0, -4.0 - i)),
+                         f.to_geo(Eigen::Vector2d(40, -4.0 - i))};
     lines[i].support_drives = 2;
   }
   store.put_landmarks(v, pts, lines);
-  const tiles::TileKey lk = tiles::tile_at(kOrigin.lat_deg, kOrigin.lon_deg, tiles::kLocalizationZoom);
+  const tiles::TileKey lk =
+      tiles::tile_at(kOrigin.lat_deg, kOrigin.lon_deg, tiles::kLocalizationZoom);
   const std::string loc = "localization tile of version " + std::to_string(v);
   store.put_tiles(v, TileLayer::Localization,
                   std::vector<TileWrite>{{lk, content_etag(loc), loc, false, n, 2}});
   const tiles::TileKey gk = tiles::tile_at(kOrigin.lat_deg, kOrigin.lon_deg, 18);
-  store.put_tiles(v, TileLayer::Gridmap, std::vector<TileWrite>{{gk, content_etag("png"), "png", false, 0, 0}});
+  store.put_tiles(v, TileLayer::Gridmap,
+                  std::vector<TileWrite>{{gk, content_etag("png"), "png", false, 0, 0}});
   store.put_tiles(v, TileLayer::GridmapMechanism,
                   std::vector<TileWrite>{{gk, content_etag("mech"), "mech", false, 0, 0}});
   store.publish_map_version(v, {});
@@ -82,7 +85,8 @@ TEST(Publish, DirectoryIsSignedContentNamedAndCompleteBeforeThePointerMoves) {
   std::size_t files = 0;
   for (const auto& layer : m.layers) {
     for (const auto& t : layer.tiles) {
-      const std::string bytes = util::read_file_bytes(dir / tiles::published_tile_path(layer, t.key));
+      const std::string bytes =
+          util::read_file_bytes(dir / tiles::published_tile_path(layer, t.key));
       EXPECT_EQ(util::sha256_hex(bytes), t.sha256) << layer.name;
       EXPECT_EQ(bytes.size(), t.bytes);
       ++files;

@@ -10,6 +10,8 @@
 #include "mapping_service/server/net_helpers.hpp"
 #include "mapping_service/server_fixture.hpp"
 #include "polmap/tiles/tile_key.hpp"
+// After the headers that use Eigen (httplib's <resolv.h> defines `_res`).
+#include "support/nginx_process.hpp"
 
 namespace polmap::mapping::testing {
 namespace {
@@ -20,106 +22,29 @@ using Clock = std::chrono::steady_clock;
 /// polmap's upload cap in these tests, and the front's client_max_body_size.
 constexpr int kUploadCapMiB = 4;
 
-/// The nginx executable: PATH, then where Debian puts it (not on a user's PATH).
-std::string nginx_executable() {
-  std::vector<std::filesystem::path> dirs;
-  if (const char* path = std::getenv("PATH")) {
-    std::stringstream s(path);
-    for (std::string d; std::getline(s, d, ':');) dirs.emplace_back(d);
-  }
-  dirs.emplace_back("/usr/sbin");
-  dirs.emplace_back("/usr/local/sbin");
-  for (const auto& d : dirs) {
-    if (::access((d / "nginx").c_str(), X_OK) == 0) return (d / "nginx").string();
-  }
-  return {};
+/// deploy/nginx/render of the front before polmap at `upstream_port` into `prefix`, plus
+/// `options`.
+std::function<std::vector<std::string>(int)> render_front(const std::filesystem::path& prefix,
+                                                          int upstream_port,
+                                                          std::vector<std::string> options = {}) {
+  return [prefix, upstream_port, options](int port) {
+    std::vector<std::string> render = {
+        std::string(POLMAP_SOURCE_DIR) + "/deploy/nginx/render",
+        "--prefix",
+        prefix.string(),
+        "--listen",
+        "127.0.0.1:" + std::to_string(port),
+        "--upstream",
+        "127.0.0.1:" + std::to_string(upstream_port),
+        "--max-upload-mib",
+        std::to_string(kUploadCapMiB),
+        "--polmap-threads",
+        "8",
+    };
+    render.insert(render.end(), options.begin(), options.end());
+    return render;
+  };
 }
-
-/// nginx rendered by deploy/nginx/render into `prefix` and started in the foreground
-/// (`daemon off`, our child), listening on a free loopback port. Stopped on destruction.
-class Nginx {
- public:
-  Nginx(const std::filesystem::path& prefix, int upstream_port,
-        const std::vector<std::string>& render_options = {})
-      : prefix_(prefix) {
-    const std::string nginx = nginx_executable();
-    if (nginx.empty()) {
-      ADD_FAILURE() << "nginx is not installed (tools/setup installs it)";
-      return;
-    }
-    // The port is free a moment before nginx binds it; another process may win the race.
-    for (int attempt = 0; attempt < 3 && pid_ < 0; ++attempt) {
-      port_ = free_loopback_port();
-      std::vector<std::string> render = {
-          std::string(POLMAP_SOURCE_DIR) + "/deploy/nginx/render",
-          "--prefix",
-          prefix_.string(),
-          "--listen",
-          "127.0.0.1:" + std::to_string(port_),
-          "--upstream",
-          "127.0.0.1:" + std::to_string(upstream_port),
-          "--max-upload-mib",
-          std::to_string(kUploadCapMiB),
-          "--polmap-threads",
-          "8",
-      };
-      render.insert(render.end(), render_options.begin(), render_options.end());
-      const int rc = run_process(render, prefix_.parent_path() / "render.log");
-      if (rc != 0) {
-        ADD_FAILURE() << "deploy/nginx/render failed: "
-                      << read_text(prefix_.parent_path() / "render.log");
-        return;
-      }
-      const auto conf = prefix_ / "nginx.conf";
-      const pid_t pid = spawn_process({nginx, "-p", prefix_.string(), "-c", conf.string(), "-e",
-                                       error_log().string(), "-g", "daemon off;"},
-                                      prefix_.parent_path() / "nginx.out");
-      if (pid < 0) break;
-      // Accepting, or exited (the port was taken, or the configuration is bad).
-      for (int i = 0; i < 200; ++i) {
-        int status = 0;
-        if (::waitpid(pid, &status, WNOHANG) == pid) break;
-        const int fd = connect_loopback(port_);
-        if (fd >= 0) {
-          ::close(fd);
-          pid_ = pid;
-          break;
-        }
-        std::this_thread::sleep_for(std::chrono::milliseconds(50));
-      }
-    }
-    if (pid_ < 0) ADD_FAILURE() << "nginx did not start: " << read_text(error_log());
-  }
-  ~Nginx() {
-    if (pid_ < 0) return;
-    ::kill(pid_, SIGTERM);  // fast shutdown of the master and its workers
-    for (int i = 0; i < 200; ++i) {
-      int status = 0;
-      if (::waitpid(pid_, &status, WNOHANG) == pid_) return;
-      std::this_thread::sleep_for(std::chrono::milliseconds(25));
-    }
-    ::kill(pid_, SIGKILL);
-    ::waitpid(pid_, nullptr, 0);
-  }
-  Nginx(const Nginx&) = delete;
-  Nginx& operator=(const Nginx&) = delete;
-
-  [[nodiscard]] bool running() const { return pid_ > 0; }
-  [[nodiscard]] int port() const { return port_; }
-  [[nodiscard]] std::filesystem::path error_log() const { return prefix_ / "logs/error.log"; }
-  [[nodiscard]] std::string access_log() const { return read_text(prefix_ / "logs/access.log"); }
-  [[nodiscard]] httplib::Client client() const {
-    httplib::Client c("127.0.0.1", port_);
-    c.set_read_timeout(120, 0);
-    c.set_write_timeout(120, 0);
-    return c;
-  }
-
- private:
-  std::filesystem::path prefix_;
-  int port_ = -1;
-  pid_t pid_ = -1;
-};
 
 class NginxFrontTest : public ServerFixture {
  protected:
@@ -128,7 +53,8 @@ class NginxFrontTest : public ServerFixture {
     cfg.max_upload_bytes = static_cast<std::uint64_t>(kUploadCapMiB) << 20;
     start(cfg);  // 8 worker threads (ServerFixture)
     base_ = std::make_unique<polmap::test::TestDir>("nginx");
-    nginx_ = std::make_unique<Nginx>(base_->path() / "prefix", port_);
+    nginx_ = std::make_unique<Nginx>(base_->path() / "prefix",
+                                     render_front(base_->path() / "prefix", port_));
     ASSERT_TRUE(nginx_->running());
   }
   void TearDown() override {
@@ -346,8 +272,9 @@ TEST_F(NginxFrontTest, SlowLorisSocketsStopTheEmbeddedServerButNotTheFront) {
 TEST_F(NginxFrontTest, TerminatesTls) {
   const SelfSignedCert cert =
       make_self_signed_cert(base_->path(), "localhost", "DNS:localhost,IP:127.0.0.1");
-  Nginx tls(base_->path() / "tls-prefix", port_,
-            {"--tls-cert", cert.cert.string(), "--tls-key", cert.key.string()});
+  Nginx tls(base_->path() / "tls-prefix",
+            render_front(base_->path() / "tls-prefix", port_,
+                         {"--tls-cert", cert.cert.string(), "--tls-key", cert.key.string()}));
   ASSERT_TRUE(tls.running());
   httplib::SSLClient c("127.0.0.1", tls.port());
   c.set_ca_cert_path(cert.cert.string());

@@ -54,17 +54,16 @@ struct PublicationManifest {
 [[nodiscard]] std::string encode_publication_manifest(const PublicationManifest& m);
 
 struct ManifestLimits {
-  std::size_t max_bytes = 64U << 20;      ///< refused before parsing
-  std::size_t max_tiles = 2'000'000;      ///< over all layers
+  std::size_t max_bytes = 64U << 20;  ///< refused before parsing
+  std::size_t max_tiles = 2'000'000;  ///< over all layers
   std::size_t max_layers = 16;
   std::size_t max_tile_bytes = 16U << 20;  ///< largest file a tile entry may announce
 };
 
 /// Parses a manifest (file comment). FormatError naming `source` on anything malformed.
-[[nodiscard]] PublicationManifest parse_publication_manifest(std::string_view json,
-                                                             const ManifestLimits& limits = {},
-                                                             std::string_view source =
-                                                                 "manifest.json");
+[[nodiscard]] PublicationManifest parse_publication_manifest(
+    std::string_view json, const ManifestLimits& limits = {},
+    std::string_view source = "manifest.json");
 
 /// `latest.json`: which directory holds the current publication.
 struct PublicationPointer {

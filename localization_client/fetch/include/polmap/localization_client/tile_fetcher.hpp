@@ -33,6 +33,17 @@
 ///    directory and renamed, so a crash never leaves a torn file; files that do
 ///    not decode (torn, corrupt, for another key, over max_tile_bytes) are
 ///    ignored (refetched).
+///  - Signed static publication (publication_public_key set; `polmap publish`): server_url
+///    is the publication root on any static host or CDN (e.g. "https://cdn.example.com/
+///    polmap"; a path is allowed). The worker reads latest.json, then that directory's
+///    manifest.json and manifest.sig, and adopts the manifest only if the signature
+///    verifies with the configured key and its map version is not older than the one in
+///    use (no rollback by a stale mirror). A tile absent from the manifest is outside the
+///    map (empty); a listed tile is fetched from its content-named directory and accepted
+///    only if its SHA-256 is the manifest's, which is also its ETag: a cached copy with the
+///    same hash is confirmed without a request. The pointer is re-read every
+///    revalidate_after_s. Anything that fails a check is a server error, retried later;
+///    what was accepted before stays in use.
 #include <chrono>
 #include <cstdint>
 #include <filesystem>
@@ -80,6 +91,12 @@ struct TileFetcherConfig {
   /// Optional query string appended to tile requests, e.g. "version=7" to pin
   /// a map version (then no version pickup happens).
   std::string query;
+  /// Ed25519 public key (PEM file) of the publisher: switches to a signed static
+  /// publication at server_url (file comment). ValidationError at construction if it is not
+  /// such a key.
+  std::filesystem::path publication_public_key;
+  /// Largest manifest.json accepted (a city's manifest is a few MB).
+  std::size_t max_manifest_bytes = 64u << 20;
 };
 
 /// Counters for logs and tests.
@@ -95,6 +112,11 @@ struct TileFetcherStats {
   std::uint64_t transport_errors = 0;  ///< connection refused, timeouts
   std::uint64_t bytes_downloaded = 0;
   std::uint64_t map_version = 0;  ///< newest X-Polmap-Map-Version seen (0: none)
+  /// Static publication: manifests adopted, and checks that failed (signature, rollback,
+  /// malformed manifest; tile bytes whose SHA-256 is not the manifest's).
+  std::uint64_t manifests_adopted = 0;
+  std::uint64_t manifest_rejections = 0;
+  std::uint64_t hash_mismatches = 0;
   bool server_reachable = false;  ///< last request reached the server
   std::size_t queued = 0;
   /// CPU time of the fetch worker thread (requests, decoding, cache files), seconds:

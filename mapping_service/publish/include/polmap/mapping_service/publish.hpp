@@ -4,8 +4,9 @@
 /// (`polmap publish`; layout and manifest in schema/publication.md).
 ///
 /// Directory form (PublishFormat::Directory), below `out`:
-///   latest.json                  pointer to the current publication (tiles/publication_manifest.hpp)
-///   v<V>-<16 hex>/               one immutable directory per publication; the name carries
+///   latest.json                  pointer to the current publication
+///   (tiles/publication_manifest.hpp) v<V>-<16 hex>/               one immutable directory per
+///   publication; the name carries
 ///                                the first 16 hex digits of its manifest's SHA-256, so every
 ///                                URL below it names content and may be cached forever
 ///     manifest.json              every tile of every layer with its SHA-256 and size
@@ -53,8 +54,8 @@ struct PublishOptions {
 
 struct PublishResult {
   std::int64_t map_version = 0;
-  std::string dir;              ///< directory form: "v<V>-<16 hex>"
-  std::string manifest_sha256;  ///< directory form
+  std::string dir;                           ///< directory form: "v<V>-<16 hex>"
+  std::string manifest_sha256;               ///< directory form
   std::map<std::string, std::size_t> tiles;  ///< per layer
   std::uint64_t bytes = 0;                   ///< all files written
 };

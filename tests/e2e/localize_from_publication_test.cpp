@@ -66,18 +66,18 @@ class LocalizeFromPublication : public ::testing::Test {
     po.private_key_pem = key_.private_pem;
     published_ = mapping::publish_map_version(store, version_, po);
     nginx_ = std::make_unique<Nginx>(dir_ / "nginx", [](int port) {
-      return std::vector<std::string>{std::string(POLMAP_SOURCE_DIR) +
-                                          "/deploy/nginx/render-publication",
-                                      "--prefix",
-                                      (dir_ / "nginx").string(),
-                                      "--listen",
-                                      "127.0.0.1:" + std::to_string(port),
-                                      "--root",
-                                      (dir_ / "pub").string(),
-                                      "--location",
-                                      "/polmap",
-                                      "--workers",
-                                      "1"};
+      return std::vector<std::string>{
+          std::string(POLMAP_SOURCE_DIR) + "/deploy/nginx/render-publication",
+          "--prefix",
+          (dir_ / "nginx").string(),
+          "--listen",
+          "127.0.0.1:" + std::to_string(port),
+          "--root",
+          (dir_ / "pub").string(),
+          "--location",
+          "/polmap",
+          "--workers",
+          "1"};
     });
     ASSERT_TRUE(nginx_->running());
   }
@@ -153,10 +153,11 @@ TEST_F(LocalizeFromPublication, HeldOutDriveLocalizesFromTheSignedStaticPublicat
   EXPECT_LT(r.errors.lat_rmse_m, kMaxLatRmse_m);
   EXPECT_LT(r.errors.long_rmse_m, kMaxLongRmse_m);
   EXPECT_LT(r.errors.rot_rmse_deg, kMaxRotRmse_deg);
-  std::printf("[e2e] from the publication: %lld samples, lat RMSE %.3f m, long RMSE %.3f m, rot "
-              "RMSE %.2f deg, %llu tile bytes\n",
-              static_cast<long long>(r.errors.samples), r.errors.lat_rmse_m, r.errors.long_rmse_m,
-              r.errors.rot_rmse_deg, static_cast<unsigned long long>(st.bytes_downloaded));
+  std::printf(
+      "[e2e] from the publication: %lld samples, lat RMSE %.3f m, long RMSE %.3f m, rot "
+      "RMSE %.2f deg, %llu tile bytes\n",
+      static_cast<long long>(r.errors.samples), r.errors.lat_rmse_m, r.errors.long_rmse_m,
+      r.errors.rot_rmse_deg, static_cast<unsigned long long>(st.bytes_downloaded));
 }
 
 TEST_F(LocalizeFromPublication, AWrongKeyAReplacedManifestAndAnAlteredTileAreRefused) {
@@ -179,7 +180,8 @@ TEST_F(LocalizeFromPublication, AWrongKeyAReplacedManifestAndAnAlteredTileAreRef
     std::string forged = original;
     const auto at = forged.find("\"tiles\":[[");
     ASSERT_NE(at, std::string::npos);
-    const auto hash_at = forged.find('"', forged.find(',', forged.find(',', forged.find(',', at + 10) + 1) + 1)) + 1;
+    const auto hash_at =
+        forged.find('"', forged.find(',', forged.find(',', forged.find(',', at + 10) + 1) + 1)) + 1;
     forged[hash_at] = forged[hash_at] == 'a' ? 'b' : 'a';
     util::write_file_bytes(pub_dir / "manifest.json", forged);
     loc::TileFetcher f(fetcher_config("cache-forged"));
@@ -189,7 +191,8 @@ TEST_F(LocalizeFromPublication, AWrongKeyAReplacedManifestAndAnAlteredTileAreRef
   }
   {
     // One tile's bytes altered on the host: that tile is refused, the others are accepted.
-    const auto m = tiles::parse_publication_manifest(util::read_file_bytes(pub_dir / "manifest.json"));
+    const auto m =
+        tiles::parse_publication_manifest(util::read_file_bytes(pub_dir / "manifest.json"));
     const auto& layer = *m.layer("localization");
     const fs::path victim = pub_dir / tiles::published_tile_path(layer, keys.front());
     const std::string original = util::read_file_bytes(victim);

@@ -50,8 +50,8 @@ class Nginx {
       const std::vector<std::string> render = render_command(port_);
       const int rc = run_process(render, prefix_.parent_path() / "render.log");
       if (rc != 0) {
-        ADD_FAILURE() << render.front() << " failed: "
-                      << read_text(prefix_.parent_path() / "render.log");
+        ADD_FAILURE() << render.front()
+                      << " failed: " << read_text(prefix_.parent_path() / "render.log");
         return;
       }
       const auto conf = prefix_ / "nginx.conf";

@@ -1,8 +1,10 @@
 // `polmap localize --server URL --recording R --out TRAJ.csv [--pol LEVEL]
 //  [--initial-pose LAT,LON,YAW_DEG | --initial-from-gnss-with-error E_M,E_DEG] [--seed S]
-//  [--cache DIR] [--map-version V] [--json]`: radar-only localization of a recorded
-// drive against the tiles served by a mapping service (loc::Localizer + loc::TileFetcher),
-// writing the trajectory CSV of schema/trajectory_csv.md.
+//  [--cache DIR] [--map-version V] [--publication-key KEY.pub] [--json]`: radar-only
+// localization of a recorded drive against the tiles served by a mapping service, or by a
+// static host or CDN serving a signed `polmap publish` publication (--publication-key: the
+// publisher's public key; --server is then the publication's URL) (loc::Localizer +
+// loc::TileFetcher), writing the trajectory CSV of schema/trajectory_csv.md.
 //
 // Initial pose. A vehicle starts from a coarse GNSS fix. --initial-pose gives it
 // directly (uncertainty --initial-sigma, default 3 m / 3°). Otherwise
@@ -57,6 +59,7 @@ struct LocalizeOptions {
   std::string initial_from_gnss = "3,3";
   std::string initial_sigma = "3,3";
   std::string cache;
+  std::string publication_key;
   std::int64_t map_version = 0;
   std::uint64_t seed = 1;
   bool json = false;
@@ -158,6 +161,7 @@ void run(const LocalizeOptions& o) {
   fcfg.server_url = o.server;
   fcfg.cache_dir = o.cache.empty() ? default_cache_dir() : fs::path(o.cache);
   if (o.map_version > 0) fcfg.query = "version=" + std::to_string(o.map_version);
+  fcfg.publication_public_key = o.publication_key;
   loc::TileFetcher fetcher(fcfg);
   const auto start_keys = loc::tiles_around(initial.position, 150.0);
   const bool warm = fetcher.wait_for(start_keys, 15.0);
@@ -305,6 +309,10 @@ void setup(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--seed", o->seed, "seed of the deliberate initial error")->capture_default_str();
   cmd->add_option("--cache", o->cache, "tile cache directory");
+  cmd->add_option("--publication-key", o->publication_key,
+                  "publisher's Ed25519 public key (PEM): --server is a static publication "
+                  "(polmap publish) whose signed manifest and tile hashes are checked")
+      ->check(CLI::ExistingFile);
   cmd->add_option("--map-version", o->map_version, "pin a map version (default: current)");
   cmd->add_flag("--json", o->json, "print a JSON summary");
   cmd->callback([o] { run(*o); });

@@ -12,12 +12,12 @@
 using namespace polmap;
 using namespace polmap::tiles;
 
-#define FUZZ_CHECK(cond)                                                                  \
-  do {                                                                                    \
-    if (!(cond)) {                                                                        \
+#define FUZZ_CHECK(cond)                                                                \
+  do {                                                                                  \
+    if (!(cond)) {                                                                      \
       std::fprintf(stderr, "fuzz_publication_manifest: invariant failed: %s\n", #cond); \
-      std::abort();                                                                       \
-    }                                                                                     \
+      std::abort();                                                                     \
+    }                                                                                   \
   } while (0)
 
 extern "C" int LLVMFuzzerInitialize(int*, char***) {
@@ -27,10 +27,15 @@ extern "C" int LLVMFuzzerInitialize(int*, char***) {
     m.created_at = "2026-12-03T12:00:00Z";
     m.key_id = "0123456789abcdef";
     m.bounds = GeoBox{48.7, 9.1, 48.8, 9.2};
-    PublishedLayer l{"localization", "loc/{z}/{x}/{y}.pmt", "application/x-polmap-localization-tile",
-                     16, 16, {}};
+    PublishedLayer l{"localization",
+                     "loc/{z}/{x}/{y}.pmt",
+                     "application/x-polmap-localization-tile",
+                     16,
+                     16,
+                     {}};
     for (int i = 0; i < 3; ++i) {
-      l.tiles.push_back({{16, 34000 + i, 22000}, std::string(64, static_cast<char>('a' + i)),
+      l.tiles.push_back({{16, 34000 + i, 22000},
+                         std::string(64, static_cast<char>('a' + i)),
                          static_cast<std::uint64_t>(100 + i)});
     }
     m.layers.push_back(l);

@@ -315,7 +315,9 @@ std::optional<std::int64_t> Server::Impl::current_version() {
   const auto now = Clock::now();
   {
     std::lock_guard lock(version_mutex);
-    if (now - current_cached_at < std::chrono::seconds(1)) return current_cached;
+    // Half a second: a version published through another replica of the same store is
+    // served here within a second.
+    if (now - current_cached_at < std::chrono::milliseconds(500)) return current_cached;
   }
   const std::optional<std::int64_t> v = store.current_map_version();
   std::lock_guard lock(version_mutex);

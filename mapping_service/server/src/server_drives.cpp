@@ -147,7 +147,6 @@ std::size_t Server::Impl::apply_retention() {
     log("error", std::string("retention: ") + e.what());
   }
   if (n > 0) {
-    drives_generation.fetch_add(1);
     log("info", "retention: deleted " + std::to_string(n) + " drives ingested before " + iso);
   }
   return n;
@@ -207,7 +206,6 @@ int Server::Impl::ingest_package(const std::string& bytes, const std::string& ha
   nlohmann::json j = drive_to_json(put.drive, false);
   res.set_header("Location", "/v1/drives/" + put.drive.drive_id);
   if (put.status == PutDriveResult::Status::Inserted) {
-    drives_generation.fetch_add(1);
     metrics.upload("inserted", received);
     log("info", "drive " + put.drive.drive_id + " ingested (" + std::to_string(received) +
                     " bytes, " + std::to_string(put.drive.num_points) + " points, " +
@@ -349,7 +347,6 @@ void Server::Impl::register_drive_routes() {
     for (const DriveRecord& d : store.list_drives()) {
       if (d.vehicle_id == vehicle && store.delete_drive(d.drive_id)) ids.push_back(d.drive_id);
     }
-    if (!ids.empty()) drives_generation.fetch_add(1);
     log("info", "vehicle " + vehicle + ": " + std::to_string(ids.size()) + " drives erased");
     reply_json(res, 200, {{"vehicle_id", vehicle}, {"deleted", ids.size()}, {"drive_ids", ids}});
   });
@@ -361,7 +358,6 @@ void Server::Impl::register_drive_routes() {
     if (!store.delete_drive(id)) {
       return reply_error(res, 404, "drive '" + id + "' does not exist", "drive_id");
     }
-    drives_generation.fetch_add(1);
     log("info", "drive " + id + " deleted");
     res.status = 204;
   });

@@ -156,8 +156,6 @@ struct Server::Impl {
   std::shared_ptr<const std::vector<GeoPoint>> drive_trajectory(const DriveRecord& drive);
   std::mutex trajectory_mutex;
   std::map<std::string, std::shared_ptr<const std::vector<GeoPoint>>> trajectories;
-  /// Bumped on every drive upload/delete: part of MVT cache keys (trajectories layer).
-  std::atomic<std::uint64_t> drives_generation{0};
 
   // ---- map builds (one at a time, on build_thread)
   struct BuildJob {

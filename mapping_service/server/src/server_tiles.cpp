@@ -11,6 +11,7 @@
 #include "polmap/tiles/mvt.hpp"
 #include "polmap/tiles/polyline_simplify.hpp"
 #include "polmap/util/gzip.hpp"
+#include "polmap/util/sha256.hpp"
 #include "server_impl.hpp"
 
 namespace polmap::mapping {
@@ -172,19 +173,27 @@ void Server::Impl::get_mvt_tile(const httplib::Request& req, httplib::Response& 
   // Trajectories are personal data: only for keys that may read drives.
   const auto reader = authenticate(req);
   const bool with_trajectories = reader && allows(*reader, Access::ReadDrives);
-  const std::string ck = std::string(with_trajectories ? "MT/" : "M/") + std::to_string(version) +
-                         "/" + std::to_string(drives_generation.load()) + "/" + key_cache_id(*key);
+  const tiles::MvtOptions opt;
+  const tiles::GeoBox box =
+      buffered_tile_bounds(*key, static_cast<double>(opt.buffer) / opt.extent + 0.01);
+  // The cache key names the content, so every replica on one store gives the same bytes:
+  // the version's landmarks (immutable) and, with trajectories, the drives in the box.
+  const std::vector<DriveRecord> drives =
+      with_trajectories ? store.drives_in(box) : std::vector<DriveRecord>{};
+  std::string ck = std::string(with_trajectories ? "VT/" : "V/") + std::to_string(version) + "/" +
+                   key_cache_id(*key);
+  if (with_trajectories) {
+    util::Sha256 h;
+    for (const DriveRecord& d : drives) h.update(d.content_hash);
+    ck += "/" + h.hex().substr(0, 16);
+  }
   auto blob = cache.get(ck);
   if (!blob) {
-    const tiles::MvtOptions opt;
-    const tiles::GeoBox box =
-        buffered_tile_bounds(*key, static_cast<double>(opt.buffer) / opt.extent + 0.01);
     LandmarkMvtLayers layers;
     tiles::MvtLayer trajectories{"trajectories", {}};
     if (idx) layers = landmark_mvt_layers(store.landmarks_in(version, box), version);
     std::uint64_t fid = 1;
-    for (const DriveRecord& d :
-         with_trajectories ? store.drives_in(box) : std::vector<DriveRecord>{}) {
+    for (const DriveRecord& d : drives) {
       const auto traj = drive_trajectory(d);
       if (traj->size() < 2) continue;
       trajectories.features.push_back({fid++,
@@ -334,7 +343,7 @@ void Server::Impl::serve_gridmap_layer(const httplib::Request& req, httplib::Res
     return metrics.tile_served(name, 304);
   }
   const std::string ck =
-      (mech ? "M/" : "G/") + std::to_string(idx->version) + "/" + key_cache_id(*key);
+      (mech ? "GM/" : "G/") + std::to_string(idx->version) + "/" + key_cache_id(*key);
   auto blob = cache.get(ck);
   if (!blob) {
     const auto tile = store.get_tile(idx->version, layer, source);

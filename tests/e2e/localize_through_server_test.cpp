@@ -16,6 +16,7 @@
 #include <thread>
 #include <vector>
 
+#include "e2e/e2e_drive_set.hpp"
 #include "polmap/eval/study.hpp"
 #include "polmap/localization_client/tile_fetcher.hpp"
 #include "polmap/mapping_service/drive_package_io.hpp"
@@ -34,19 +35,7 @@ namespace {
 using nlohmann::json;
 
 constexpr const char* kApiKey = "e2e-test-key-7f3a";
-constexpr int kDrives = 3;
-constexpr int kHeldOut = kDrives - 1;
-constexpr double kRouteLength_m = 200.0;
-constexpr std::uint64_t kSeed = 3;
-
-// Bounds: about 3x what the chain achieves on this drive set (measured: lat RMSE
-// 0.03 m / max 0.06-0.14 m, long RMSE 0.04-0.05 m, rot RMSE 0.2 deg; the test
-// prints its figures), so it catches real regressions but not run-to-run
-// differences (the HTTP fetcher's tile arrival depends on timing).
-constexpr double kMaxLatRmse_m = 0.10;
-constexpr double kMaxLongRmse_m = 0.20;
-constexpr double kMaxRotRmse_deg = 0.8;
-constexpr double kMaxLat_m = 0.35;
+using namespace e2e;  // NOLINT: the shared drive set and bounds
 
 /// A real server on loopback over a store, in its own thread.
 class LoopbackServer {

@@ -329,14 +329,7 @@ struct TileFetcher::Impl {
       return;
     }
     if (!res) {
-      ++stats.transport_errors;
-      stats.server_reachable = false;
-      offline_backoff_s = offline_backoff_s <= 0.0
-                              ? cfg.backoff_initial_s
-                              : std::min(cfg.backoff_max_s, 2.0 * offline_backoff_s);
-      offline_until = SteadyClock::now() + std::chrono::duration_cast<SteadyClock::duration>(
-                                               std::chrono::duration<double>(offline_backoff_s));
-      if (!have) enqueue_locked(key, job.priority, offline_until);
+      note_transport_error_locked(key, have, job);
       lock.unlock();
       client.reset();  // a fresh connection next time
       lock.lock();
@@ -449,6 +442,7 @@ struct TileFetcher::Impl {
     return res->status;
   }
 
+  /// The server is unreachable: back off (doubling), and keep a missing tile queued.
   void note_transport_error_locked(const tiles::TileKey& key, bool have, const Job& job) {
     ++stats.transport_errors;
     stats.server_reachable = false;

@@ -8,11 +8,11 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "polmap/schema/errors.hpp"
+#include "raster_blocks.hpp"
 
 namespace polmap::mapping {
 namespace {
 constexpr int kPx = kGridmapTilePixels;
-constexpr int kAffineBlock = 64;  // cells per affine fit (6.4 m at 0.1 m cells)
 }  // namespace
 
 std::pair<double, double> cell_mechanism_powers(std::span<const cdouble> c, PolLevel level,
@@ -73,53 +73,39 @@ void FleetGridmapAccumulator::add(const GridmapRaster& r, const tiles::LocalFram
   const std::int64_t world_px = tiles::tiles_per_side(z) * kPx;
   Acc* acc = nullptr;
   tiles::TileKey acc_key{-1, -1, -1};
-  for (int r0 = 0; r0 < r.height; r0 += kAffineBlock) {
-    for (int c0 = 0; c0 < r.width; c0 += kAffineBlock) {
-      const int c1 = std::min(r.width, c0 + kAffineBlock);
-      const int rr1 = std::min(r.height, r0 + kAffineBlock);
-      bool any = false;
-      for (int row = r0; row < rr1 && !any; ++row) {
-        for (int col = c0; col < c1; ++col) {
-          if (r.count[static_cast<std::size_t>(row) * r.width + col] > 0) {
-            any = true;
-            break;
+  detail::for_each_observed_block(
+      r, pixel_of,
+      [&](int r0, int c0, int rr1, int c1, const Eigen::Vector2d& p0, const Eigen::Vector2d& dc,
+          const Eigen::Vector2d& dr) {
+        for (int row = r0; row < rr1; ++row) {
+          for (int col = c0; col < c1; ++col) {
+            const std::size_t i = static_cast<std::size_t>(row) * r.width + col;
+            const std::uint32_t n = r.count[i];
+            if (n == 0) continue;
+            double trace = 0.0;
+            for (int d : diag) trace += r.layers[static_cast<std::size_t>(d)][i].real();
+            const Eigen::Vector2d p = p0 + (col - c0) * dc + (row - r0) * dr;
+            auto gx = static_cast<std::int64_t>(std::floor(p.x()));
+            const auto gy = static_cast<std::int64_t>(std::floor(p.y()));
+            if (gy < 0 || gy >= world_px) continue;
+            gx = ((gx % world_px) + world_px) % world_px;
+            const tiles::TileKey key{z, static_cast<int>(gx / kPx), static_cast<int>(gy / kPx)};
+            if (key != acc_key) {
+              auto [it, inserted] = base_.try_emplace(key);
+              if (inserted) it->second.resize();
+              acc = &it->second;
+              acc_key = key;
+            }
+            const std::size_t pi = static_cast<std::size_t>(gy % kPx) * kPx + (gx % kPx);
+            acc->power[pi] += static_cast<float>(n * std::max(0.0, trace));
+            acc->count[pi] += static_cast<float>(n);
+            for (std::size_t l = 0; l < cell.size(); ++l) cell[l] = r.layers[l][i];
+            const auto [odd, even] = cell_mechanism_powers(cell, level, r.noise_power);
+            acc->odd[pi] += static_cast<float>(n * odd);
+            acc->even[pi] += static_cast<float>(n * even);
           }
         }
-      }
-      if (!any) continue;
-      const Eigen::Vector2d p0 = pixel_of(c0, r0);
-      const Eigen::Vector2d dc = (pixel_of(c0 + kAffineBlock, r0) - p0) / kAffineBlock;
-      const Eigen::Vector2d dr = (pixel_of(c0, r0 + kAffineBlock) - p0) / kAffineBlock;
-      for (int row = r0; row < rr1; ++row) {
-        for (int col = c0; col < c1; ++col) {
-          const std::size_t i = static_cast<std::size_t>(row) * r.width + col;
-          const std::uint32_t n = r.count[i];
-          if (n == 0) continue;
-          double trace = 0.0;
-          for (int d : diag) trace += r.layers[static_cast<std::size_t>(d)][i].real();
-          const Eigen::Vector2d p = p0 + (col - c0) * dc + (row - r0) * dr;
-          auto gx = static_cast<std::int64_t>(std::floor(p.x()));
-          const auto gy = static_cast<std::int64_t>(std::floor(p.y()));
-          if (gy < 0 || gy >= world_px) continue;
-          gx = ((gx % world_px) + world_px) % world_px;
-          const tiles::TileKey key{z, static_cast<int>(gx / kPx), static_cast<int>(gy / kPx)};
-          if (key != acc_key) {
-            auto [it, inserted] = base_.try_emplace(key);
-            if (inserted) it->second.resize();
-            acc = &it->second;
-            acc_key = key;
-          }
-          const std::size_t pi = static_cast<std::size_t>(gy % kPx) * kPx + (gx % kPx);
-          acc->power[pi] += static_cast<float>(n * std::max(0.0, trace));
-          acc->count[pi] += static_cast<float>(n);
-          for (std::size_t l = 0; l < cell.size(); ++l) cell[l] = r.layers[l][i];
-          const auto [odd, even] = cell_mechanism_powers(cell, level, r.noise_power);
-          acc->odd[pi] += static_cast<float>(n * odd);
-          acc->even[pi] += static_cast<float>(n * even);
-        }
-      }
-    }
-  }
+      });
 }
 
 void FleetGridmapAccumulator::add_sums(const GridmapSumKey& key, const GridmapSumTile& tile) {

@@ -8,11 +8,11 @@
 
 #include "polmap/mapping_service/fleet_gridmap.hpp"
 #include "polmap/schema/errors.hpp"
+#include "raster_blocks.hpp"
 
 namespace polmap::mapping {
 namespace {
 constexpr int kChunkArea = kSumChunkCells * kSumChunkCells;
-constexpr int kAffineBlock = 64;  // drive cells per affine fit (6.4 m at 0.1 m cells)
 }  // namespace
 
 int gridmap_sum_planes(PolLevel level) {
@@ -98,50 +98,40 @@ void splat_gridmap(const GridmapRaster& r, const tiles::LocalFrame& frame, PolLe
     }
     tile->add(static_cast<int>(gx % kPx), static_cast<int>(gy % kPx), w, v.data());
   };
-  for (int r0 = 0; r0 < r.height; r0 += kAffineBlock) {
-    for (int c0 = 0; c0 < r.width; c0 += kAffineBlock) {
-      const int c1 = std::min(r.width, c0 + kAffineBlock);
-      const int rr1 = std::min(r.height, r0 + kAffineBlock);
-      bool any = false;
-      for (int row = r0; row < rr1 && !any; ++row) {
-        const auto* n = &r.count[static_cast<std::size_t>(row) * r.width];
-        any = std::any_of(n + c0, n + c1, [](std::uint32_t k) { return k > 0; });
-      }
-      if (!any) continue;
-      const Eigen::Vector2d p0 = grid_of(c0, r0);
-      const Eigen::Vector2d dc = (grid_of(c0 + kAffineBlock, r0) - p0) / kAffineBlock;
-      const Eigen::Vector2d dr = (grid_of(c0, r0 + kAffineBlock) - p0) / kAffineBlock;
-      for (int row = r0; row < rr1; ++row) {
-        for (int col = c0; col < c1; ++col) {
-          const std::size_t i = static_cast<std::size_t>(row) * r.width + col;
-          const double n = r.count[i];
-          if (n == 0) continue;
-          // Format 1 packages carry no hits: every look counts as one.
-          v[0] = 1.0;
-          v[1] = r.hits.empty() ? 1.0 : static_cast<double>(r.hits[i]) / n;
-          v[2] = r.noise_power;
-          std::size_t p = 3;
-          for (int a = 0; a < r.q; ++a) {
-            for (int b = a; b < r.q; ++b) {
-              const cdouble c = r.layers[static_cast<std::size_t>(r.layer_index(r.q, a, b))][i];
-              v[p++] = c.real();
-              if (a != b) v[p++] = c.imag();
+  detail::for_each_observed_block(
+      r, grid_of,
+      [&](int r0, int c0, int rr1, int c1, const Eigen::Vector2d& p0, const Eigen::Vector2d& dc,
+          const Eigen::Vector2d& dr) {
+        for (int row = r0; row < rr1; ++row) {
+          for (int col = c0; col < c1; ++col) {
+            const std::size_t i = static_cast<std::size_t>(row) * r.width + col;
+            const double n = r.count[i];
+            if (n == 0) continue;
+            // Format 1 packages carry no hits: every look counts as one.
+            v[0] = 1.0;
+            v[1] = r.hits.empty() ? 1.0 : static_cast<double>(r.hits[i]) / n;
+            v[2] = r.noise_power;
+            std::size_t p = 3;
+            for (int a = 0; a < r.q; ++a) {
+              for (int b = a; b < r.q; ++b) {
+                const cdouble c = r.layers[static_cast<std::size_t>(r.layer_index(r.q, a, b))][i];
+                v[p++] = c.real();
+                if (a != b) v[p++] = c.imag();
+              }
             }
+            // Bilinear weights of the four grid cells whose centres surround the point.
+            const Eigen::Vector2d g = p0 + (col - c0) * dc + (row - r0) * dr;
+            const double fx = g.x() - 0.5, fy = g.y() - 0.5;
+            const auto x0 = static_cast<std::int64_t>(std::floor(fx));
+            const auto y0 = static_cast<std::int64_t>(std::floor(fy));
+            const double ax = fx - static_cast<double>(x0), ay = fy - static_cast<double>(y0);
+            add_at(x0, y0, n * (1 - ax) * (1 - ay));
+            add_at(x0 + 1, y0, n * ax * (1 - ay));
+            add_at(x0, y0 + 1, n * (1 - ax) * ay);
+            add_at(x0 + 1, y0 + 1, n * ax * ay);
           }
-          // Bilinear weights of the four grid cells whose centres surround the point.
-          const Eigen::Vector2d g = p0 + (col - c0) * dc + (row - r0) * dr;
-          const double fx = g.x() - 0.5, fy = g.y() - 0.5;
-          const auto x0 = static_cast<std::int64_t>(std::floor(fx));
-          const auto y0 = static_cast<std::int64_t>(std::floor(fy));
-          const double ax = fx - static_cast<double>(x0), ay = fy - static_cast<double>(y0);
-          add_at(x0, y0, n * (1 - ax) * (1 - ay));
-          add_at(x0 + 1, y0, n * ax * (1 - ay));
-          add_at(x0, y0 + 1, n * (1 - ax) * ay);
-          add_at(x0 + 1, y0 + 1, n * ax * ay);
         }
-      }
-    }
-  }
+      });
 }
 
 MergedCell merged_cell(const GridmapSumTile& tile, int x, int y) {

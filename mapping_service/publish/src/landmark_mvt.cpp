@@ -30,6 +30,17 @@ LandmarkMvtLayers landmark_mvt_layers(const LandmarkSet& lm, std::int64_t versio
   return out;
 }
 
+nlohmann::json landmark_vector_layers_json() {
+  nlohmann::json landmark_fields{{"id", "Number: stable landmark id"},
+                                 {"support_drives", "Number: distinct drives that saw it"},
+                                 {"spread_m", "Number: RMS distance of members to the mean, m"},
+                                 {"map_version", "Number: map version"}};
+  nlohmann::json point_fields = landmark_fields;
+  point_fields["class"] = "String: scattering class (odd, even, mixed, unknown)";
+  return {{{"id", "points"}, {"description", "point landmarks"}, {"fields", point_fields}},
+          {{"id", "lines"}, {"description", "line landmarks"}, {"fields", landmark_fields}}};
+}
+
 tiles::GeoBox buffered_tile_bounds(const tiles::TileKey& key, double fraction) {
   tiles::GeoBox b = tiles::tile_bounds(key);
   const double dlat = (b.max_lat_deg - b.min_lat_deg) * fraction;

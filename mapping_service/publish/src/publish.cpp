@@ -80,12 +80,6 @@ void put_file(const fs::path& path, std::string_view bytes) {
 nlohmann::json tilejson(std::int64_t version, const std::optional<tiles::GeoBox>& bounds,
                         const PublishOptions& o) {
   const tiles::GeoBox b = bounds.value_or(tiles::GeoBox{-85.0511, -180, 85.0511, 180});
-  nlohmann::json landmark_fields{{"id", "Number: stable landmark id"},
-                                 {"support_drives", "Number: distinct drives that saw it"},
-                                 {"spread_m", "Number: RMS distance of members to the mean, m"},
-                                 {"map_version", "Number: map version"}};
-  nlohmann::json point_fields = landmark_fields;
-  point_fields["class"] = "String: scattering class (odd, even, mixed, unknown)";
   return {{"tilejson", "3.0.0"},
           {"name", "polmap radar landmarks, map version " + std::to_string(version)},
           {"attribution", "polmap"},
@@ -97,9 +91,7 @@ nlohmann::json tilejson(std::int64_t version, const std::optional<tiles::GeoBox>
           {"center",
            {0.5 * (b.min_lon_deg + b.max_lon_deg), 0.5 * (b.min_lat_deg + b.max_lat_deg),
             std::clamp(16, o.mvt_min_zoom, o.mvt_max_zoom)}},
-          {"vector_layers",
-           {{{"id", "points"}, {"description", "point landmarks"}, {"fields", point_fields}},
-            {{"id", "lines"}, {"description", "line landmarks"}, {"fields", landmark_fields}}}},
+          {"vector_layers", landmark_vector_layers_json()},
           {"polmap",
            {{"map_version", version},
             {"localization_tiles", "loc/{z}/{x}/{y}.pmt"},

@@ -254,12 +254,10 @@ void Server::Impl::get_tilejson(const httplib::Request& req, httplib::Response& 
   }
   const tiles::GeoBox b = bounds.value_or(tiles::GeoBox{-85.0511, -180, 85.0511, 180});
   const int center_zoom = std::clamp(16, cfg.mvt_min_zoom, cfg.mvt_max_zoom);
-  nlohmann::json landmark_fields{{"id", "Number: stable landmark id"},
-                                 {"support_drives", "Number: distinct drives that saw it"},
-                                 {"spread_m", "Number: RMS distance of members to the mean, m"},
-                                 {"map_version", "Number: map version"}};
-  nlohmann::json point_fields = landmark_fields;
-  point_fields["class"] = "String: scattering class (odd, even, mixed, unknown)";
+  nlohmann::json layers = landmark_vector_layers_json();
+  layers.push_back({{"id", "trajectories"},
+                    {"description", "trajectories of the stored drives (simplified to 0.25 m)"},
+                    {"fields", {{"drive_id", "String"}, {"vehicle_id", "String"}}}});
   nlohmann::json j{
       {"tilejson", "3.0.0"},
       {"name", "polmap radar landmarks"},
@@ -273,12 +271,7 @@ void Server::Impl::get_tilejson(const httplib::Request& req, httplib::Response& 
       {"bounds", {b.min_lon_deg, b.min_lat_deg, b.max_lon_deg, b.max_lat_deg}},
       {"center",
        {0.5 * (b.min_lon_deg + b.max_lon_deg), 0.5 * (b.min_lat_deg + b.max_lat_deg), center_zoom}},
-      {"vector_layers",
-       {{{"id", "points"}, {"description", "point landmarks"}, {"fields", point_fields}},
-        {{"id", "lines"}, {"description", "line landmarks"}, {"fields", landmark_fields}},
-        {{"id", "trajectories"},
-         {"description", "trajectories of the stored drives (simplified to 0.25 m)"},
-         {"fields", {{"drive_id", "String"}, {"vehicle_id", "String"}}}}}},
+      {"vector_layers", layers},
   };
   if (idx) {
     j["polmap"] = {

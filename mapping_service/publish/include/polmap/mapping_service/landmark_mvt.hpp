@@ -5,6 +5,7 @@
 /// "lines" (LineString, id, support_drives, spread_m, map_version); feature ids are the
 /// landmarks' stable keys.
 #include <cstdint>
+#include <nlohmann/json.hpp>
 
 #include "polmap/mapping_service/store.hpp"
 #include "polmap/tiles/mvt.hpp"
@@ -19,6 +20,10 @@ struct LandmarkMvtLayers {
 /// The two layers for `landmarks` of map version `version`.
 [[nodiscard]] LandmarkMvtLayers landmark_mvt_layers(const LandmarkSet& landmarks,
                                                     std::int64_t version);
+
+/// TileJSON 3.0 `vector_layers` entries of the two landmark layers (ids, descriptions,
+/// fields), what every TileJSON describing landmark tiles lists.
+[[nodiscard]] nlohmann::json landmark_vector_layers_json();
 
 /// A tile's bounds grown by `fraction` of its size on each side (clamped, not wrapped, at
 /// the antimeridian): what to query so that geometry in the tile's buffer is drawn.

@@ -106,7 +106,9 @@ void PostgresMapStore::Impl::migrate_and_configure() {
 void PostgresMapStore::Impl::lock_build(std::int64_t version) {
   std::lock_guard lock(session_mu);
   if (!session || !session->reusable()) return;
-  session->run("SELECT pg_advisory_lock($1, $2)", kBuildLockClass, static_cast<int>(version));
+  // Never waits: a lock on this number held elsewhere (a deleted version whose number was
+  // given again, while its builder still runs) only makes the sweep more careful.
+  session->run("SELECT pg_try_advisory_lock($1, $2)", kBuildLockClass, static_cast<int>(version));
 }
 
 void PostgresMapStore::Impl::unlock_build(std::int64_t version) {

@@ -2,6 +2,8 @@
 find_package(Eigen3 3.4 REQUIRED NO_MODULE)
 find_package(GeographicLib REQUIRED)
 find_package(SQLite3 REQUIRED)
+# libpq (libpq-dev): the PostgreSQL store backend. PostgreSQL::PostgreSQL; no server headers.
+find_package(PostgreSQL REQUIRED)
 find_package(GDAL REQUIRED)
 # Also used by cmake/polmapConfig.cmake.in (find_dependency for consumers).
 set(POLMAP_OPENCV_COMPONENTS core imgproc ximgproc imgcodecs)

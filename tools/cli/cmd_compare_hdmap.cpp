@@ -12,7 +12,7 @@
 #include "command.hpp"
 #include "map_db.hpp"
 #include "polmap/mapping_service/hdmap_compare.hpp"
-#include "polmap/mapping_service/sqlite_store.hpp"
+#include "polmap/mapping_service/open_store.hpp"
 
 namespace polmap::cli {
 namespace {
@@ -36,7 +36,8 @@ std::string fmt(const std::optional<double>& v, const char* spec, double scale =
 void run(CompareOptions o) {
   require_map_db(o.db);
   const mapping::HdMap hd = mapping::read_lanelet2_osm(o.hdmap);
-  mapping::SqliteMapStore store(o.db);
+  const auto opened = mapping::open_map_store(o.db);
+  mapping::MapStore& store = *opened;
   const std::int64_t version = map_version_or_current(store, o.db, o.version);
   o.cfg.restrict_to_overlap = !o.no_overlap;
   // Landmarks near the HD map only (its box grown by the evaluation margin).
@@ -87,7 +88,10 @@ void setup(CLI::App& app) {
   auto opts = std::make_shared<CompareOptions>();
   CLI::App* cmd = app.add_subcommand(
       "compare-hdmap", "Compare a map version's landmarks with a Lanelet2 HD map (.osm)");
-  cmd->add_option("--db", opts->db, "Map store database (SQLite)")->required();
+  cmd->add_option(
+         "--db", opts->db,
+         "Map store: a SQLite database file, or a PostgreSQL URL (postgresql://USER@HOST:PORT/DB)")
+      ->required();
   cmd->add_option("--hdmap", opts->hdmap, "Lanelet2 OSM file")->required();
   cmd->add_option("--version", opts->version, "Published map version (default: current)")
       ->check(CLI::PositiveNumber);

@@ -15,7 +15,7 @@
 #include "command.hpp"
 #include "map_db.hpp"
 #include "polmap/mapping_service/export.hpp"
-#include "polmap/mapping_service/sqlite_store.hpp"
+#include "polmap/mapping_service/open_store.hpp"
 #include "polmap/schema/errors.hpp"
 
 namespace polmap::cli {
@@ -58,7 +58,8 @@ void run(const ExportOptions& o) {
   }
   const auto bbox = parse_bbox(o.bbox);
   require_map_db(o.db);
-  mapping::SqliteMapStore store(o.db);
+  const auto opened = mapping::open_map_store(o.db);
+  mapping::MapStore& store = *opened;
   const std::int64_t version = map_version_or_current(store, o.db, o.version);
   const auto s = mapping::export_map(store, version, *format, bbox, o.out);
   if (*format == mapping::ExportFormat::MergedGridmapCog) {
@@ -84,7 +85,10 @@ void setup(CLI::App& app) {
       "export",
       "Export a map version's landmarks (gpkg, geojson, shp), its fleet gridmap (gtiff) or the "
       "store's merged covariance gridmap (cog)");
-  cmd->add_option("--db", opts->db, "Map store database (SQLite)")->required();
+  cmd->add_option(
+         "--db", opts->db,
+         "Map store: a SQLite database file, or a PostgreSQL URL (postgresql://USER@HOST:PORT/DB)")
+      ->required();
   cmd->add_option("--format", opts->format, "gpkg | geojson | shp | gtiff | cog")->required();
   cmd->add_option("--out", opts->out,
                   "Output file (.gpkg, .geojson, .tif; shp: .zip or a directory)")

@@ -1,5 +1,6 @@
 // `polmap serve --db FILE --listen HOST:PORT --api-key-file FILE [--tls-cert F --tls-key F]
-// [...]`: the mapping service's HTTP(S) server on an embedded SQLite store. For public
+// [--package-dir DIR] [...]`: the mapping service's HTTP(S) server on an embedded SQLite store
+// (FILE) or a PostgreSQL/PostGIS store shared by replicas (--db postgresql://...). For public
 // exposure it runs behind the nginx front of deploy/nginx/ (docs/deployment.md). Stops
 // gracefully on SIGINT/SIGTERM (requests in flight finish, a running map build is cancelled
 // and marked failed).
@@ -14,6 +15,7 @@
 
 #include "command.hpp"
 #include "polmap/eval/serve_until_signal.hpp"
+#include "polmap/mapping_service/open_store.hpp"
 #include "polmap/mapping_service/server.hpp"
 #include "polmap/mapping_service/sqlite_store.hpp"
 #include "polmap/schema/errors.hpp"
@@ -24,6 +26,7 @@ namespace {
 
 struct ServeOptions {
   std::string db;
+  std::string package_dir;
   std::string listen = "127.0.0.1:8080";
   std::string api_key_file;
   double max_upload_mib = 512;
@@ -95,17 +98,20 @@ void run(const ServeOptions& o) {
   // keep contention low at this size. MALLOC_ARENA_MAX in the environment wins.
   if (std::getenv("MALLOC_ARENA_MAX") == nullptr) mallopt(M_ARENA_MAX, 4);
 #endif
-  mapping::SqliteMapStore store(o.db);
-  const auto& migration = store.archive_migration();
-  if (migration.migrated > 0) {
-    std::fprintf(stderr, "polmap serve: %zu archive-stored packages replaced by their members\n",
-                 migration.migrated);
-  }
-  for (const auto& q : migration.quarantined) {
-    std::fprintf(stderr,
-                 "polmap serve: a stored package no longer validates; drive removed, archive "
-                 "kept in quarantine/: %s\n",
-                 util::escape_for_log(q, 1024).c_str());
+  const auto opened = mapping::open_map_store(o.db, {.package_dir = o.package_dir});
+  mapping::MapStore& store = *opened;
+  if (const auto* sqlite = dynamic_cast<const mapping::SqliteMapStore*>(opened.get())) {
+    const auto& migration = sqlite->archive_migration();
+    if (migration.migrated > 0) {
+      std::fprintf(stderr, "polmap serve: %zu archive-stored packages replaced by their members\n",
+                   migration.migrated);
+    }
+    for (const auto& q : migration.quarantined) {
+      std::fprintf(stderr,
+                   "polmap serve: a stored package no longer validates; drive removed, archive "
+                   "kept in quarantine/: %s\n",
+                   util::escape_for_log(q, 1024).c_str());
+    }
   }
   mapping::Server server(store, cfg);
   eval::listen_until_signal(server, signals, host, port, [](int sig) {
@@ -118,7 +124,15 @@ void setup(CLI::App& app) {
   auto opts = std::make_shared<ServeOptions>();
   CLI::App* cmd = app.add_subcommand(
       "serve", "Run the mapping service HTTP server (drive uploads, map builds, tiles)");
-  cmd->add_option("--db", opts->db, "SQLite database file (created if missing)")->required();
+  cmd->add_option("--db", opts->db,
+                  "Map store: a SQLite database file (created if missing), or a PostgreSQL "
+                  "database as a URL (postgresql://USER@HOST:PORT/DB) or libpq 'host=... "
+                  "dbname=...' string (PostGIS needed; docs/postgresql.md)")
+      ->required();
+  cmd->add_option("--package-dir", opts->package_dir,
+                  "PostgreSQL store only: the directory of its drive packages and upload "
+                  "sessions, shared by every replica; required at the database's first open "
+                  "(recorded in it; later opens may leave it out)");
   cmd->add_option("--listen", opts->listen, "HOST:PORT to listen on (port 0: any free port)")
       ->capture_default_str();
   cmd->add_option("--api-key-file", opts->api_key_file,

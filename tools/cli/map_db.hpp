@@ -1,17 +1,21 @@
 #pragma once
 /// @file map_db.hpp
-/// The `--db FILE` / `--version V` arguments of the commands that read a local map store.
+/// The `--db FILE|URL` / `--version V` arguments of the commands that read a map store: a
+/// SQLite file, or a PostgreSQL database (postgresql://..., open_store.hpp).
 #include <cstdint>
 #include <filesystem>
 #include <string>
 
+#include "polmap/mapping_service/open_store.hpp"
 #include "polmap/mapping_service/store.hpp"
 #include "polmap/schema/errors.hpp"
 
 namespace polmap::cli {
 
-/// Throws IoError unless the --db file exists (opening a store would create an empty one).
+/// Throws IoError unless the --db file exists (opening a SQLite store would create an empty
+/// one). A PostgreSQL connection string is not checked here: opening it tells.
 inline void require_map_db(const std::string& db) {
+  if (mapping::is_postgres_conninfo(db)) return;
   if (!std::filesystem::is_regular_file(db)) {
     throw IoError("--db " + db + ": no such map database");
   }

@@ -25,125 +25,6 @@ namespace fs = std::filesystem;
 
 // --------------------------------------------------------------------- drives
 
-namespace {
-
-/// drive_trajectories.samples_json: a sample is kept kTrajectorySpacingM from the last kept
-/// one or kTrajectoryMaxGapS after it; the first and last samples always.
-/// Douglas–Peucker in windows of 1024 edges: within tolerance like the whole-path run,
-/// but a hostile zig-zag trajectory stays linear in its length.
-std::vector<GeoPoint> simplify_path(const std::vector<GeoPoint>& pl) {
-  return tiles::simplify_polyline(pl, kDrivePathToleranceM, 1024);
-}
-
-/// The trajectory's positions simplified to kDrivePathToleranceM, packed as little-endian
-/// float64 (lat, lon) pairs (drive_trajectories.path_blob).
-std::string packed_path(const std::vector<TrajectorySample>& trajectory) {
-  std::vector<GeoPoint> pl;
-  pl.reserve(trajectory.size());
-  for (const auto& t : trajectory) pl.push_back({t.lat_deg, t.lon_deg, 0.0});
-  pl = simplify_path(pl);
-  static_assert(std::endian::native == std::endian::little, "path_blob is little-endian");
-  std::string out(pl.size() * 16, '\0');
-  for (std::size_t i = 0; i < pl.size(); ++i) {
-    std::memcpy(out.data() + 16 * i, &pl[i].lat_deg, 8);
-    std::memcpy(out.data() + 16 * i + 8, &pl[i].lon_deg, 8);
-  }
-  return out;
-}
-
-std::vector<GeoPoint> unpack_path(std::string_view blob) {
-  std::vector<GeoPoint> pl(blob.size() / 16);
-  for (std::size_t i = 0; i < pl.size(); ++i) {
-    std::memcpy(&pl[i].lat_deg, blob.data() + 16 * i, 8);
-    std::memcpy(&pl[i].lon_deg, blob.data() + 16 * i + 8, 8);
-  }
-  return pl;
-}
-
-nlohmann::json decimated_trajectory_json(const std::vector<TrajectorySample>& trajectory) {
-  nlohmann::json samples = nlohmann::json::array();
-  const TrajectorySample* last = nullptr;
-  for (std::size_t i = 0; i < trajectory.size(); ++i) {
-    const auto& t = trajectory[i];
-    bool keep = last == nullptr || i + 1 == trajectory.size() ||
-                t.time_s - last->time_s >= kTrajectoryMaxGapS;
-    if (!keep) {
-      const double dn = (t.lat_deg - last->lat_deg) * 111320.0;
-      const double de =
-          (t.lon_deg - last->lon_deg) * 111320.0 * std::cos(t.lat_deg * 3.14159265358979 / 180.0);
-      keep = dn * dn + de * de >= kTrajectorySpacingM * kTrajectorySpacingM;
-    }
-    if (!keep) continue;
-    samples.push_back({t.time_s, t.lat_deg, t.lon_deg, t.yaw_enu_rad, t.speed_mps});
-    last = &t;
-  }
-  return samples;
-}
-
-/// True if a file system error means "no space" (ENOSPC, EDQUOT).
-bool no_space(const std::error_code& ec) {
-  return ec == std::errc::no_space_on_device ||
-         ((ec.category() == std::generic_category() || ec.category() == std::system_category()) &&
-          ec.value() == EDQUOT);
-}
-
-[[noreturn]] void throw_copy_error(int err, const fs::path& from, const fs::path& to) {
-  const std::string msg =
-      "cannot copy " + from.string() + " to " + to.string() + ": " + std::strerror(err);
-  if (err == ENOSPC || err == EDQUOT) throw StorageFullError("the drive store is full: " + msg);
-  throw IoError("put_drive: " + msg);
-}
-
-/// Copies one file with read(2)/write(2). Not std::filesystem::copy_file: libstdc++ reports
-/// a sendfile that stops short on a full disk as EIO, and a full disk must be told (507).
-void copy_file_checked(const fs::path& from, const fs::path& to) {
-  const int in = ::open(from.c_str(), O_RDONLY | O_CLOEXEC);
-  if (in < 0) throw_copy_error(errno, from, to);
-  const int out = ::open(to.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
-  if (out < 0) {
-    const int err = errno;
-    ::close(in);
-    throw_copy_error(err, from, to);
-  }
-  std::vector<char> buf(1u << 20);
-  int err = 0;
-  for (;;) {
-    const ssize_t r = ::read(in, buf.data(), buf.size());
-    if (r < 0 && errno == EINTR) continue;
-    if (r <= 0) {
-      if (r < 0) err = errno;
-      break;
-    }
-    for (ssize_t done = 0; done < r && err == 0;) {
-      const ssize_t w = ::write(out, buf.data() + done, static_cast<std::size_t>(r - done));
-      if (w < 0 && errno == EINTR) continue;
-      if (w <= 0) {
-        err = w < 0 ? errno : ENOSPC;
-      } else {
-        done += w;
-      }
-    }
-    if (err != 0) break;
-  }
-  ::close(in);
-  if (::close(out) != 0 && err == 0) err = errno;
-  if (err != 0) throw_copy_error(err, from, to);
-}
-
-/// Copies the regular files below `from` into `to` (existing), keeping relative paths.
-void copy_tree_checked(const fs::path& from, const fs::path& to) {
-  for (const auto& e : fs::recursive_directory_iterator(from)) {
-    const fs::path target = to / fs::relative(e.path(), from);
-    if (e.is_directory()) {
-      fs::create_directories(target);
-    } else if (e.is_regular_file()) {
-      copy_file_checked(e.path(), target);
-    }
-  }
-}
-
-}  // namespace
-
 PutDriveResult SqliteMapStore::put_drive(const DrivePackage& package,
                                          const fs::path& package_location,
                                          const std::string& content_hash) {
@@ -168,30 +49,10 @@ PutDriveResult SqliteMapStore::put_drive(const DrivePackage& package,
   }
 
   // Geodetic coordinates of everything (drive frame -> WGS84) and the bbox.
-  const tiles::LocalFrame frame(m.origin);
-  GeoBox bbox{90.0, 180.0, -90.0, -180.0};
-  auto grow = [&](double lat, double lon) {
-    bbox.min_lat_deg = std::min(bbox.min_lat_deg, lat);
-    bbox.max_lat_deg = std::max(bbox.max_lat_deg, lat);
-    bbox.min_lon_deg = std::min(bbox.min_lon_deg, lon);
-    bbox.max_lon_deg = std::max(bbox.max_lon_deg, lon);
-  };
-  std::vector<GeoPoint> point_geo;
-  point_geo.reserve(package.points.size());
-  for (const auto& p : package.points) {
-    point_geo.push_back(frame.to_geo(p.position_m));
-    grow(point_geo.back().lat_deg, point_geo.back().lon_deg);
-  }
-  std::vector<std::pair<GeoPoint, GeoPoint>> line_geo;
-  line_geo.reserve(package.lines.size());
-  for (const auto& l : package.lines) {
-    line_geo.emplace_back(frame.to_geo(l.start_m), frame.to_geo(l.end_m));
-    grow(line_geo.back().first.lat_deg, line_geo.back().first.lon_deg);
-    grow(line_geo.back().second.lat_deg, line_geo.back().second.lon_deg);
-  }
-  for (const auto& t : package.trajectory) grow(t.lat_deg, t.lon_deg);
-  if (bbox.min_lat_deg > bbox.max_lat_deg)
-    bbox = {m.origin.lat_deg, m.origin.lon_deg, m.origin.lat_deg, m.origin.lon_deg};
+  const PackageGeo geo = package_geo(package);
+  const GeoBox& bbox = geo.bbox;
+  const std::vector<GeoPoint>& point_geo = geo.points;
+  const auto& line_geo = geo.lines;
 
   // 1. Files into a temp dir of the drive store (same file system: rename is atomic).
   // Both guards remove their directory unless released: the staging directory always,
@@ -204,13 +65,7 @@ PutDriveResult SqliteMapStore::put_drive(const DrivePackage& package,
   const std::string rel_path = content_hash;
   try {
     fs::create_directories(tmp);
-    if (fs::is_directory(package_location)) {
-      copy_tree_checked(package_location, tmp);
-    } else {
-      // An archive: its members, as our ustar reader sees them (the validator's reader).
-      unpack_drive_package(util::read_file_bytes(package_location), tmp);
-    }
-    util::sync_tree(tmp);  // the files are durable before any row names them
+    stage_package_files(package_location, tmp);  // durable before any row names them
     const std::int64_t bytes = dir_bytes(tmp);
     I.hook("files_copied");
 
@@ -356,32 +211,18 @@ std::vector<GeoPoint> SqliteMapStore::drive_path(std::string_view drive_id) cons
     if (!s.step()) return std::vector<GeoPoint>{};  // ingested before migration 2
     if (!s.is_null(0)) return unpack_path(s.blob(0));
     // Ingested before migration 5: simplify the decimated samples.
-    std::vector<GeoPoint> pl;
-    for (const auto& v : nlohmann::json::parse(s.text(1))) {
-      pl.push_back({v.at(1).get<double>(), v.at(2).get<double>(), 0.0});
-    }
-    return simplify_path(pl);
+    return path_from_samples_json(nlohmann::json::parse(s.text(1)));
   });
 }
 
 std::vector<TrajectorySample> SqliteMapStore::drive_trajectory(std::string_view drive_id) const {
   return impl_->read([&](Connection& c) {
-    std::vector<TrajectorySample> out;
     auto d = impl_->drive_where(c, "drive_id = ?1", drive_id);
     if (!d) throw NotFoundError("drive '" + std::string(drive_id) + "' is not in the store");
     auto s = c.stmt("SELECT samples_json FROM drive_trajectories WHERE drive = ?1");
     s.bind(1, d->row);
-    if (!s.step()) return out;  // ingested before migration 2
-    for (const auto& v : nlohmann::json::parse(s.text(0))) {
-      TrajectorySample t;
-      t.time_s = v.at(0).get<double>();
-      t.lat_deg = v.at(1).get<double>();
-      t.lon_deg = v.at(2).get<double>();
-      t.yaw_enu_rad = v.at(3).get<double>();
-      t.speed_mps = v.at(4).get<double>();
-      out.push_back(t);
-    }
-    return out;
+    if (!s.step()) return std::vector<TrajectorySample>{};  // ingested before migration 2
+    return trajectory_from_json(nlohmann::json::parse(s.text(0)));
   });
 }
 

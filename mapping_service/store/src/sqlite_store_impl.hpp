@@ -18,40 +18,24 @@
 #include "polmap/mapping_service/sqlite_store.hpp"
 #include "polmap/util/file.hpp"
 #include "sqlite_db.hpp"
+#include "store_common.hpp"
 
 namespace polmap::mapping {
 namespace sqlite_store_detail {
 
 using sqlite::Connection;
 using sqlite::Stmt;
-
-/// Trajectory decimation for drive_trajectories: a sample is kept when it is
-/// this far from the last kept one (or kTrajectoryMaxGapS later).
-inline constexpr double kTrajectorySpacingM = 1.0;
-inline constexpr double kTrajectoryMaxGapS = 5.0;
+using namespace store_detail;  // NOLINT: internal header of one target
 
 inline constexpr const char* kDriveColumns =
     "id, drive_id, content_hash, vehicle_id, start_time_s, end_time_s, min_lat_deg, min_lon_deg, "
     "max_lat_deg, max_lon_deg, pol_level, distance_m, num_points, num_lines, manifest_json, "
     "package_path, ingested_at";
 
-/// UTC now as ISO 8601 ("2024-05-01T12:00:00Z").
-std::string now_iso();
-/// A time point as ISO 8601 UTC, whole seconds (truncated).
-std::string iso_utc(std::chrono::system_clock::time_point t);
-/// Splits an antimeridian-crossing box into two ordinary ones.
-std::vector<GeoBox> split_box(const GeoBox& b);
-bool box_contains(const GeoBox& b, double lat, double lon);
-bool box_intersects(const GeoBox& b, double lat0, double lon0, double lat1, double lon1);
 /// R*Tree coordinates are 32-bit floats; SQLite rounds bounds outward, so the
 /// index returns a superset and the exact filter is applied on the REAL columns.
 void insert_rtree(Connection& c, const char* table, std::int64_t id, double min_lat, double max_lat,
                   double min_lon, double max_lon);
-nlohmann::json manifest_json(const DriveManifest& m);
-/// Bytes of a file, or of all regular files below a directory.
-std::int64_t dir_bytes(const std::filesystem::path& p);
-const char* tile_table(TileLayer layer);
-MapVersionStatus parse_status(const std::string& s);
 
 }  // namespace sqlite_store_detail
 

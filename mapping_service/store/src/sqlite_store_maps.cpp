@@ -96,43 +96,6 @@ void SqliteMapStore::put_landmarks(std::int64_t version,
   });
 }
 
-namespace {
-nlohmann::json geometry_json(const std::vector<GeoPoint>& g) {
-  nlohmann::json a = nlohmann::json::array();
-  for (const auto& p : g) a.push_back({p.lat_deg, p.lon_deg});
-  return a;
-}
-std::vector<GeoPoint> geometry_from_json(const std::string& text) {
-  std::vector<GeoPoint> out;
-  const auto j = nlohmann::json::parse(text, nullptr, false);
-  if (!j.is_array()) return out;
-  for (const auto& p : j) {
-    if (p.is_array() && p.size() == 2 && p[0].is_number() && p[1].is_number()) {
-      out.push_back({p[0].get<double>(), p[1].get<double>(), 0.0});
-    }
-  }
-  return out;
-}
-}  // namespace
-
-std::string_view to_string(LandmarkChangeKind k) {
-  switch (k) {
-    case LandmarkChangeKind::Moved:
-      return "moved";
-    case LandmarkChangeKind::Retired:
-      return "retired";
-    default:
-      return "added";
-  }
-}
-
-std::optional<LandmarkChangeKind> parse_landmark_change_kind(std::string_view s) {
-  if (s == "added") return LandmarkChangeKind::Added;
-  if (s == "moved") return LandmarkChangeKind::Moved;
-  if (s == "retired") return LandmarkChangeKind::Retired;
-  return std::nullopt;
-}
-
 std::int64_t SqliteMapStore::copy_landmarks(std::int64_t from, std::int64_t to,
                                             std::span<const std::int64_t> except_ids) {
   return impl_->write([&](Connection& c) {
@@ -253,8 +216,8 @@ std::vector<LandmarkChange> SqliteMapStore::landmark_changes(std::int64_t versio
       ch.key = s.i64(2);
       ch.previous_key = s.i64(3);
       ch.distance_m = s.f64(4);
-      ch.geometry = geometry_from_json(s.text(5));
-      ch.previous_geometry = geometry_from_json(s.text(6));
+      ch.geometry = geometry_from_json(nlohmann::json::parse(s.text(5), nullptr, false));
+      ch.previous_geometry = geometry_from_json(nlohmann::json::parse(s.text(6), nullptr, false));
       ch.reason = nlohmann::json::parse(s.text(7), nullptr, false);
       if (ch.reason.is_discarded()) ch.reason = nullptr;
       out.push_back(std::move(ch));

@@ -22,32 +22,6 @@ constexpr const char* kSessionColumns =
     "id, owner, length_bytes, offset_bytes, COALESCE(sha256, ''), created_at, expires_at, "
     "file_path";
 
-/// 128 bits from the kernel's CSPRNG as 32 lower-case hex digits.
-std::string random_session_id() {
-  unsigned char bytes[16];
-  std::size_t got = 0;
-  while (got < sizeof bytes) {
-    const ssize_t n = ::getrandom(bytes + got, sizeof bytes - got, 0);
-    if (n < 0 && errno == EINTR) continue;
-    if (n <= 0) throw IoError(std::string("getrandom: ") + std::strerror(errno));
-    got += static_cast<std::size_t>(n);
-  }
-  static constexpr char kHex[] = "0123456789abcdef";
-  std::string id;
-  for (const unsigned char b : bytes) {
-    id.push_back(kHex[b >> 4]);
-    id.push_back(kHex[b & 15]);
-  }
-  return id;
-}
-
-[[noreturn]] void throw_session_file_error(int err, const fs::path& path) {
-  const std::string msg =
-      "cannot create upload session file " + path.string() + ": " + std::strerror(err);
-  if (err == ENOSPC || err == EDQUOT) throw StorageFullError(msg);
-  throw IoError(msg);
-}
-
 UploadSession session_from_row(const fs::path& uploads_dir, Stmt& s) {
   UploadSession u;
   u.id = s.text(0);
@@ -65,16 +39,7 @@ UploadSession session_from_row(const fs::path& uploads_dir, Stmt& s) {
 
 CreateUploadSessionResult SqliteMapStore::create_upload_session(const UploadSessionRequest& r) {
   Impl& I = *impl_;
-  if (r.owner.empty()) throw ValidationError("create_upload_session: owner is empty");
-  if (r.length_bytes == 0 ||
-      r.length_bytes > static_cast<std::uint64_t>(std::numeric_limits<std::int64_t>::max())) {
-    throw ValidationError("create_upload_session: length_bytes must be positive, got " +
-                          std::to_string(r.length_bytes));
-  }
-  if (!r.sha256.empty() && (r.sha256.size() != 64 || !util::is_lower_hex(r.sha256))) {
-    throw ValidationError("create_upload_session: sha256 must be 64 lower-case hex digits");
-  }
-  if (r.ttl_s <= 0) throw ValidationError("create_upload_session: ttl_s must be positive");
+  validate_upload_request(r);
   const std::string now = iso_utc(r.now);
   const std::string expires = iso_utc(r.now + std::chrono::seconds(r.ttl_s));
   const std::string id = random_session_id();
@@ -82,9 +47,7 @@ CreateUploadSessionResult SqliteMapStore::create_upload_session(const UploadSess
 
   // The file first, durable with its directory entry, then the row that names it: a crash
   // in between leaves a file without a row, swept on the owner's next open.
-  const int fd = ::open(file.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0600);
-  if (fd < 0) throw_session_file_error(errno, file);
-  ::close(fd);
+  create_session_file(file);
   util::ScopedTempDir guard(file);  // (a file too) removed unless the row commits
   util::sync_directory(I.uploads_dir);
 

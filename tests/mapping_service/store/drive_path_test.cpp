@@ -1,5 +1,6 @@
-// Drive paths: the trajectory simplified at ingest (Douglas–Peucker, segment distance),
-// packed, and the same from the decimated samples for drives stored before migration 5.
+// Drive paths of SqliteMapStore files stored before migration 5 (no packed path): simplified
+// from the decimated samples on read. Paths simplified at ingest are tested on every backend
+// in store_contract_drives_test.cpp.
 #include <gtest/gtest.h>
 
 #include <fstream>
@@ -52,14 +53,6 @@ void expect_l_path(const std::vector<GeoPoint>& path) {
   for (std::size_t i = 0; i < corners.size(); ++i) {
     EXPECT_LT((f.to_local(path[i]) - corners[i]).norm(), 0.05) << i;
   }
-}
-
-TEST(DrivePath, SimplifiedAtIngestKeepingCornersAndTheTurnBack) {
-  polmap::test::TestDir tmp("drive_path");
-  SqliteMapStore store(tmp.path() / "map.db");
-  put(store, tmp.path(), l_drive("a"));
-  expect_l_path(store.drive_path("a"));
-  EXPECT_THROW((void)store.drive_path("nope"), NotFoundError);
 }
 
 TEST(DrivePath, DrivesStoredBeforeThePathColumnAreSimplifiedOnRead) {

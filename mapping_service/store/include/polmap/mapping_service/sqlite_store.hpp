@@ -36,6 +36,7 @@
 #include <vector>
 
 #include "polmap/mapping_service/store.hpp"
+#include "polmap/mapping_service/store_migrations.hpp"
 
 namespace polmap::mapping {
 
@@ -67,18 +68,10 @@ struct ArchiveMigrationReport {
   std::vector<std::string> quarantined;  ///< "DRIVE_ID: reason", one per removed drive
 };
 
-/// One migration of the store schema (schema/store.sql holds them all).
-struct StoreMigration {
-  int version;
-  std::string_view name;
-  std::string_view sql;
-};
 /// The migrations this build applies, ascending: schema/store.sql, embedded at build
-/// time, cut at its section headers ("-- bootstrap ...", "-- migration N: name").
+/// time, cut at its section headers ("-- bootstrap ...", "-- migration N: name") by
+/// parse_store_migrations (store_migrations.hpp).
 const std::vector<StoreMigration>& sqlite_store_migrations();
-/// Cuts a store.sql text into its sections (the views point into `sql`). Throws
-/// FormatError for a missing bootstrap, an empty section, or versions out of order.
-[[nodiscard]] std::vector<StoreMigration> parse_store_migrations(std::string_view sql);
 
 class SqliteMapStore final : public MapStore {
  public:

@@ -3,7 +3,8 @@
 /// The mapping service's storage interface: drives (ingested packages and
 /// their landmark candidates), map versions with their landmarks, and the
 /// tiles served to vehicles. SqliteMapStore (sqlite_store.hpp) is the embedded
-/// default; a PostgreSQL/PostGIS adapter can follow (see the note at the end).
+/// default; PostgresMapStore (postgres_store.hpp) the PostgreSQL/PostGIS backend that
+/// several replicas share; open_map_store (open_store.hpp) picks one from a --db string.
 ///
 /// Usage (HTTP server, CLI):
 ///   SqliteMapStore store("/var/lib/polmap/map.db");
@@ -446,24 +447,22 @@ class MapStore {
   [[nodiscard]] virtual StoreStats stats() const = 0;
 };
 
-// PostgreSQL/PostGIS adapter (the scale-out store; not implemented). The same
-// interface maps 1:1 onto the tables of schema/store.sql:
-//  - geometry columns become PostGIS `geometry(Point|LineString, 4326)` with
-//    GiST indexes instead of the SQLite R*Tree side tables (candidates_rtree,
-//    landmarks_rtree, drives_rtree); region queries use `geom && ST_MakeEnvelope(...)`;
-//  - JSON columns become `jsonb`; blobs `bytea`; ISO timestamps `timestamptz`;
-//  - put_drive: package files go to shared storage (object store or NFS) under
-//    the content hash, rows in one transaction; idempotency by the UNIQUE
-//    constraint on content_hash (INSERT ... ON CONFLICT DO NOTHING RETURNING);
-//  - publish_map_version: one transaction `UPDATE map_versions SET status =
-//    'published' ...; UPDATE current_map ...` (READ COMMITTED suffices:
-//    readers read the pointer, then a published, immutable version);
-//  - partitioned builds: a `build_jobs(region, status, claimed_by)` table,
-//    claimed with `SELECT ... FOR UPDATE SKIP LOCKED`; each job writes its
-//    region's tiles into the Building version, the last one publishes;
-//  - connections from a pool (libpq, one per thread), as SqliteMapStore does;
-//  - upload sessions: the same table; their files on the shared storage of the packages;
-//    advance_upload_offset is `UPDATE ... SET offset_bytes = to WHERE id = ? AND
-//    offset_bytes = from`, the quota check and insert one SERIALIZABLE transaction.
+// PostgreSQL/PostGIS backend (PostgresMapStore, postgres_store.hpp; docs/postgresql.md). The
+// interface maps 1:1 onto the tables of schema/store.sql, in schema/store_postgres.sql:
+//  - geometry columns are PostGIS `geometry` (SRID 4326: Point / LineString for candidates
+//    and landmarks, the bounding-box Polygon for drives) with GiST indexes instead of the
+//    SQLite R*Tree side tables; region queries use `geom && ST_MakeEnvelope(...)`, then the
+//    same exact filter as SQLite's;
+//  - JSON columns are `jsonb`, blobs `bytea`, times the same ISO 8601 text;
+//  - put_drive: package files in a package directory every replica shares, under the content
+//    hash, rows in one transaction; idempotency by the UNIQUE constraint on content_hash
+//    (INSERT ... ON CONFLICT DO NOTHING RETURNING);
+//  - writes serialized by one transaction-level advisory lock (ids as SQLite's; the upload
+//    quota check and insert under it); readers in REPEATABLE READ READ ONLY snapshots;
+//  - connections from a pool (libpq, one per thread in use);
+//  - upload sessions: the same table; their files under <package_dir>/uploads.
+// Not yet: partitioned builds (a `build_jobs(region, status, claimed_by)` table claimed with
+// `SELECT ... FOR UPDATE SKIP LOCKED`; each job writes its region's tiles into the Building
+// version, the last one publishes).
 
 }  // namespace polmap::mapping

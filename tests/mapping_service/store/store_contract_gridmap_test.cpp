@@ -1,14 +1,15 @@
-// The merged gridmap's sum tiles in SqliteMapStore: a commit writes tiles and records the
-// input (with its cover) atomically, a drive cannot be added twice, range and
-// "changed since" queries return exactly the matching tiles, and removing an input takes
-// its cover with it while its tiles stay as written.
+// The store contract, the merged gridmap's sum tiles, on every backend (store_backends.hpp):
+// a commit writes tiles and records the input (with its cover) atomically, a drive cannot be
+// added twice, range and "changed since" queries return exactly the matching tiles, and
+// removing an input takes its cover with it while its tiles stay as written.
 #include <gtest/gtest.h>
 
-#include "polmap/mapping_service/sqlite_store.hpp"
-#include "test_dir.hpp"
+#include "mapping_service/store/store_backends.hpp"
 
-namespace polmap::mapping {
+namespace polmap::mapping::testing {
 namespace {
+
+using StoreGridmapSums = StoreContract;
 
 GridmapSumRow row(int level, int x, int y, std::string data) {
   return {level, x, y, std::move(data), 0};
@@ -22,11 +23,10 @@ GridmapSumInputChange add(std::string hash, std::vector<std::array<int, 3>> cove
   return c;
 }
 
-TEST(GridmapSumsStore, CommitWritesTilesAndRecordsTheInputWithItsCover) {
-  polmap::test::TestDir tmp("gridmap_sums_store");
-  SqliteMapStore store(tmp.path() / "map.db");
+TEST_P(StoreGridmapSums, CommitWritesTilesAndRecordsTheInputWithItsCover) {
+  MapStore& store = this->store();
   const std::vector<GridmapSumRow> tiles{row(0, 10, 20, "t1"), row(0, 11, 20, "t2"),
-                                         row(3, 10, 20, "t3")};
+                                         row(3, 10, 20, std::string("t3\0bytes", 8))};
   store.commit_gridmap_sums(5, tiles, add("h1", {{0, 10, 20}, {0, 11, 20}, {3, 10, 20}}));
   const auto inputs = store.gridmap_sum_inputs();
   ASSERT_EQ(inputs.size(), 1U);
@@ -42,13 +42,13 @@ TEST(GridmapSumsStore, CommitWritesTilesAndRecordsTheInputWithItsCover) {
   EXPECT_EQ(in[0].data, "t1");
   EXPECT_EQ(in[0].updated_by, 5);
   EXPECT_EQ(in[1].level, 3);
+  EXPECT_EQ(in[1].data, std::string("t3\0bytes", 8));  // bytes, not text
   EXPECT_EQ(store.gridmap_sums_in(0, 0, 9, 100).size(), 0U);
   EXPECT_EQ(store.gridmap_sums_in(10, 20, 11, 21).size(), 3U);
 }
 
-TEST(GridmapSumsStore, AddingADriveTwiceIsAConflictAndWritesNothing) {
-  polmap::test::TestDir tmp("gridmap_sums_store");
-  SqliteMapStore store(tmp.path() / "map.db");
+TEST_P(StoreGridmapSums, AddingADriveTwiceIsAConflictAndWritesNothing) {
+  MapStore& store = this->store();
   const std::vector<GridmapSumRow> first{row(0, 1, 1, "one")};
   store.commit_gridmap_sums(1, first, add("h", {{0, 1, 1}}));
   const std::vector<GridmapSumRow> again{row(0, 1, 1, "twice")};
@@ -59,9 +59,8 @@ TEST(GridmapSumsStore, AddingADriveTwiceIsAConflictAndWritesNothing) {
   EXPECT_THROW(store.commit_gridmap_sums(2, again, nameless), ValidationError);
 }
 
-TEST(GridmapSumsStore, KeysChangedAfterAVersionAndRemovalOfAnInput) {
-  polmap::test::TestDir tmp("gridmap_sums_store");
-  SqliteMapStore store(tmp.path() / "map.db");
+TEST_P(StoreGridmapSums, KeysChangedAfterAVersionAndRemovalOfAnInput) {
+  MapStore& store = this->store();
   const std::vector<GridmapSumRow> a{row(0, 1, 1, "a1"), row(0, 2, 1, "a2")};
   store.commit_gridmap_sums(3, a, add("ha", {{0, 1, 1}, {0, 2, 1}}));
   const std::vector<GridmapSumRow> b{row(0, 2, 1, "a2+b"), row(0, 3, 1, "b")};
@@ -86,5 +85,7 @@ TEST(GridmapSumsStore, KeysChangedAfterAVersionAndRemovalOfAnInput) {
   EXPECT_EQ(store.gridmap_sum_keys(7).size(), 2U);  // both rewritten by version 9
 }
 
+POLMAP_STORE_CONTRACT_BACKENDS(StoreGridmapSums);
+
 }  // namespace
-}  // namespace polmap::mapping
+}  // namespace polmap::mapping::testing

@@ -1,0 +1,81 @@
+#pragma once
+// What the store backends (SQLite, PostgreSQL) share: ISO times, box tests, the drive's
+// derived data (manifest JSON, decimated trajectory, packed path), package staging with
+// "no space" detection, landmark-change geometry JSON and upload session ids. Internal to
+// polmap_store; every backend computes these the same way, so both return identical
+// results for the same calls.
+#include <chrono>
+#include <cstdint>
+#include <filesystem>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <string_view>
+#include <system_error>
+#include <vector>
+
+#include "polmap/mapping_service/store.hpp"
+
+namespace polmap::mapping::store_detail {
+
+/// Trajectory decimation for drive_trajectories: a sample is kept when it is
+/// this far from the last kept one (or kTrajectoryMaxGapS later).
+inline constexpr double kTrajectorySpacingM = 1.0;
+inline constexpr double kTrajectoryMaxGapS = 5.0;
+
+/// UTC now as ISO 8601 ("2024-05-01T12:00:00Z").
+std::string now_iso();
+/// A time point as ISO 8601 UTC, whole seconds (truncated).
+std::string iso_utc(std::chrono::system_clock::time_point t);
+/// Splits an antimeridian-crossing box into two ordinary ones.
+std::vector<GeoBox> split_box(const GeoBox& b);
+bool box_contains(const GeoBox& b, double lat, double lon);
+bool box_intersects(const GeoBox& b, double lat0, double lon0, double lat1, double lon1);
+nlohmann::json manifest_json(const DriveManifest& m);
+/// Bytes of a file, or of all regular files below a directory.
+std::int64_t dir_bytes(const std::filesystem::path& p);
+/// The table of a tile layer (the same names in every backend's schema).
+const char* tile_table(TileLayer layer);
+MapVersionStatus parse_status(const std::string& s);
+
+/// Geodetic coordinates of a package's candidates and the bounding box of candidates and
+/// trajectory (the manifest origin when there is neither).
+struct PackageGeo {
+  std::vector<GeoPoint> points;
+  std::vector<std::pair<GeoPoint, GeoPoint>> lines;
+  GeoBox bbox;
+};
+PackageGeo package_geo(const DrivePackage& package);
+
+/// Douglas–Peucker to kDrivePathToleranceM in windows of 1024 edges.
+std::vector<GeoPoint> simplify_path(const std::vector<GeoPoint>& pl);
+/// The trajectory's positions simplified to kDrivePathToleranceM, packed as little-endian
+/// float64 (lat, lon) pairs (drive_trajectories.path_blob).
+std::string packed_path(const std::vector<TrajectorySample>& trajectory);
+std::vector<GeoPoint> unpack_path(std::string_view blob);
+/// drive_trajectories.samples_json: [[time_s, lat_deg, lon_deg, yaw_enu_rad, speed_mps], ...]
+nlohmann::json decimated_trajectory_json(const std::vector<TrajectorySample>& trajectory);
+/// samples_json back to samples.
+std::vector<TrajectorySample> trajectory_from_json(const nlohmann::json& samples);
+/// The path from samples_json (drives stored before paths were kept).
+std::vector<GeoPoint> path_from_samples_json(const nlohmann::json& samples);
+
+/// True if a file system error means "no space" (ENOSPC, EDQUOT).
+bool no_space(const std::error_code& ec);
+/// Puts the package's files into `dir` (existing): a package directory's regular files are
+/// copied (read/write, so a full disk is told as StorageFullError), an archive is unpacked by
+/// our ustar reader. Then syncs them. Throws StorageFullError, IoError, FormatError.
+void stage_package_files(const std::filesystem::path& package_location,
+                         const std::filesystem::path& dir);
+
+/// Landmark change geometry as [[lat, lon], ...] and back (malformed entries skipped).
+nlohmann::json geometry_json(const std::vector<GeoPoint>& g);
+std::vector<GeoPoint> geometry_from_json(const nlohmann::json& j);
+
+/// 128 bits from the kernel's CSPRNG as 32 lower-case hex digits.
+std::string random_session_id();
+/// Creates the empty session file (O_EXCL, mode 0600). StorageFullError on ENOSPC/EDQUOT.
+void create_session_file(const std::filesystem::path& path);
+/// The checks of create_upload_session shared by the backends (ValidationError).
+void validate_upload_request(const UploadSessionRequest& r);
+
+}  // namespace polmap::mapping::store_detail

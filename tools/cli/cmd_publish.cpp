@@ -14,8 +14,8 @@
 
 #include "command.hpp"
 #include "map_db.hpp"
+#include "polmap/mapping_service/open_store.hpp"
 #include "polmap/mapping_service/publish.hpp"
-#include "polmap/mapping_service/sqlite_store.hpp"
 #include "polmap/schema/errors.hpp"
 #include "polmap/util/ed25519.hpp"
 #include "polmap/util/file.hpp"
@@ -50,7 +50,8 @@ void run_publish(const PublishArgs& a) {
     throw ValidationError("--key: a directory publication is signed (make a key: polmap keygen)");
   }
   require_map_db(a.db);
-  mapping::SqliteMapStore store(a.db);
+  const auto opened = mapping::open_map_store(a.db);
+  mapping::MapStore& store = *opened;
   const std::int64_t version = map_version_or_current(store, a.db, a.version);
   Progress progress("publishing map version " + std::to_string(version), 1.0);
   o.progress = [&](const std::string& stage, double f) { progress.update(f, stage); };
@@ -85,7 +86,7 @@ void setup(CLI::App& app) {
   auto a = std::make_shared<PublishArgs>();
   CLI::App* cmd = app.add_subcommand(
       "publish", "Write a map version as a static signed tile set (dir) or MBTiles");
-  cmd->add_option("--db", a->db, "Map store database (SQLite)")->required();
+  cmd->add_option("--db", a->db, "Map store: SQLite file or postgresql:// URL")->required();
   cmd->add_option("--out", a->out, "Publication root directory, or the .mbtiles file")->required();
   cmd->add_option("--format", a->format, "dir | mbtiles (default dir)");
   cmd->add_option("--version", a->version, "Published map version (default: current)")

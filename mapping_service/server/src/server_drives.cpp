@@ -160,14 +160,15 @@ int Server::Impl::ingest_package(const std::string& bytes, const std::string& ha
                                  const ApiKey& key, const std::filesystem::path& scratch_dir,
                                  httplib::Response& res) {
   const std::uint64_t received = bytes.size();
-  if (auto existing = store.find_drive_by_hash(hash)) {
+  auto already_present = [&](const DriveRecord& existing) {
     metrics.upload("already_present", received);
-    nlohmann::json j = drive_to_json(*existing, false);
+    nlohmann::json j = drive_to_json(existing, false);
     j["status"] = "already_present";
-    res.set_header("Location", "/v1/drives/" + existing->drive_id);
+    res.set_header("Location", "/v1/drives/" + existing.drive_id);
     reply_json(res, 200, j);
     return 200;
-  }
+  };
+  if (auto existing = store.find_drive_by_hash(hash)) return already_present(*existing);
   // One parser, one canonical copy: the bytes validated here are unpacked by the same ustar
   // reader into member files, and only those are stored; GDAL never sees the archive.
   auto pkg = try_validate_package_bytes(bytes);
@@ -193,6 +194,9 @@ int Server::Impl::ingest_package(const std::string& bytes, const std::string& ha
     const util::ScopedTempDir members = write_members(bytes, scratch_dir);
     put = store.put_drive(*pkg, members.path(), hash);
   } catch (const ConflictError& e) {
+    // Another replica of the same store may have stored these very bytes meanwhile: then
+    // the upload is a repeat, not a conflict.
+    if (auto existing = store.find_drive_by_hash(hash)) return already_present(*existing);
     metrics.upload("conflict", received);
     reply_error(res, 409, e.what(), "drive_id");
     return 409;

@@ -61,8 +61,10 @@ const std::string& scene_tar(const std::string& drive_id, unsigned seed) {
   auto it = cache.find(drive_id);
   if (it == cache.end()) {
     const util::ScopedTempDir base(polmap::test::unique_test_dir("replica-pkgs"));
-    it = cache.emplace(drive_id, pack_drive_package(write_scene_package(base.path(), drive_id, seed)))
-             .first;
+    it =
+        cache
+            .emplace(drive_id, pack_drive_package(write_scene_package(base.path(), drive_id, seed)))
+            .first;
   }
   return it->second;
 }
@@ -96,12 +98,12 @@ TEST(Replicas, TwoServersOnOnePostgresStoreAnswerAlike) {
   // Two more drives, one through each.
   auto ca = a.client();
   auto cb = b.client();
-  ASSERT_EQ(ca.Post("/v1/drives", auth(), scene_tar("replica_drive_1", 22), "application/x-tar")
-                ->status,
-            201);
-  ASSERT_EQ(cb.Post("/v1/drives", auth(), scene_tar("replica_drive_2", 23), "application/x-tar")
-                ->status,
-            201);
+  ASSERT_EQ(
+      ca.Post("/v1/drives", auth(), scene_tar("replica_drive_1", 22), "application/x-tar")->status,
+      201);
+  ASSERT_EQ(
+      cb.Post("/v1/drives", auth(), scene_tar("replica_drive_2", 23), "application/x-tar")->status,
+      201);
   EXPECT_EQ(b.store().list_drives().size(), 3U);
 
   // A map built through A: served by B within a second of its publication.
@@ -135,8 +137,7 @@ TEST(Replicas, TwoServersOnOnePostgresStoreAnswerAlike) {
   httplib::Headers host{{"Host", "maps.example"}};
   for (const auto& t : tiles_listed) {
     for (const std::string& path :
-         {"/v1/tiles/" + tiles::to_string(t.key),
-          "/v1/mvt/" + tiles::to_string(t.key) + ".mvt"}) {
+         {"/v1/tiles/" + tiles::to_string(t.key), "/v1/mvt/" + tiles::to_string(t.key) + ".mvt"}) {
       const auto ra = ca.Get(path, host);
       const auto rb = cb.Get(path, host);
       ASSERT_TRUE(ra && rb);

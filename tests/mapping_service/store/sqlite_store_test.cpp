@@ -14,6 +14,7 @@
 #include <thread>
 
 #include "mapping_service/package_fixture.hpp"
+#include "mapping_service/store/contract_packages.hpp"
 #include "mapping_service/store/exec_sql.hpp"
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/mapping_service/ustar.hpp"
@@ -29,49 +30,8 @@ struct TempDir : polmap::test::TestDir {
   TempDir() : TestDir("store") {}
 };
 
-const GeoPoint kOrigin{48.7758, 9.1829, 250.0};  // Stuttgart
-
-/// A synthetic validated package: n points and m lines scattered in a
-/// `extent_m` square around the drive origin, plus a short trajectory.
-DrivePackage make_package(const std::string& drive_id, int n_points, int n_lines, unsigned seed,
-                          double extent_m = 200.0, GeoPoint origin = kOrigin) {
-  DrivePackage p;
-  p.manifest.drive_id = drive_id;
-  p.manifest.vehicle_id = "veh-1";
-  p.manifest.start_time_s = 10.0;
-  p.manifest.end_time_s = 70.0;
-  p.manifest.origin = origin;
-  p.manifest.pol_level = PolLevel::DualLLLR;
-  p.manifest.distance_m = 500.0;
-  std::mt19937 rng(seed);
-  std::uniform_real_distribution<double> u(-extent_m / 2, extent_m / 2);
-  for (int i = 0; i < n_points; ++i) {
-    PointCandidate c;
-    c.position_m = {u(rng), u(rng)};
-    c.strength = 3.0 + i;
-    c.power_db = -10.0;
-    c.scattering = static_cast<ScatteringClass>(i % 4);
-    c.num_cells = 5;
-    p.points.push_back(c);
-  }
-  for (int i = 0; i < n_lines; ++i) {
-    LineCandidate l;
-    l.start_m = {u(rng), u(rng)};
-    l.end_m = l.start_m + Eigen::Vector2d(u(rng) / 10, u(rng) / 10);
-    l.strength = 0.5;
-    p.lines.push_back(l);
-  }
-  const tiles::LocalFrame frame(origin);
-  for (int i = 0; i < 10; ++i) {
-    const GeoPoint g = frame.to_geo(Eigen::Vector2d(10.0 * i, 0.0));
-    TrajectorySample t;
-    t.time_s = 10.0 + i;
-    t.lat_deg = g.lat_deg;
-    t.lon_deg = g.lon_deg;
-    p.trajectory.push_back(t);
-  }
-  return p;
-}
+using testing::kOrigin;
+using testing::make_package;
 
 /// Writes a package-shaped ustar archive (the three members; `content` as manifest.json,
 /// the store does not validate) and returns (path, content hash).

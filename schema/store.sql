@@ -294,3 +294,23 @@ CREATE TABLE gridmap_sum_cover (
   PRIMARY KEY (content_hash, level, x, y)
 ) WITHOUT ROWID;
 CREATE INDEX gridmap_sum_cover_tile ON gridmap_sum_cover(level, x, y);
+
+-- migration 8: partitioned map builds: jobs claimed by build workers under a lease
+-- (one per region, one for the merged gridmap, one to publish; schema/build_jobs.md)
+CREATE TABLE build_jobs (
+  job_id      INTEGER PRIMARY KEY,
+  version     INTEGER NOT NULL REFERENCES map_versions(version) ON DELETE CASCADE,
+  kind        TEXT NOT NULL CHECK (kind IN ('region', 'gridmap', 'publish')),
+  z           INTEGER NOT NULL,
+  x           INTEGER NOT NULL,
+  y           INTEGER NOT NULL,
+  spec_json   TEXT NOT NULL,
+  state       TEXT NOT NULL CHECK (state IN ('pending', 'running', 'done', 'failed')),
+  attempt     INTEGER NOT NULL DEFAULT 0,
+  worker      TEXT NOT NULL DEFAULT '',
+  lease_until REAL NOT NULL DEFAULT 0,
+  result_json TEXT,
+  error       TEXT NOT NULL DEFAULT ''
+);
+CREATE INDEX build_jobs_claim ON build_jobs(state, job_id);
+CREATE INDEX build_jobs_version ON build_jobs(version, kind, state);

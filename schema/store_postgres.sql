@@ -243,3 +243,24 @@ CREATE TABLE gridmap_sum_cover (
   PRIMARY KEY (content_hash, level, x, y)
 );
 CREATE INDEX gridmap_sum_cover_tile ON gridmap_sum_cover(level, x, y);
+
+-- migration 2: partitioned map builds (store.sql migration 8)
+-- lease_until is seconds since the epoch on the database server's clock, so workers on
+-- several hosts agree.
+CREATE TABLE build_jobs (
+  job_id      bigint PRIMARY KEY,
+  version     bigint NOT NULL REFERENCES map_versions(version) ON DELETE CASCADE,
+  kind        text NOT NULL CHECK (kind IN ('region', 'gridmap', 'publish')),
+  z           integer NOT NULL,
+  x           integer NOT NULL,
+  y           integer NOT NULL,
+  spec_json   jsonb NOT NULL,
+  state       text NOT NULL CHECK (state IN ('pending', 'running', 'done', 'failed')),
+  attempt     integer NOT NULL DEFAULT 0,
+  worker      text NOT NULL DEFAULT '',
+  lease_until double precision NOT NULL DEFAULT 0,
+  result_json jsonb,
+  error       text NOT NULL DEFAULT ''
+);
+CREATE INDEX build_jobs_claim ON build_jobs(state, job_id);
+CREATE INDEX build_jobs_version ON build_jobs(version, kind, state);

@@ -16,6 +16,7 @@
 #include "command.hpp"
 #include "polmap/eval/serve_until_signal.hpp"
 #include "polmap/mapping_service/open_store.hpp"
+#include "polmap/mapping_service/postgres_store.hpp"
 #include "polmap/mapping_service/server.hpp"
 #include "polmap/mapping_service/sqlite_store.hpp"
 #include "polmap/schema/errors.hpp"
@@ -27,6 +28,9 @@ namespace {
 struct ServeOptions {
   std::string db;
   std::string package_dir;
+  int build_partition_zoom = 0;
+  double build_partition_halo_m = 120.0;
+  bool no_build_jobs = false;
   std::string listen = "127.0.0.1:8080";
   std::string api_key_file;
   double max_upload_mib = 512;
@@ -88,6 +92,9 @@ void run(const ServeOptions& o) {
   cfg.tls_cert_file = o.tls_cert;
   cfg.tls_key_file = o.tls_key;
   cfg.log_requests = !o.quiet;
+  cfg.build_partition_zoom = o.build_partition_zoom;
+  cfg.build_partition_halo_m = o.build_partition_halo_m;
+  cfg.run_build_jobs = !o.no_build_jobs;
 
   // Block the stop signals in every thread (the server's threads inherit this mask);
   // one thread waits for them and stops the server.
@@ -112,6 +119,11 @@ void run(const ServeOptions& o) {
                    "kept in quarantine/: %s\n",
                    util::escape_for_log(q, 1024).c_str());
     }
+  }
+  // Replicas share a PostgreSQL store: its sweep fails only builds whose process is gone;
+  // failing every Building version here would fail another replica's running build.
+  if (dynamic_cast<const mapping::PostgresMapStore*>(opened.get()) != nullptr) {
+    cfg.fail_stale_builds_on_start = false;
   }
   mapping::Server server(store, cfg);
   eval::listen_until_signal(server, signals, host, port, [](int sig) {
@@ -182,6 +194,14 @@ void setup(CLI::App& app) {
   cert->needs(key);
   key->needs(cert);
   cmd->add_flag("--quiet", opts->quiet, "No per-request log lines");
+  cmd->add_option("--build-partition-zoom", opts->build_partition_zoom,
+                  "Partition map builds into jobs by regions of this zoom (e.g. 14), run by "
+                  "this server and any `polmap build-worker`; 0: one-process builds")
+      ->check(CLI::Range(0, 16));
+  cmd->add_option("--build-partition-halo-m", opts->build_partition_halo_m,
+                  "Partitioned builds: candidates this far outside a region take part (m)");
+  cmd->add_flag("--no-build-jobs", opts->no_build_jobs,
+                "Partitioned builds: leave every job to `polmap build-worker` processes");
   cmd->callback([opts] { run(*opts); });
 }
 

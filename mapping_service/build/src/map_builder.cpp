@@ -12,6 +12,7 @@
 #include <set>
 #include <unordered_map>
 
+#include "build_steps.hpp"
 #include "gridmap_build.hpp"
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/mapping_service/landmark_diff.hpp"
@@ -19,7 +20,7 @@
 #include "polmap/tiles/local_frame.hpp"
 
 namespace polmap::mapping {
-namespace {
+namespace detail {
 
 struct Cancelled {};
 
@@ -86,6 +87,11 @@ nlohmann::json request_json(const MapBuildRequest& r, const MapBuilderConfig& c)
                      {"max_view_range_m", r.visibility.max_view_range_m},
                      {"range_quantile", r.visibility.range_quantile},
                      {"range_margin", r.visibility.range_margin}};
+  if (r.partition) {  // absent otherwise: versions from before partitions compare equal
+    j["partition"] = {{"zoom", r.partition->zoom},
+                      {"halo_m", r.partition->halo_m},
+                      {"min_line_piece_m", r.partition->min_line_piece_m}};
+  }
   j["tile_zoom"] = c.tile_zoom;
   j["tile_quantum_m"] = c.encode.quantum_m;
   return j;
@@ -108,7 +114,8 @@ std::set<tiles::TileKey> tiles_of_polyline(const std::vector<GeoPoint>& pl,
   return out;
 }
 
-}  // namespace
+}  // namespace detail
+using namespace detail;  // NOLINT: this target's own build steps
 
 double quantize_deg(double deg) { return std::round(deg * 1e8) / 1e8; }
 
@@ -195,7 +202,7 @@ nlohmann::json to_json(const MapBuildStats& s) {
   return j;
 }
 
-namespace {
+namespace detail {
 
 /// Centre of the build's frame: the region's centre, or that of the candidates' extent.
 GeoPoint region_centre(const std::optional<tiles::GeoBox>& region, const CandidateSet& cands) {
@@ -529,14 +536,14 @@ std::map<tiles::TileKey, tiles::LocalizationTile> localization_tile_content(
   return content;
 }
 
-}  // namespace
+}  // namespace detail
 
 MapBuilder::MapBuilder(MapBuilderConfig cfg) : cfg_(std::move(cfg)) {
   POLMAP_EXPECT(cfg_.tile_zoom >= 0 && cfg_.tile_zoom <= tiles::kMaxZoom);
   POLMAP_EXPECT(cfg_.write_batch > 0 && cfg_.line_tile_sample_m > 0.0);
 }
 
-namespace {
+namespace detail {
 
 /// The merged gridmap stage: brings the store's sum tiles up to date with its drives, then
 /// renders the version's raster tiles (amplitude, mechanism) from them, one min-zoom region
@@ -665,7 +672,7 @@ nlohmann::json build_gridmap(MapStore& store, std::int64_t version, const MapBui
   return info;
 }
 
-}  // namespace
+}  // namespace detail
 
 std::int64_t MapBuilder::begin(MapStore& store, const MapBuildRequest& request) const {
   for (const auto& id : request.excluded_drive_ids) {
@@ -674,6 +681,21 @@ std::int64_t MapBuilder::begin(MapStore& store, const MapBuildRequest& request) 
   }
   if (request.region && (request.region->min_lat_deg > request.region->max_lat_deg)) {
     throw ValidationError("region: min_lat_deg > max_lat_deg");
+  }
+  if (const auto& p = request.partition) {
+    const double margin_m =
+        2.0 * std::max(request.points.max_pair_distance_m,
+                       request.lines.max_projection_distance_m + request.lines.max_hull_distance_m);
+    if (p->zoom < 0 || p->zoom > cfg_.tile_zoom) {
+      throw ValidationError("partition.zoom: must be in [0, " + std::to_string(cfg_.tile_zoom) +
+                            "] (the localization tile zoom)");
+    }
+    if (!(p->halo_m >= std::max(margin_m, request.visibility.max_view_range_m))) {
+      throw ValidationError(
+          "partition.halo_m: must cover the consensus margin and the view range (" +
+          std::to_string(std::max(margin_m, request.visibility.max_view_range_m)) + " m)");
+    }
+    if (request.region) throw ValidationError("partition: not with a region (a region is one job)");
   }
   return store.begin_map_version(request_json(request, cfg_));
 }
@@ -686,6 +708,7 @@ MapBuildResult MapBuilder::build(MapStore& store, const MapBuildRequest& request
 
 MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version, const MapBuildRequest& req,
                                const BuildControl& ctl) const {
+  if (req.partition) return detail::run_partitioned(store, version, req, cfg_, ctl);
   MapBuildResult result;
   result.version = version;
   MapBuildStats& st = result.stats;

@@ -140,7 +140,14 @@ Server::Impl::Impl(MapStore& s, ServerConfig config)
   if (cfg.fail_stale_builds_on_start) {
     try {
       for (const MapVersionInfo& v : store.list_map_versions()) {
-        if (v.status == MapVersionStatus::Building) {
+        if (v.status != MapVersionStatus::Building) continue;
+        const auto jobs = store.build_jobs(v.version);
+        if (std::any_of(jobs.begin(), jobs.end(), [](const mapping::BuildJob& j) {
+              return j.state == BuildJobState::Pending || j.state == BuildJobState::Running;
+            })) {
+          continue;  // queued for build workers
+        }
+        {
           store.fail_map_version(v.version, "interrupted: the server stopped during the build");
           log("warn", "map version " + std::to_string(v.version) +
                           " was left building by a previous run; marked failed");

@@ -17,6 +17,12 @@ MapBuildRequest to_request(const nlohmann::json& j) {
     r.excluded_drive_ids = j["exclude_drives"].get<std::vector<std::string>>();
   }
   if (j.contains("notes")) r.notes = j["notes"].get<std::string>();
+  if (j.contains("partition")) {  // from the server's configuration, not from the client
+    BuildPartition p;
+    p.zoom = j["partition"].at("zoom").get<int>();
+    p.halo_m = j["partition"].at("halo_m").get<double>();
+    r.partition = p;
+  }
   return r;
 }
 
@@ -32,9 +38,10 @@ std::int64_t begin_build(MapStore& store, const nlohmann::json& request) {
 }
 
 nlohmann::json execute_build(MapStore& store, std::int64_t version, const nlohmann::json& request,
-                             const std::atomic<bool>& stop) {
+                             const std::atomic<bool>& stop, bool run_jobs) {
   BuildControl control;
   control.cancel = &stop;
+  control.run_jobs = run_jobs;
   const MapBuildResult r = builder().run(store, version, to_request(request), control);
   if (r.status != MapBuildResult::Status::Published) {
     const std::string status(to_string(r.status));

@@ -15,7 +15,9 @@ std::int64_t begin_build(MapStore& store, const nlohmann::json& request);
 
 /// Runs the build of a version created by begin_build: consensus, tiles, publish.
 /// Returns the build statistics; throws on failure (the caller fails the version).
+/// A partitioned build ({"partition": {"zoom", "halo_m"}} in the request) runs its jobs
+/// here when run_jobs, else waits for `polmap build-worker` processes to run them.
 nlohmann::json execute_build(MapStore& store, std::int64_t version, const nlohmann::json& request,
-                             const std::atomic<bool>& stop);
+                             const std::atomic<bool>& stop, bool run_jobs);
 
 }  // namespace polmap::mapping

@@ -138,7 +138,8 @@ void Server::Impl::run_build(const BuildJob& job) {
   const auto t0 = std::chrono::steady_clock::now();
   log("info", "map build " + std::to_string(job.version) + " started");
   try {
-    const nlohmann::json stats = execute_build(store, job.version, job.request, stopping);
+    const nlohmann::json stats =
+        execute_build(store, job.version, job.request, stopping, cfg.run_build_jobs);
     invalidate_current_version();
     cache.clear();  // current-version entries may now be stale (versioned keys stay valid)
     metrics.build_finished("published");
@@ -242,6 +243,10 @@ void Server::Impl::register_map_routes() {
       }
     } catch (const JsonRequestError& e) {
       return reply_error(res, 422, e.message, e.field);
+    }
+    if (cfg.build_partition_zoom > 0) {
+      request["partition"] = {{"zoom", cfg.build_partition_zoom},
+                              {"halo_m", cfg.build_partition_halo_m}};
     }
     if (stopping) return reply_error(res, 503, "the server is stopping");
     {

@@ -155,8 +155,10 @@ void PostgresMapStore::Impl::sweep_orphans() {
               std::chrono::seconds(static_cast<std::int64_t>(std::ceil(opt.orphan_grace_s))));
   write([&](Connection& c) {
     const Result r = c.run(
-        "SELECT version FROM map_versions WHERE status = 'building' AND created_at <= $1 "
-        "ORDER BY version",
+        "SELECT version FROM map_versions v WHERE status = 'building' AND created_at <= $1 "
+        // A partitioned build with jobs left is queued for build workers, not interrupted.
+        "AND NOT EXISTS (SELECT 1 FROM build_jobs j WHERE j.version = v.version AND j.state "
+        "IN ('pending', 'running')) ORDER BY version",
         cutoff);
     bool any = false;
     for (int i = 0; i < r.rows(); ++i) {

@@ -110,6 +110,17 @@ struct PostgresMapStore::Impl {
     }
   }
 
+  /// Runs fn(conn) in a read-write transaction without the store's write lock (for row
+  /// locks that must not queue behind a long write: claiming build jobs).
+  template <typename F>
+  auto transact(F&& fn) {
+    Lease c = lease();
+    pg::Transaction tx(*c);
+    auto r = fn(*c);
+    tx.commit();
+    return r;
+  }
+
   /// Runs fn(conn) in a read-only transaction (one consistent snapshot).
   template <typename F>
   auto read(F&& fn) const {
@@ -137,6 +148,17 @@ struct PostgresMapStore::Impl {
   void lock_build(std::int64_t version);
   void unlock_build(std::int64_t version);
 
+  // Writes inside a transaction the caller holds (the public methods wrap each in one;
+  // complete_build_job puts a job's whole output in one).
+  static void put_landmarks_tx(Connection& c, std::int64_t version,
+                               std::span<const StoredPointLandmark> points,
+                               std::span<const StoredLineLandmark> lines);
+  static void put_landmark_changes_tx(Connection& c, std::int64_t version,
+                                      std::span<const LandmarkChange> changes);
+  static void put_tiles_tx(Connection& c, std::int64_t version, TileLayer layer,
+                           std::span<const TileWrite> tiles_in);
+  static BuildJob build_job_from_row(const Result& r, int i);
+
   static void drop_failed_content(Connection& c) {
     c.exec(
         "DELETE FROM landmarks WHERE version IN (SELECT version FROM map_versions WHERE status = "
@@ -148,7 +170,10 @@ struct PostgresMapStore::Impl {
         "DELETE FROM landmark_changes WHERE version IN (SELECT version FROM map_versions WHERE "
         "status = 'failed'); "
         "DELETE FROM gridmap_mechanism_tiles WHERE version IN (SELECT version FROM map_versions "
-        "WHERE status = 'failed');");
+        "WHERE status = 'failed'); "
+        "UPDATE build_jobs SET state = 'failed', error = 'the map version failed' WHERE state "
+        "IN ('pending', 'running') AND version IN (SELECT version FROM map_versions WHERE "
+        "status = 'failed');");
     gc_blobs(c);
   }
 

@@ -21,97 +21,101 @@ std::int64_t PostgresMapStore::begin_map_version(const nlohmann::json& parameter
   return v;
 }
 
-void PostgresMapStore::put_landmarks(std::int64_t version,
-                                     std::span<const StoredPointLandmark> points,
-                                     std::span<const StoredLineLandmark> lines) {
+void PostgresMapStore::Impl::put_landmarks_tx(Connection& c, std::int64_t version,
+                                              std::span<const StoredPointLandmark> points,
+                                              std::span<const StoredLineLandmark> lines) {
   for (const auto& l : lines) {
     if (l.polyline.size() < 2) {
       throw ValidationError("put_landmarks: line landmark with key " + std::to_string(l.key) +
                             " has fewer than 2 vertices");
     }
   }
-  impl_->write([&](Connection& c) {
-    Impl::require_building(c, version);
-    const std::size_t n = points.size() + lines.size();
-    if (n == 0) return;
-    const std::int64_t first = Impl::next_id(c, "landmarks", "id");
-    std::vector<std::int64_t> id(n), key(n), support_drives(n);
-    std::vector<int> kind(n), scattering(n);
-    std::vector<double> lat(n), lon(n), spread(n);
-    std::vector<std::string> wkb(n);
-    std::vector<std::optional<std::string>> polyline(n);  // lines only
-    std::vector<std::int64_t> link_landmark, link_candidate;
-    auto support = [&](std::int64_t lid, const std::vector<std::int64_t>& cands) {
-      std::vector<std::int64_t> u(cands);
-      std::sort(u.begin(), u.end());
-      u.erase(std::unique(u.begin(), u.end()), u.end());
-      for (auto cand : u) {
-        link_landmark.push_back(lid);
-        link_candidate.push_back(cand);
-      }
-    };
-    std::size_t i = 0;
-    for (const auto& p : points) {
-      id[i] = first + static_cast<std::int64_t>(i);
-      key[i] = p.key;
-      kind[i] = 0;
-      lat[i] = p.position.lat_deg;
-      lon[i] = p.position.lon_deg;
-      scattering[i] = static_cast<int>(p.scattering);
-      support_drives[i] = static_cast<std::int64_t>(p.support_drives);
-      spread[i] = p.spread_m;
-      wkb[i] = wkb_point(p.position.lat_deg, p.position.lon_deg);
-      support(id[i], p.support);
-      ++i;
+  Impl::require_building(c, version);
+  const std::size_t n = points.size() + lines.size();
+  if (n == 0) return;
+  const std::int64_t first = Impl::next_id(c, "landmarks", "id");
+  std::vector<std::int64_t> id(n), key(n), support_drives(n);
+  std::vector<int> kind(n), scattering(n);
+  std::vector<double> lat(n), lon(n), spread(n);
+  std::vector<std::string> wkb(n);
+  std::vector<std::optional<std::string>> polyline(n);  // lines only
+  std::vector<std::int64_t> link_landmark, link_candidate;
+  auto support = [&](std::int64_t lid, const std::vector<std::int64_t>& cands) {
+    std::vector<std::int64_t> u(cands);
+    std::sort(u.begin(), u.end());
+    u.erase(std::unique(u.begin(), u.end()), u.end());
+    for (auto cand : u) {
+      link_landmark.push_back(lid);
+      link_candidate.push_back(cand);
     }
-    for (const auto& l : lines) {
-      nlohmann::json pl = nlohmann::json::array();
-      for (const auto& g : l.polyline) pl.push_back({g.lat_deg, g.lon_deg});
-      id[i] = first + static_cast<std::int64_t>(i);
-      key[i] = l.key;
-      kind[i] = 1;
-      lat[i] = l.polyline.front().lat_deg;
-      lon[i] = l.polyline.front().lon_deg;
-      scattering[i] = 0;
-      support_drives[i] = static_cast<std::int64_t>(l.support_drives);
-      spread[i] = l.spread_m;
-      wkb[i] = wkb_line(l.polyline);
-      polyline[i] = pl.dump(-1, ' ', false, nlohmann::json::error_handler_t::strict);
-      support(id[i], l.support);
-      ++i;
-    }
-    Params p;
-    p.add(version)
-        .add_array(id)
-        .add_array(key)
-        .add_array(kind)
-        .add_array(lat)
-        .add_array(lon)
-        .add_array(scattering)
-        .add_array(support_drives)
-        .add_array(spread)
-        .add_bytea_array(wkb)
-        .add_array(polyline);
+  };
+  std::size_t i = 0;
+  for (const auto& p : points) {
+    id[i] = first + static_cast<std::int64_t>(i);
+    key[i] = p.key;
+    kind[i] = 0;
+    lat[i] = p.position.lat_deg;
+    lon[i] = p.position.lon_deg;
+    scattering[i] = static_cast<int>(p.scattering);
+    support_drives[i] = static_cast<std::int64_t>(p.support_drives);
+    spread[i] = p.spread_m;
+    wkb[i] = wkb_point(p.position.lat_deg, p.position.lon_deg);
+    support(id[i], p.support);
+    ++i;
+  }
+  for (const auto& l : lines) {
+    nlohmann::json pl = nlohmann::json::array();
+    for (const auto& g : l.polyline) pl.push_back({g.lat_deg, g.lon_deg});
+    id[i] = first + static_cast<std::int64_t>(i);
+    key[i] = l.key;
+    kind[i] = 1;
+    lat[i] = l.polyline.front().lat_deg;
+    lon[i] = l.polyline.front().lon_deg;
+    scattering[i] = 0;
+    support_drives[i] = static_cast<std::int64_t>(l.support_drives);
+    spread[i] = l.spread_m;
+    wkb[i] = wkb_line(l.polyline);
+    polyline[i] = pl.dump(-1, ' ', false, nlohmann::json::error_handler_t::strict);
+    support(id[i], l.support);
+    ++i;
+  }
+  Params p;
+  p.add(version)
+      .add_array(id)
+      .add_array(key)
+      .add_array(kind)
+      .add_array(lat)
+      .add_array(lon)
+      .add_array(scattering)
+      .add_array(support_drives)
+      .add_array(spread)
+      .add_bytea_array(wkb)
+      .add_array(polyline);
+  c.query(
+      "INSERT INTO landmarks(id, version, key, kind, lat_deg, lon_deg, polyline_json, "
+      "scattering, support_drives, spread_m, geom) SELECT u.id, $1, u.key, u.kind, u.lat, "
+      "u.lon, u.pl::jsonb, u.sc, u.sd, u.sp, ST_GeomFromWKB(u.g, 4326) FROM "
+      "unnest($2::bigint[], $3::bigint[], $4::int[], $5::float8[], $6::float8[], $7::int[], "
+      "$8::bigint[], $9::float8[], $10::bytea[], $11::text[]) AS u(id, key, kind, lat, lon, "
+      "sc, sd, sp, g, pl)",
+      p);
+  if (!link_landmark.empty()) {
+    // A drive deleted while the build ran takes its candidates with it: their links are
+    // skipped, as a later delete would remove them.
+    Params q;
+    q.add_array(link_landmark).add_array(link_candidate);
     c.query(
-        "INSERT INTO landmarks(id, version, key, kind, lat_deg, lon_deg, polyline_json, "
-        "scattering, support_drives, spread_m, geom) SELECT u.id, $1, u.key, u.kind, u.lat, "
-        "u.lon, u.pl::jsonb, u.sc, u.sd, u.sp, ST_GeomFromWKB(u.g, 4326) FROM "
-        "unnest($2::bigint[], $3::bigint[], $4::int[], $5::float8[], $6::float8[], $7::int[], "
-        "$8::bigint[], $9::float8[], $10::bytea[], $11::text[]) AS u(id, key, kind, lat, lon, "
-        "sc, sd, sp, g, pl)",
-        p);
-    if (!link_landmark.empty()) {
-      // A drive deleted while the build ran takes its candidates with it: their links are
-      // skipped, as a later delete would remove them.
-      Params q;
-      q.add_array(link_landmark).add_array(link_candidate);
-      c.query(
-          "INSERT INTO landmark_support(landmark, candidate) SELECT u.l, u.c FROM "
-          "unnest($1::bigint[], $2::bigint[]) AS u(l, c) WHERE EXISTS (SELECT 1 FROM "
-          "candidates WHERE id = u.c)",
-          q);
-    }
-  });
+        "INSERT INTO landmark_support(landmark, candidate) SELECT u.l, u.c FROM "
+        "unnest($1::bigint[], $2::bigint[]) AS u(l, c) WHERE EXISTS (SELECT 1 FROM "
+        "candidates WHERE id = u.c)",
+        q);
+  }
+}
+
+void PostgresMapStore::put_landmarks(std::int64_t version,
+                                     std::span<const StoredPointLandmark> points,
+                                     std::span<const StoredLineLandmark> lines) {
+  impl_->write([&](Connection& c) { Impl::put_landmarks_tx(c, version, points, lines); });
 }
 
 std::int64_t PostgresMapStore::copy_landmarks(std::int64_t from, std::int64_t to,
@@ -156,39 +160,42 @@ std::int64_t PostgresMapStore::copy_tiles(std::int64_t from, std::int64_t to, Ti
                                  table +
                                  " t WHERE t.version = $2 AND NOT EXISTS (SELECT 1 FROM "
                                  "unnest($3::int[], $4::int[], $5::int[]) AS e(z, x, y) WHERE "
-                                 "e.z = t.z AND e.x = t.x AND e.y = t.y)",
+                                 "e.z = t.z AND e.x = t.x AND e.y = t.y) ON CONFLICT DO NOTHING",
                              p);
     return r.affected();
   });
 }
 
+void PostgresMapStore::Impl::put_landmark_changes_tx(Connection& c, std::int64_t version,
+                                                     std::span<const LandmarkChange> changes) {
+  Impl::require_building(c, version);
+  std::int64_t seq =
+      c.run("SELECT COALESCE(MAX(seq), 0)::bigint FROM landmark_changes WHERE version = $1",
+            version)
+          .i64(0, 0);
+  for (const LandmarkChange& ch : changes) {
+    Params p;
+    p.add(version)
+        .add(++seq)
+        .add(std::string(to_string(ch.change)))
+        .add(ch.is_line ? 1 : 0)
+        .add(ch.key)
+        .add(ch.previous_key)
+        .add(ch.distance_m)
+        .add(geometry_json(ch.geometry).dump())
+        .add(geometry_json(ch.previous_geometry).dump())
+        .add(ch.reason.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace));
+    c.query(
+        "INSERT INTO landmark_changes(version, seq, change, kind, key, previous_key, "
+        "distance_m, geometry_json, previous_geometry_json, reason_json) VALUES ($1, $2, $3, "
+        "$4, $5, $6, $7, $8::jsonb, $9::jsonb, $10::jsonb)",
+        p);
+  }
+}
+
 void PostgresMapStore::put_landmark_changes(std::int64_t version,
                                             std::span<const LandmarkChange> changes) {
-  impl_->write([&](Connection& c) {
-    Impl::require_building(c, version);
-    std::int64_t seq =
-        c.run("SELECT COALESCE(MAX(seq), 0)::bigint FROM landmark_changes WHERE version = $1",
-              version)
-            .i64(0, 0);
-    for (const LandmarkChange& ch : changes) {
-      Params p;
-      p.add(version)
-          .add(++seq)
-          .add(std::string(to_string(ch.change)))
-          .add(ch.is_line ? 1 : 0)
-          .add(ch.key)
-          .add(ch.previous_key)
-          .add(ch.distance_m)
-          .add(geometry_json(ch.geometry).dump())
-          .add(geometry_json(ch.previous_geometry).dump())
-          .add(ch.reason.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace));
-      c.query(
-          "INSERT INTO landmark_changes(version, seq, change, kind, key, previous_key, "
-          "distance_m, geometry_json, previous_geometry_json, reason_json) VALUES ($1, $2, $3, "
-          "$4, $5, $6, $7, $8::jsonb, $9::jsonb, $10::jsonb)",
-          p);
-    }
-  });
+  impl_->write([&](Connection& c) { Impl::put_landmark_changes_tx(c, version, changes); });
 }
 
 std::vector<LandmarkChange> PostgresMapStore::landmark_changes(std::int64_t version) const {
@@ -218,42 +225,45 @@ std::vector<LandmarkChange> PostgresMapStore::landmark_changes(std::int64_t vers
   });
 }
 
+void PostgresMapStore::Impl::put_tiles_tx(Connection& c, std::int64_t version, TileLayer layer,
+                                          std::span<const TileWrite> tiles_in) {
+  Impl::require_building(c, version);
+  for (const auto& t : tiles_in) {
+    if (!tiles::is_valid(t.key)) {
+      throw ValidationError("put_tiles: invalid tile key " + tiles::to_string(t.key));
+    }
+    std::int64_t blob = 0;
+    if (!t.reuse_blob) {
+      const std::string etag = content_etag(t.payload);
+      if (!t.etag.empty() && t.etag != etag) {
+        throw ValidationError("put_tiles: tile " + tiles::to_string(t.key) +
+                              ": etag does not match the payload's SHA-256");
+      }
+      c.run(
+          "INSERT INTO tile_blobs(etag, payload, byte_size) VALUES ($1, $2, $3) "
+          "ON CONFLICT (etag) DO NOTHING",
+          etag, Bytea{t.payload}, static_cast<std::int64_t>(t.payload.size()));
+      blob = c.run("SELECT id FROM tile_blobs WHERE etag = $1", etag).i64(0, 0);
+    } else {
+      const Result r = c.run("SELECT id FROM tile_blobs WHERE etag = $1", t.etag);
+      if (r.empty()) {
+        throw ValidationError("put_tiles: tile " + tiles::to_string(t.key) +
+                              ": no stored blob with etag " + t.etag + " to reuse");
+      }
+      blob = r.i64(0, 0);
+    }
+    c.run(std::string("INSERT INTO ") + tile_table(layer) +
+              "(version, z, x, y, blob, num_points, num_lines) VALUES ($1, $2, $3, $4, $5, $6, "
+              "$7) ON CONFLICT (version, z, x, y) DO UPDATE SET blob = excluded.blob, "
+              "num_points = excluded.num_points, num_lines = excluded.num_lines",
+          version, t.key.z, t.key.x, t.key.y, blob, static_cast<int>(t.num_points),
+          static_cast<int>(t.num_lines));
+  }
+}
+
 void PostgresMapStore::put_tiles(std::int64_t version, TileLayer layer,
                                  std::span<const TileWrite> tiles_in) {
-  impl_->write([&](Connection& c) {
-    Impl::require_building(c, version);
-    for (const auto& t : tiles_in) {
-      if (!tiles::is_valid(t.key)) {
-        throw ValidationError("put_tiles: invalid tile key " + tiles::to_string(t.key));
-      }
-      std::int64_t blob = 0;
-      if (!t.reuse_blob) {
-        const std::string etag = content_etag(t.payload);
-        if (!t.etag.empty() && t.etag != etag) {
-          throw ValidationError("put_tiles: tile " + tiles::to_string(t.key) +
-                                ": etag does not match the payload's SHA-256");
-        }
-        c.run(
-            "INSERT INTO tile_blobs(etag, payload, byte_size) VALUES ($1, $2, $3) "
-            "ON CONFLICT (etag) DO NOTHING",
-            etag, Bytea{t.payload}, static_cast<std::int64_t>(t.payload.size()));
-        blob = c.run("SELECT id FROM tile_blobs WHERE etag = $1", etag).i64(0, 0);
-      } else {
-        const Result r = c.run("SELECT id FROM tile_blobs WHERE etag = $1", t.etag);
-        if (r.empty()) {
-          throw ValidationError("put_tiles: tile " + tiles::to_string(t.key) +
-                                ": no stored blob with etag " + t.etag + " to reuse");
-        }
-        blob = r.i64(0, 0);
-      }
-      c.run(std::string("INSERT INTO ") + tile_table(layer) +
-                "(version, z, x, y, blob, num_points, num_lines) VALUES ($1, $2, $3, $4, $5, $6, "
-                "$7) ON CONFLICT (version, z, x, y) DO UPDATE SET blob = excluded.blob, "
-                "num_points = excluded.num_points, num_lines = excluded.num_lines",
-            version, t.key.z, t.key.x, t.key.y, blob, static_cast<int>(t.num_points),
-            static_cast<int>(t.num_lines));
-    }
-  });
+  impl_->write([&](Connection& c) { Impl::put_tiles_tx(c, version, layer, tiles_in); });
 }
 
 void PostgresMapStore::publish_map_version(std::int64_t version, const nlohmann::json& statistics,
@@ -264,6 +274,11 @@ void PostgresMapStore::publish_map_version(std::int64_t version, const nlohmann:
         "UPDATE map_versions SET status = 'published', published_at = $1, statistics_json = "
         "$2::jsonb WHERE version = $3",
         now_iso(), statistics.dump(), version);
+    // A partitioned build's publish job is done with the version (one transaction).
+    c.run(
+        "UPDATE build_jobs SET state = 'done', lease_until = 0 WHERE version = $1 AND kind = "
+        "'publish' AND state = 'running'",
+        version);
     if (make_current) {
       c.run(
           "INSERT INTO current_map(id, version) VALUES (1, $1) "

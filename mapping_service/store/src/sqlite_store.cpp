@@ -101,7 +101,10 @@ void SqliteMapStore::Impl::sweep_orphans() {
     c.stmt(
          "UPDATE map_versions SET status = 'failed', error = 'interrupted (found building on "
          "open)' "
-         "WHERE status = 'building' AND created_at <= strftime('%Y-%m-%dT%H:%M:%SZ', 'now', ?1)")
+         "WHERE status = 'building' AND created_at <= strftime('%Y-%m-%dT%H:%M:%SZ', 'now', ?1) "
+         // A partitioned build with jobs left is queued for build workers, not interrupted.
+         "AND NOT EXISTS (SELECT 1 FROM build_jobs j WHERE j.version = map_versions.version "
+         "AND j.state IN ('pending', 'running'))")
         .bind(1, grace_modifier)
         .run();
     drop_failed_content(c);

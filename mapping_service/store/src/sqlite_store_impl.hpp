@@ -114,6 +114,17 @@ struct SqliteMapStore::Impl {
   /// versions stuck in 'building', all older than the grace period.
   void sweep_orphans();
 
+  // Writes inside a transaction the caller holds (the public methods wrap each in one;
+  // complete_build_job puts a job's whole output in one).
+  static void put_landmarks_tx(Connection& c, std::int64_t version,
+                               std::span<const StoredPointLandmark> points,
+                               std::span<const StoredLineLandmark> lines);
+  static void put_landmark_changes_tx(Connection& c, std::int64_t version,
+                                      std::span<const LandmarkChange> changes);
+  static void put_tiles_tx(Connection& c, std::int64_t version, TileLayer layer,
+                           std::span<const TileWrite> tiles_in);
+  static BuildJob build_job_from_row(Stmt& s);
+
   static void drop_failed_content(Connection& c) {
     c.exec(
         "DELETE FROM landmarks WHERE version IN (SELECT version FROM map_versions WHERE status = "
@@ -125,7 +136,10 @@ struct SqliteMapStore::Impl {
         "DELETE FROM landmark_changes WHERE version IN (SELECT version FROM map_versions WHERE "
         "status = 'failed'); "
         "DELETE FROM gridmap_mechanism_tiles WHERE version IN (SELECT version FROM map_versions "
-        "WHERE status = 'failed');");
+        "WHERE status = 'failed'); "
+        "UPDATE build_jobs SET state = 'failed', error = 'the map version failed' WHERE state "
+        "IN ('pending', 'running') AND version IN (SELECT version FROM map_versions WHERE "
+        "status = 'failed');");
     gc_blobs(c);
   }
 

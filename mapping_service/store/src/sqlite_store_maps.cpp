@@ -28,72 +28,76 @@ std::int64_t SqliteMapStore::begin_map_version(const nlohmann::json& parameters)
   });
 }
 
+void SqliteMapStore::Impl::put_landmarks_tx(Connection& c, std::int64_t version,
+                                            std::span<const StoredPointLandmark> points,
+                                            std::span<const StoredLineLandmark> lines) {
+  Impl::require_building(c, version);
+  const std::string ins =
+      "INSERT INTO landmarks(version, key, kind, lat_deg, lon_deg, polyline_json, scattering, "
+      "support_drives, spread_m) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)";
+  // A drive deleted while the build ran (an erasure request, retention) takes its
+  // candidates with it: their links are skipped, as a later delete would remove them.
+  const std::string sup =
+      "INSERT INTO landmark_support(landmark, candidate) SELECT ?1, ?2 "
+      "WHERE EXISTS (SELECT 1 FROM candidates WHERE id = ?2)";
+  auto support = [&](std::int64_t id, const std::vector<std::int64_t>& cands) {
+    std::vector<std::int64_t> u(cands);
+    std::sort(u.begin(), u.end());
+    u.erase(std::unique(u.begin(), u.end()), u.end());
+    for (auto cand : u) c.stmt(sup).bind(1, id).bind(2, cand).run();
+  };
+  for (const auto& p : points) {
+    c.stmt(ins)
+        .bind(1, version)
+        .bind(2, p.key)
+        .bind(3, 0)
+        .bind(4, p.position.lat_deg)
+        .bind(5, p.position.lon_deg)
+        .bind_null(6)
+        .bind(7, static_cast<int>(p.scattering))
+        .bind(8, static_cast<std::int64_t>(p.support_drives))
+        .bind(9, p.spread_m)
+        .run();
+    const auto id = c.last_id();
+    insert_rtree(c, "landmarks_rtree", id, p.position.lat_deg, p.position.lat_deg,
+                 p.position.lon_deg, p.position.lon_deg);
+    support(id, p.support);
+  }
+  for (const auto& l : lines) {
+    if (l.polyline.size() < 2) {
+      throw ValidationError("put_landmarks: line landmark with key " + std::to_string(l.key) +
+                            " has fewer than 2 vertices");
+    }
+    nlohmann::json pl = nlohmann::json::array();
+    double lat0 = 90, lat1 = -90, lon0 = 180, lon1 = -180;
+    for (const auto& g : l.polyline) {
+      pl.push_back({g.lat_deg, g.lon_deg});
+      lat0 = std::min(lat0, g.lat_deg);
+      lat1 = std::max(lat1, g.lat_deg);
+      lon0 = std::min(lon0, g.lon_deg);
+      lon1 = std::max(lon1, g.lon_deg);
+    }
+    c.stmt(ins)
+        .bind(1, version)
+        .bind(2, l.key)
+        .bind(3, 1)
+        .bind(4, l.polyline.front().lat_deg)
+        .bind(5, l.polyline.front().lon_deg)
+        .bind(6, pl.dump(-1, ' ', false, nlohmann::json::error_handler_t::strict))
+        .bind(7, 0)
+        .bind(8, static_cast<std::int64_t>(l.support_drives))
+        .bind(9, l.spread_m)
+        .run();
+    const auto id = c.last_id();
+    insert_rtree(c, "landmarks_rtree", id, lat0, lat1, lon0, lon1);
+    support(id, l.support);
+  }
+}
+
 void SqliteMapStore::put_landmarks(std::int64_t version,
                                    std::span<const StoredPointLandmark> points,
                                    std::span<const StoredLineLandmark> lines) {
-  impl_->write([&](Connection& c) {
-    Impl::require_building(c, version);
-    const std::string ins =
-        "INSERT INTO landmarks(version, key, kind, lat_deg, lon_deg, polyline_json, scattering, "
-        "support_drives, spread_m) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)";
-    // A drive deleted while the build ran (an erasure request, retention) takes its
-    // candidates with it: their links are skipped, as a later delete would remove them.
-    const std::string sup =
-        "INSERT INTO landmark_support(landmark, candidate) SELECT ?1, ?2 "
-        "WHERE EXISTS (SELECT 1 FROM candidates WHERE id = ?2)";
-    auto support = [&](std::int64_t id, const std::vector<std::int64_t>& cands) {
-      std::vector<std::int64_t> u(cands);
-      std::sort(u.begin(), u.end());
-      u.erase(std::unique(u.begin(), u.end()), u.end());
-      for (auto cand : u) c.stmt(sup).bind(1, id).bind(2, cand).run();
-    };
-    for (const auto& p : points) {
-      c.stmt(ins)
-          .bind(1, version)
-          .bind(2, p.key)
-          .bind(3, 0)
-          .bind(4, p.position.lat_deg)
-          .bind(5, p.position.lon_deg)
-          .bind_null(6)
-          .bind(7, static_cast<int>(p.scattering))
-          .bind(8, static_cast<std::int64_t>(p.support_drives))
-          .bind(9, p.spread_m)
-          .run();
-      const auto id = c.last_id();
-      insert_rtree(c, "landmarks_rtree", id, p.position.lat_deg, p.position.lat_deg,
-                   p.position.lon_deg, p.position.lon_deg);
-      support(id, p.support);
-    }
-    for (const auto& l : lines) {
-      if (l.polyline.size() < 2) {
-        throw ValidationError("put_landmarks: line landmark with key " + std::to_string(l.key) +
-                              " has fewer than 2 vertices");
-      }
-      nlohmann::json pl = nlohmann::json::array();
-      double lat0 = 90, lat1 = -90, lon0 = 180, lon1 = -180;
-      for (const auto& g : l.polyline) {
-        pl.push_back({g.lat_deg, g.lon_deg});
-        lat0 = std::min(lat0, g.lat_deg);
-        lat1 = std::max(lat1, g.lat_deg);
-        lon0 = std::min(lon0, g.lon_deg);
-        lon1 = std::max(lon1, g.lon_deg);
-      }
-      c.stmt(ins)
-          .bind(1, version)
-          .bind(2, l.key)
-          .bind(3, 1)
-          .bind(4, l.polyline.front().lat_deg)
-          .bind(5, l.polyline.front().lon_deg)
-          .bind(6, pl.dump(-1, ' ', false, nlohmann::json::error_handler_t::strict))
-          .bind(7, 0)
-          .bind(8, static_cast<std::int64_t>(l.support_drives))
-          .bind(9, l.spread_m)
-          .run();
-      const auto id = c.last_id();
-      insert_rtree(c, "landmarks_rtree", id, lat0, lat1, lon0, lon1);
-      support(id, l.support);
-    }
-  });
+  impl_->write([&](Connection& c) { Impl::put_landmarks_tx(c, version, points, lines); });
 }
 
 std::int64_t SqliteMapStore::copy_landmarks(std::int64_t from, std::int64_t to,
@@ -154,7 +158,8 @@ std::int64_t SqliteMapStore::copy_tiles(std::int64_t from, std::int64_t to, Tile
           .run();
     }
     const std::string table = tile_table(layer);
-    c.stmt("INSERT INTO " + table +
+    // OR IGNORE: a build job run again after its worker died copies what is already there.
+    c.stmt("INSERT OR IGNORE INTO " + table +
            "(version, z, x, y, blob, num_points, num_lines) SELECT ?1, t.z, t.x, t.y, t.blob, "
            "t.num_points, t.num_lines FROM " +
            table +
@@ -169,35 +174,38 @@ std::int64_t SqliteMapStore::copy_tiles(std::int64_t from, std::int64_t to, Tile
   });
 }
 
+void SqliteMapStore::Impl::put_landmark_changes_tx(Connection& c, std::int64_t version,
+                                                   std::span<const LandmarkChange> changes) {
+  Impl::require_building(c, version);
+  std::int64_t seq = 0;
+  {
+    auto s = c.stmt("SELECT COALESCE(MAX(seq), 0) FROM landmark_changes WHERE version = ?1");
+    s.bind(1, version);
+    if (s.step()) seq = s.i64(0);
+  }
+  const std::string ins =
+      "INSERT INTO landmark_changes(version, seq, change, kind, key, previous_key, distance_m, "
+      "geometry_json, previous_geometry_json, reason_json) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, "
+      "?8, ?9, ?10)";
+  for (const LandmarkChange& ch : changes) {
+    c.stmt(ins)
+        .bind(1, version)
+        .bind(2, ++seq)
+        .bind(3, std::string(to_string(ch.change)))
+        .bind(4, ch.is_line ? 1 : 0)
+        .bind(5, ch.key)
+        .bind(6, ch.previous_key)
+        .bind(7, ch.distance_m)
+        .bind(8, geometry_json(ch.geometry).dump())
+        .bind(9, geometry_json(ch.previous_geometry).dump())
+        .bind(10, ch.reason.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace))
+        .run();
+  }
+}
+
 void SqliteMapStore::put_landmark_changes(std::int64_t version,
                                           std::span<const LandmarkChange> changes) {
-  impl_->write([&](Connection& c) {
-    Impl::require_building(c, version);
-    std::int64_t seq = 0;
-    {
-      auto s = c.stmt("SELECT COALESCE(MAX(seq), 0) FROM landmark_changes WHERE version = ?1");
-      s.bind(1, version);
-      if (s.step()) seq = s.i64(0);
-    }
-    const std::string ins =
-        "INSERT INTO landmark_changes(version, seq, change, kind, key, previous_key, distance_m, "
-        "geometry_json, previous_geometry_json, reason_json) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, "
-        "?8, ?9, ?10)";
-    for (const LandmarkChange& ch : changes) {
-      c.stmt(ins)
-          .bind(1, version)
-          .bind(2, ++seq)
-          .bind(3, std::string(to_string(ch.change)))
-          .bind(4, ch.is_line ? 1 : 0)
-          .bind(5, ch.key)
-          .bind(6, ch.previous_key)
-          .bind(7, ch.distance_m)
-          .bind(8, geometry_json(ch.geometry).dump())
-          .bind(9, geometry_json(ch.previous_geometry).dump())
-          .bind(10, ch.reason.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace))
-          .run();
-    }
-  });
+  impl_->write([&](Connection& c) { Impl::put_landmark_changes_tx(c, version, changes); });
 }
 
 std::vector<LandmarkChange> SqliteMapStore::landmark_changes(std::int64_t version) const {
@@ -226,52 +234,55 @@ std::vector<LandmarkChange> SqliteMapStore::landmark_changes(std::int64_t versio
   });
 }
 
+void SqliteMapStore::Impl::put_tiles_tx(Connection& c, std::int64_t version, TileLayer layer,
+                                        std::span<const TileWrite> tiles_in) {
+  Impl::require_building(c, version);
+  for (const auto& t : tiles_in) {
+    if (!tiles::is_valid(t.key)) {
+      throw ValidationError("put_tiles: invalid tile key " + tiles::to_string(t.key));
+    }
+    std::int64_t blob = 0;
+    if (!t.reuse_blob) {
+      const std::string etag = content_etag(t.payload);
+      if (!t.etag.empty() && t.etag != etag) {
+        throw ValidationError("put_tiles: tile " + tiles::to_string(t.key) +
+                              ": etag does not match the payload's SHA-256");
+      }
+      c.stmt(
+           "INSERT INTO tile_blobs(etag, payload, byte_size) VALUES (?1, ?2, ?3) "
+           "ON CONFLICT(etag) DO NOTHING")
+          .bind(1, etag)
+          .bind_blob(2, t.payload)
+          .bind(3, static_cast<std::int64_t>(t.payload.size()))
+          .run();
+      auto s = c.stmt("SELECT id FROM tile_blobs WHERE etag = ?1");
+      s.bind(1, etag);
+      if (s.step()) blob = s.i64(0);
+    } else {
+      auto s = c.stmt("SELECT id FROM tile_blobs WHERE etag = ?1");
+      s.bind(1, t.etag);
+      if (!s.step()) {
+        throw ValidationError("put_tiles: tile " + tiles::to_string(t.key) +
+                              ": no stored blob with etag " + t.etag + " to reuse");
+      }
+      blob = s.i64(0);
+    }
+    c.stmt(std::string("INSERT OR REPLACE INTO ") + tile_table(layer) +
+           "(version, z, x, y, blob, num_points, num_lines) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7)")
+        .bind(1, version)
+        .bind(2, t.key.z)
+        .bind(3, t.key.x)
+        .bind(4, t.key.y)
+        .bind(5, blob)
+        .bind(6, t.num_points)
+        .bind(7, t.num_lines)
+        .run();
+  }
+}
+
 void SqliteMapStore::put_tiles(std::int64_t version, TileLayer layer,
                                std::span<const TileWrite> tiles_in) {
-  impl_->write([&](Connection& c) {
-    Impl::require_building(c, version);
-    for (const auto& t : tiles_in) {
-      if (!tiles::is_valid(t.key)) {
-        throw ValidationError("put_tiles: invalid tile key " + tiles::to_string(t.key));
-      }
-      std::int64_t blob = 0;
-      if (!t.reuse_blob) {
-        const std::string etag = content_etag(t.payload);
-        if (!t.etag.empty() && t.etag != etag) {
-          throw ValidationError("put_tiles: tile " + tiles::to_string(t.key) +
-                                ": etag does not match the payload's SHA-256");
-        }
-        c.stmt(
-             "INSERT INTO tile_blobs(etag, payload, byte_size) VALUES (?1, ?2, ?3) "
-             "ON CONFLICT(etag) DO NOTHING")
-            .bind(1, etag)
-            .bind_blob(2, t.payload)
-            .bind(3, static_cast<std::int64_t>(t.payload.size()))
-            .run();
-        auto s = c.stmt("SELECT id FROM tile_blobs WHERE etag = ?1");
-        s.bind(1, etag);
-        if (s.step()) blob = s.i64(0);
-      } else {
-        auto s = c.stmt("SELECT id FROM tile_blobs WHERE etag = ?1");
-        s.bind(1, t.etag);
-        if (!s.step()) {
-          throw ValidationError("put_tiles: tile " + tiles::to_string(t.key) +
-                                ": no stored blob with etag " + t.etag + " to reuse");
-        }
-        blob = s.i64(0);
-      }
-      c.stmt(std::string("INSERT OR REPLACE INTO ") + tile_table(layer) +
-             "(version, z, x, y, blob, num_points, num_lines) VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7)")
-          .bind(1, version)
-          .bind(2, t.key.z)
-          .bind(3, t.key.x)
-          .bind(4, t.key.y)
-          .bind(5, blob)
-          .bind(6, t.num_points)
-          .bind(7, t.num_lines)
-          .run();
-    }
-  });
+  impl_->write([&](Connection& c) { Impl::put_tiles_tx(c, version, layer, tiles_in); });
 }
 
 void SqliteMapStore::publish_map_version(std::int64_t version, const nlohmann::json& statistics,
@@ -284,6 +295,12 @@ void SqliteMapStore::publish_map_version(std::int64_t version, const nlohmann::j
         .bind(1, now_iso())
         .bind(2, statistics.dump())
         .bind(3, version)
+        .run();
+    // A partitioned build's publish job is done with the version (one transaction).
+    c.stmt(
+         "UPDATE build_jobs SET state = 'done', lease_until = 0 WHERE version = ?1 AND kind = "
+         "'publish' AND state = 'running'")
+        .bind(1, version)
         .run();
     if (make_current) {
       c.stmt(

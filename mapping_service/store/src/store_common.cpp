@@ -376,3 +376,48 @@ void validate_upload_request(const UploadSessionRequest& r) {
 
 }  // namespace store_detail
 }  // namespace polmap::mapping
+
+namespace polmap::mapping {
+
+std::string_view to_string(BuildJobState s) {
+  switch (s) {
+    case BuildJobState::Running:
+      return "running";
+    case BuildJobState::Done:
+      return "done";
+    case BuildJobState::Failed:
+      return "failed";
+    default:
+      return "pending";
+  }
+}
+
+}  // namespace polmap::mapping
+
+namespace polmap::mapping::store_detail {
+
+BuildJobState parse_build_job_state(std::string_view s) {
+  if (s == "running") return BuildJobState::Running;
+  if (s == "done") return BuildJobState::Done;
+  if (s == "failed") return BuildJobState::Failed;
+  return BuildJobState::Pending;
+}
+
+void check_build_job_specs(std::span<const BuildJobSpec> jobs) {
+  for (const auto& j : jobs) {
+    if (j.kind != "region" && j.kind != "gridmap" && j.kind != "publish") {
+      throw ValidationError("enqueue_build_jobs: unknown job kind '" + j.kind +
+                            "' (known: region, gridmap, publish)");
+    }
+    if (!tiles::is_valid(j.region)) {
+      throw ValidationError("enqueue_build_jobs: invalid region tile " +
+                            tiles::to_string(j.region));
+    }
+  }
+}
+
+double epoch_seconds_now() {
+  return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
+}
+
+}  // namespace polmap::mapping::store_detail

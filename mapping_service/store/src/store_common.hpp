@@ -77,5 +77,10 @@ std::string random_session_id();
 void create_session_file(const std::filesystem::path& path);
 /// The checks of create_upload_session shared by the backends (ValidationError).
 void validate_upload_request(const UploadSessionRequest& r);
+/// Build jobs: state names, the checks of enqueue_build_jobs, the lease clock (SQLite: the
+/// host's wall clock in seconds since the epoch; PostgreSQL uses the server's).
+BuildJobState parse_build_job_state(std::string_view s);
+void check_build_job_specs(std::span<const BuildJobSpec> jobs);
+double epoch_seconds_now();
 
 }  // namespace polmap::mapping::store_detail

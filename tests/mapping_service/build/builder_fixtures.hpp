@@ -116,7 +116,7 @@ inline GridmapRaster make_raster(int q) {
 /// format, validates its archive and puts it into the store.
 /// `origin_m`: moves the whole drive (frame origin, so candidates, trajectory and gridmap)
 /// to this point of the world frame.
-inline void put_real_package(SqliteMapStore& store, const fs::path& tmp, const World& w, int d,
+inline void put_real_package(MapStore& store, const fs::path& tmp, const World& w, int d,
                              const std::string& name, const PackageWriteOptions& options,
                              std::optional<Eigen::Vector2d> origin_m = std::nullopt,
                              double start_time_s = 0.0) {
@@ -139,6 +139,57 @@ inline void put_real_package(SqliteMapStore& store, const fs::path& tmp, const W
   }
   GridmapRaster raster = make_raster(1);
   raster.noise_power = 1.0;  // format 2 needs the noise figure; format 1 ignores it
+  const fs::path dir = tmp / ("pkg_" + name);
+  (void)write_drive_package(pkg, raster, dir, options);
+  const fs::path tar = tmp / ("pkg_" + name + ".tar");
+  write_drive_package_archive(dir, tar);
+  const DrivePackage valid = read_and_validate_package(tar);
+  std::ifstream f(tar, std::ios::binary);
+  const std::string bytes((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+  ASSERT_EQ(store.put_drive(valid, tar, package_content_hash(bytes)).status,
+            PutDriveResult::Status::Inserted);
+}
+
+/// A real package of a drive that observes the objects and walls of `w` inside [lo, hi]
+/// (world metres) along `path` (world metres, 10 m/s), with `temporaries` single-drive
+/// objects and a small gridmap strip; put into the store.
+inline void put_drive_along(MapStore& store, const fs::path& tmp, const World& w,
+                            const std::string& name, unsigned seed, Eigen::Vector2d lo,
+                            Eigen::Vector2d hi, const std::vector<Eigen::Vector2d>& path,
+                            int temporaries = 20, double start_time_s = 0.0) {
+  DrivePackage pkg = observe(w, name, seed, lo, hi, temporaries);
+  pkg.manifest.start_time_s = start_time_s;
+  pkg.manifest.pol_level = PolLevel::SingleLR;
+  pkg.manifest.sensors = default_front_mounts();
+  const tiles::LocalFrame world(kWorldOrigin);
+  const tiles::LocalFrame drive_frame(pkg.manifest.origin);
+  double t = start_time_s;
+  for (std::size_t k = 0; k < path.size(); ++k) {
+    if (k > 0) t += (path[k] - path[k - 1]).norm() / 10.0;
+    const GeoPoint g = world.to_geo(path[k]);
+    TrajectorySample s;
+    s.time_s = t;
+    s.lat_deg = g.lat_deg;
+    s.lon_deg = g.lon_deg;
+    s.speed_mps = 10.0;
+    pkg.trajectory.push_back(s);
+  }
+  pkg.manifest.end_time_s = t + 1.0;
+  // 2 m cells over 1.2 km x 1.2 km (every candidate inside), observed in a 120 m block (at least as
+  // many cells as candidates).
+  GridmapRaster raster = unobserved_raster(1, 600, 600, -600.0, 600.0);
+  raster.cell_size_m = 2.0;
+  pkg.manifest.cell_size_m = 2.0;
+  for (int row = 270; row < 330; ++row) {
+    for (int col = 270; col < 330; ++col) {
+      const std::size_t i = static_cast<std::size_t>(row) * raster.width + col;
+      raster.count[i] = 3;
+      raster.layers[0][i] = 1000.0;
+    }
+  }
+  raster.noise_power = 1.0;
+  PackageWriteOptions options;
+  options.format_version = 2;
   const fs::path dir = tmp / ("pkg_" + name);
   (void)write_drive_package(pkg, raster, dir, options);
   const fs::path tar = tmp / ("pkg_" + name + ".tar");

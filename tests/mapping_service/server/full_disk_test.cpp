@@ -205,6 +205,24 @@ class WriteTriggerStore final : public MapStore {
                            const GridmapSumInputChange& change) override {
     s_.commit_gridmap_sums(version, tiles, change);
   }
+  void enqueue_build_jobs(std::int64_t v, std::span<const BuildJobSpec> jobs) override {
+    s_.enqueue_build_jobs(v, jobs);
+  }
+  std::optional<BuildJob> claim_build_job(std::string_view w, double lease_s,
+                                          std::optional<std::int64_t> v) override {
+    return s_.claim_build_job(w, lease_s, v);
+  }
+  bool renew_build_job(std::int64_t j, int a, double lease_s) override {
+    return s_.renew_build_job(j, a, lease_s);
+  }
+  bool complete_build_job(std::int64_t j, int a, const BuildJobOutput& out) override {
+    if (before_write) before_write("complete_build_job");
+    return s_.complete_build_job(j, a, out);
+  }
+  bool fail_build_job(std::int64_t j, int a, std::string_view e) override {
+    return s_.fail_build_job(j, a, e);
+  }
+  std::vector<BuildJob> build_jobs(std::int64_t v) const override { return s_.build_jobs(v); }
   StoreStats stats() const override { return s_.stats(); }
 
  private:

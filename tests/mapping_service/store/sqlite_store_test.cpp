@@ -97,7 +97,8 @@ TEST(SqliteStore, UpgradesAnOlderDatabaseByApplyingOnlyMissingMigrations) {
   }
   // Turn it into a schema-1 database (as written by an older build).
   exec_sql(db,
-           "DROP TABLE gridmap_sum_cover; DROP TABLE gridmap_sum_inputs; DROP TABLE gridmap_sums; "
+           "DROP TABLE build_jobs; DROP TABLE gridmap_sum_cover; DROP TABLE gridmap_sum_inputs; "
+           "DROP TABLE gridmap_sums; "
            "DROP TABLE gridmap_mechanism_tiles; "
            "DROP TABLE upload_sessions; DROP TABLE drive_trajectories; "
            "DROP TABLE landmark_changes; DROP INDEX landmarks_support_of; "

@@ -36,7 +36,8 @@ TEST(UploadSessions, MigrationAddsTheTableToASchema2Store) {
   { SqliteMapStore store(db); }
   // What a build before resumable uploads left: schema 2, no upload_sessions.
   exec_sql(db,
-           "DROP TABLE gridmap_sum_cover; DROP TABLE gridmap_sum_inputs; DROP TABLE gridmap_sums; "
+           "DROP TABLE build_jobs; DROP TABLE gridmap_sum_cover; DROP TABLE gridmap_sum_inputs; "
+           "DROP TABLE gridmap_sums; "
            "DROP TABLE gridmap_mechanism_tiles; "
            "DROP TABLE upload_sessions; DROP TABLE landmark_changes; DROP INDEX "
            "landmarks_support_of; ALTER TABLE landmarks DROP COLUMN support_of; ALTER TABLE "

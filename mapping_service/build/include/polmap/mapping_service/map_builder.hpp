@@ -68,6 +68,23 @@
 
 namespace polmap::mapping {
 
+/// How a partitioned build cuts the map (schema/build_jobs.md). Regions are the Web-Mercator
+/// tiles of `zoom` that the included drives' paths come within `halo_m` of; each region is
+/// one job: consensus in the region's own frame over the candidates and passes within
+/// `halo_m` of it, keeping the point landmarks inside it and the line landmarks clipped to
+/// it, and the localization tiles inside it. The same partition gives the same landmarks
+/// and tile bytes however many processes run the jobs, in whatever order.
+struct BuildPartition {
+  /// Region zoom (14: 1.6 km squares at 48.8 deg N); at most the localization tile zoom.
+  int zoom = 14;
+  /// Candidates and passes this far outside a region take part in its consensus. Must
+  /// cover the consensus margin (landmark groups reaching over the border come out the
+  /// same on both sides) and the view range (every pass that saw the region).
+  double halo_m = 120.0;
+  /// Pieces of a clipped line landmark shorter than this are dropped (corner cuts).
+  double min_line_piece_m = 0.5;
+};
+
 /// What to build. Recorded in the version's parameters JSON.
 struct MapBuildRequest {
   /// Restrict the map to a region (landmarks inside; candidates within a
@@ -86,6 +103,9 @@ struct MapBuildRequest {
   LineConsensusConfig lines;
   /// Which drives had a place in view (support is judged against them).
   VisibilityConfig visibility;
+  /// Build as jobs by region (build workers, build_worker.hpp); nullopt: one process, one
+  /// frame (incremental when only drives were added, see the file comment).
+  std::optional<BuildPartition> partition;
 };
 
 /// Build controls that are not part of the map's description.
@@ -96,6 +116,12 @@ struct BuildControl {
   /// Progress: stage name ("load", "consensus", "landmarks", "tiles",
   /// "gridmap", "publish") and fraction of the whole build in [0, 1].
   std::function<void(std::string_view stage, double fraction)> progress;
+  /// Partitioned builds: this process works on the version's jobs (with any build workers
+  /// that join); false: it only enqueues them and waits until workers have published the
+  /// version (or it failed).
+  bool run_jobs = true;
+  /// Partitioned builds: how often the store is polled while the last jobs run elsewhere.
+  double poll_interval_s = 0.2;
 };
 
 /// Builder settings. Defaults are what `polmap build-map` and the server use.

@@ -156,8 +156,17 @@ struct ServerConfig {
   int mvt_min_zoom = 12;
   int mvt_max_zoom = 22;
   /// On start, versions left in status Building (a previous process died during a
-  /// build) are marked Failed. Turn off when several servers share one store.
+  /// build) are marked Failed, except partitioned builds with jobs left (build workers
+  /// finish them). Turn off when several servers share one store (polmap serve does for
+  /// PostgreSQL, whose store fails only builds whose process is gone).
   bool fail_stale_builds_on_start = true;
+  /// > 0: map builds are partitioned into regions of this zoom (MapBuildRequest::partition,
+  /// schema/build_jobs.md), with this halo; 0: one-process builds (incremental).
+  int build_partition_zoom = 0;
+  double build_partition_halo_m = 120.0;
+  /// Partitioned builds: the server's build thread works on the jobs too (with any
+  /// `polmap build-worker` processes); false: it leaves them to build workers.
+  bool run_build_jobs = true;
   /// One line per request (method, path, status, bytes, ms) and server events.
   bool log_requests = true;
   /// Log sink; default writes the line plus '\n' to stderr.

@@ -159,6 +159,13 @@ class PostgresMapStore final : public MapStore {
   void commit_gridmap_sums(std::int64_t version, std::span<const GridmapSumRow> tiles,
                            const GridmapSumInputChange& change) override;
 
+  void enqueue_build_jobs(std::int64_t version, std::span<const BuildJobSpec> jobs) override;
+  std::optional<BuildJob> claim_build_job(std::string_view worker, double lease_s,
+                                          std::optional<std::int64_t> version) override;
+  bool renew_build_job(std::int64_t job, int attempt, double lease_s) override;
+  bool complete_build_job(std::int64_t job, int attempt, const BuildJobOutput& output) override;
+  bool fail_build_job(std::int64_t job, int attempt, std::string_view error) override;
+  [[nodiscard]] std::vector<BuildJob> build_jobs(std::int64_t version) const override;
   [[nodiscard]] StoreStats stats() const override;
 
  private:

@@ -295,6 +295,45 @@ struct CreateUploadSessionResult {
   std::uint64_t open_bytes = 0;
 };
 
+/// Partitioned map builds (schema/build_jobs.md): a Building version's work as jobs that
+/// build workers claim under a lease. Kinds: "region" (landmarks, changes and localization
+/// tiles of one region, the tile `region`), "gridmap" (the merged gridmap stage),
+/// "publish" (claimable once every other job of its version is done).
+enum class BuildJobState { Pending, Running, Done, Failed };
+std::string_view to_string(BuildJobState s);
+
+/// A job to enqueue.
+struct BuildJobSpec {
+  std::string kind;       ///< "region" | "gridmap" | "publish"
+  tiles::TileKey region;  ///< region jobs: the region's tile; otherwise {0, 0, 0}
+  nlohmann::json spec;    ///< what the worker needs beyond the version's parameters
+};
+
+/// A job as stored; `attempt` counts claims and fences a worker whose lease was lost.
+struct BuildJob {
+  std::int64_t id = 0;
+  std::int64_t version = 0;
+  std::string kind;
+  tiles::TileKey region;
+  nlohmann::json spec;
+  BuildJobState state = BuildJobState::Pending;
+  int attempt = 0;
+  std::string worker;         ///< who holds or last held it
+  double lease_left_s = 0.0;  ///< running: seconds until the lease expires (may be < 0)
+  nlohmann::json result;      ///< done: the job's statistics
+  std::string error;          ///< failed: why
+};
+
+/// What a job leaves in its Building version, committed in one transaction with the
+/// job's completion (a worker killed before it leaves nothing).
+struct BuildJobOutput {
+  std::vector<StoredPointLandmark> points;
+  std::vector<StoredLineLandmark> lines;
+  std::vector<LandmarkChange> changes;
+  std::vector<TileWrite> localization_tiles;
+  nlohmann::json result;  ///< the job's statistics
+};
+
 /// Strong ETag of a payload: lower-case SHA-256 hex (64 chars).
 std::string content_etag(std::string_view payload);
 
@@ -443,6 +482,28 @@ class MapStore {
   /// that is already an input is a ConflictError (its gridmap would count twice).
   virtual void commit_gridmap_sums(std::int64_t version, std::span<const GridmapSumRow> tiles,
                                    const GridmapSumInputChange& change) = 0;
+
+  // ------------------------------------------------------------ build jobs
+  /// Adds jobs to a Building version (one transaction). ValidationError for an unknown kind.
+  virtual void enqueue_build_jobs(std::int64_t version, std::span<const BuildJobSpec> jobs) = 0;
+  /// Claims the oldest claimable job: pending, or running with an expired lease (its
+  /// worker is presumed dead), of a Building version; a publish job only once the other
+  /// jobs of its version are done. Running, attempt + 1, leased for lease_s seconds to
+  /// `worker`; of `version` only, when given. nullopt when there is none. PostgreSQL:
+  /// SELECT ... FOR UPDATE SKIP LOCKED.
+  virtual std::optional<BuildJob> claim_build_job(std::string_view worker, double lease_s,
+                                                  std::optional<std::int64_t> version) = 0;
+  /// Extends the lease of a job this worker holds (same attempt, still running). False
+  /// when the lease was lost (expired and claimed again, or the version failed).
+  virtual bool renew_build_job(std::int64_t job, int attempt, double lease_s) = 0;
+  /// One transaction: writes the output into the job's version and marks the job done,
+  /// if the job is still running with this attempt and its version is Building (false
+  /// otherwise, and nothing is written).
+  virtual bool complete_build_job(std::int64_t job, int attempt, const BuildJobOutput& output) = 0;
+  /// Marks a job failed (same fencing as complete; false if the lease was lost).
+  virtual bool fail_build_job(std::int64_t job, int attempt, std::string_view error) = 0;
+  /// The jobs of a version, by id.
+  [[nodiscard]] virtual std::vector<BuildJob> build_jobs(std::int64_t version) const = 0;
 
   [[nodiscard]] virtual StoreStats stats() const = 0;
 };

@@ -1,0 +1,74 @@
+#pragma once
+// The steps of a map build (private to polmap_build), shared by the one-process build
+// (map_builder.cpp) and the jobs of a partitioned build (partitioned_build.cpp), so both
+// compute landmarks, changes and tiles the same way. Definitions in map_builder.cpp.
+#include <functional>
+#include <map>
+#include <optional>
+#include <unordered_map>
+#include <vector>
+
+#include "polmap/mapping_service/map_builder.hpp"
+#include "polmap/tiles/local_frame.hpp"
+
+namespace polmap::mapping::detail {
+
+/// `b` grown by margin_m on every side (metres, at its mid latitude).
+tiles::GeoBox grow_box(const tiles::GeoBox& b, double margin_m);
+tiles::GeoBox union_box(const tiles::GeoBox& a, const tiles::GeoBox& b);
+tiles::GeoBox polyline_box(const std::vector<GeoPoint>& pl);
+/// The version parameters of a request (what MapStore::begin_map_version records).
+nlohmann::json request_json(const MapBuildRequest& r, const MapBuilderConfig& c);
+/// The drive rows a build uses (all drives but the excluded ones), ascending.
+std::vector<std::int64_t> drive_rows(const std::vector<DriveRecord>& drives,
+                                     const std::vector<std::string>& excluded);
+std::vector<TaggedPointCandidate> tagged_points(const CandidateSet& cands,
+                                                const tiles::LocalFrame& frame);
+std::vector<TaggedLineCandidate> tagged_lines(const CandidateSet& cands,
+                                              const tiles::LocalFrame& frame);
+/// The passes of the included drives whose box meets `query`, in the build frame.
+std::vector<DrivePass> drive_passes(const MapStore& store, const std::optional<GeoBox>& query,
+                                    const std::vector<std::string>& excluded,
+                                    const std::vector<TaggedPointCandidate>& tp,
+                                    const std::vector<TaggedLineCandidate>& tl,
+                                    const tiles::LocalFrame& frame, const VisibilityConfig& vcfg);
+/// The frame position as a geodetic point quantized to 1e-8 degrees (stable keys).
+GeoPoint to_geo_quantized(const tiles::LocalFrame& frame, const Eigen::Vector2d& xy);
+/// Consensus landmarks as stored rows (region filter as MapStore::landmarks_in), with the
+/// verdict of each row by its key.
+std::vector<StoredPointLandmark> stored_points(
+    const PointConsensusResult& pc, const tiles::LocalFrame& frame,
+    const std::optional<tiles::GeoBox>& region,
+    std::unordered_map<std::int64_t, SupportVerdict>& verdicts);
+std::vector<StoredLineLandmark> stored_lines(
+    const LineConsensusResult& lc, const tiles::LocalFrame& frame,
+    const std::optional<tiles::GeoBox>& region,
+    std::unordered_map<std::int64_t, SupportVerdict>& verdicts);
+/// The changes against the previous version's landmarks, each with its reason.
+std::vector<LandmarkChange> changes_with_reasons(
+    const LandmarkSet& previous, const std::vector<StoredPointLandmark>& points,
+    const std::vector<StoredLineLandmark>& lines,
+    const std::unordered_map<std::int64_t, SupportVerdict>& verdicts,
+    const PointConsensusResult& pc, const LineConsensusResult& lc, const tiles::LocalFrame& frame,
+    const LandmarkDiffConfig& dcfg);
+/// The landmarks cut into localization tiles of zoom z.
+std::map<tiles::TileKey, tiles::LocalizationTile> localization_tile_content(
+    const std::vector<StoredPointLandmark>& points, const std::vector<StoredLineLandmark>& lines,
+    const tiles::LocalFrame& frame, int z, double line_sample_m);
+/// The merged gridmap stage (sums in step with the drives, raster tiles); returns the
+/// version statistics' "gridmap" object and fills st's gridmap fields.
+nlohmann::json build_gridmap(MapStore& store, std::int64_t version, const MapBuildRequest& req,
+                             const MapBuilderConfig& cfg,
+                             const std::vector<DriveRecord>& all_drives,
+                             const std::optional<std::int64_t>& current, MapBuildStats& st,
+                             const std::function<void()>& tick);
+
+/// The request a version's parameters describe (inverse of request_json; fields it does
+/// not record keep their defaults). ValidationError names a malformed field.
+MapBuildRequest request_from_json(const nlohmann::json& parameters);
+/// Partitioned build of `version` (request.partition set): plans and enqueues its jobs,
+/// then works on them here (control.run_jobs) or waits for build workers.
+MapBuildResult run_partitioned(MapStore& store, std::int64_t version, const MapBuildRequest& req,
+                               const MapBuilderConfig& cfg, const BuildControl& control);
+
+}  // namespace polmap::mapping::detail

@@ -3,10 +3,10 @@
 // (build_worker.hpp, schema/build_jobs.md) until SIGINT/SIGTERM; one log line per job.
 // Any number of workers, on any hosts, share a PostgreSQL store (or, on one host, a SQLite
 // file). A stop signal lets the job in hand finish and commit.
-#include <csignal>
 #include <CLI/CLI.hpp>
 #include <atomic>
 #include <chrono>
+#include <csignal>
 #include <cstdio>
 #include <memory>
 #include <string>
@@ -24,6 +24,7 @@ struct WorkerArgs {
   std::string db, package_dir, id;
   double lease_s = 30.0;
   double idle_poll_s = 0.5;
+  double hold_before_commit_s = 0.0;
   bool exit_when_idle = false;
   long max_jobs = 0;
 };
@@ -51,6 +52,7 @@ void run_worker(const WorkerArgs& a) {
   cfg.worker_id = a.id;
   cfg.lease_s = a.lease_s;
   cfg.renew_interval_s = a.lease_s / 5.0;
+  cfg.hold_before_commit_s = a.hold_before_commit_s;
   const mapping::BuildWorker worker(cfg);
   log_line("build worker " + worker.config().worker_id + " started (lease " +
            std::to_string(a.lease_s) + " s)");
@@ -64,9 +66,9 @@ void run_worker(const WorkerArgs& a) {
     }
     char line[256];
     std::snprintf(line, sizeof line, "job %lld of map version %lld: %s %s attempt %d %s in %.2f s",
-                  static_cast<long long>(r.job), static_cast<long long>(r.version),
-                  r.kind.c_str(), r.kind == "region" ? tiles::to_string(r.region).c_str() : "",
-                  r.attempt, std::string(mapping::to_string(r.status)).c_str(), r.seconds);
+                  static_cast<long long>(r.job), static_cast<long long>(r.version), r.kind.c_str(),
+                  r.kind == "region" ? tiles::to_string(r.region).c_str() : "", r.attempt,
+                  std::string(mapping::to_string(r.status)).c_str(), r.seconds);
     log_line(line + (r.error.empty() ? std::string() : ": " + r.error));
     if (a.max_jobs > 0 && ++jobs >= a.max_jobs) break;
   }
@@ -87,6 +89,8 @@ void setup(CLI::App& app) {
       ->check(CLI::Range(1.0, 3600.0));
   cmd->add_option("--idle-poll-s", a->idle_poll_s, "How often an idle worker looks for jobs")
       ->check(CLI::Range(0.01, 60.0));
+  cmd->add_option("--hold-before-commit-s", a->hold_before_commit_s,
+                  "Crash drills: hold each finished region job this long before its commit");
   cmd->add_flag("--exit-when-idle", a->exit_when_idle, "Exit when no job is claimable");
   cmd->add_option("--max-jobs", a->max_jobs, "Exit after this many jobs (0: no limit)");
   cmd->callback([a] { run_worker(*a); });

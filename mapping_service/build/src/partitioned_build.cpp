@@ -133,8 +133,7 @@ std::set<tiles::TileKey> plan_regions(const MapStore& store, const std::vector<D
       for (const auto& k : tiles::tiles_covering(d.bbox, part.zoom)) regions.insert(k);
     }
     for (const GeoPoint& g : samples) {
-      const tiles::GeoBox b =
-          grow_box({g.lat_deg, g.lon_deg, g.lat_deg, g.lon_deg}, part.halo_m);
+      const tiles::GeoBox b = grow_box({g.lat_deg, g.lon_deg, g.lat_deg, g.lon_deg}, part.halo_m);
       for (const auto& k : tiles::tiles_covering(b, part.zoom)) regions.insert(k);
     }
   }
@@ -148,8 +147,9 @@ MapBuildRequest request_from_json(const nlohmann::json& p) {
   try {
     if (p.contains("region") && !p["region"].is_null()) {
       const auto& g = p["region"];
-      r.region = tiles::GeoBox{g.at("min_lat_deg").get<double>(), g.at("min_lon_deg").get<double>(),
-                               g.at("max_lat_deg").get<double>(), g.at("max_lon_deg").get<double>()};
+      r.region =
+          tiles::GeoBox{g.at("min_lat_deg").get<double>(), g.at("min_lon_deg").get<double>(),
+                        g.at("max_lat_deg").get<double>(), g.at("max_lon_deg").get<double>()};
     }
     r.excluded_drive_ids =
         p.value("excluded_drive_ids", nlohmann::json::array()).get<std::vector<std::string>>();
@@ -173,7 +173,8 @@ MapBuildRequest request_from_json(const nlohmann::json& p) {
       const auto& j = p["lines"];
       auto& l = r.lines;
       l.max_hull_distance_m = j.value("max_hull_distance_m", l.max_hull_distance_m);
-      l.max_projection_distance_m = j.value("max_projection_distance_m", l.max_projection_distance_m);
+      l.max_projection_distance_m =
+          j.value("max_projection_distance_m", l.max_projection_distance_m);
       l.polyline_max_error_m = j.value("polyline_max_error_m", l.polyline_max_error_m);
       l.snap_max_gap_m = j.value("snap_max_gap_m", l.snap_max_gap_m);
       if (j.contains("support")) support(j["support"], l.support);
@@ -256,13 +257,13 @@ BuildJobOutput region_job(const MapStore& store, std::int64_t version, const Map
     std::erase_if(before.lines, [&](const StoredLineLandmark& l) {
       return owner_of_line(l.polyline, region.z) != region;
     });
-    out.changes = changes_with_reasons(before, out.points, out.lines, verdicts, pc, lc, frame,
-                                       cfg.diff);
+    out.changes =
+        changes_with_reasons(before, out.points, out.lines, verdicts, pc, lc, frame, cfg.diff);
   }
 
   std::int64_t written = 0, reused = 0, bytes = 0;
-  auto content =
-      localization_tile_content(out.points, out.lines, frame, cfg.tile_zoom, cfg.line_tile_sample_m);
+  auto content = localization_tile_content(out.points, out.lines, frame, cfg.tile_zoom,
+                                           cfg.line_tile_sample_m);
   for (auto& [key, t] : content) {
     if (!inside(key, region)) continue;
     TileWrite w;
@@ -364,7 +365,8 @@ void publish_job(MapStore& store, std::int64_t version, const MapBuildRequest& r
       st.landmarks_moved += r.value("landmarks_moved", std::int64_t{0});
       st.landmarks_retired += r.value("landmarks_retired", std::int64_t{0});
       st.drives_passing = std::max(st.drives_passing, r.value("drives_passing", std::int64_t{0}));
-      for (const auto& d : r.value("drives", nlohmann::json::array())) drives.insert(d.get<std::int64_t>());
+      for (const auto& d : r.value("drives", nlohmann::json::array()))
+        drives.insert(d.get<std::int64_t>());
     } else if (j.kind == "gridmap") {
       gridmap_info = r.value("gridmap", nlohmann::json());
       st.gridmap_tiles = r.value("gridmap_tiles", std::int64_t{0});
@@ -411,8 +413,9 @@ MapBuildResult run_partitioned(MapStore& store, std::int64_t version, const MapB
     for (const auto& d : all) {
       if (std::binary_search(rows.begin(), rows.end(), d.row)) included.push_back(d);
     }
-    const nlohmann::json base = {{"previous", current ? nlohmann::json(*current) : nlohmann::json()},
-                                 {"max_drive_row", rows.empty() ? 0 : rows.back()}};
+    const nlohmann::json base = {
+        {"previous", current ? nlohmann::json(*current) : nlohmann::json()},
+        {"max_drive_row", rows.empty() ? 0 : rows.back()}};
     std::vector<BuildJobSpec> jobs;
     // The gridmap job first: it is the longest, and runs beside the regions.
     if (req.build_gridmap) jobs.push_back({"gridmap", {0, 0, 0}, base});
@@ -458,13 +461,12 @@ MapBuildResult run_partitioned(MapStore& store, std::int64_t version, const MapB
       }
       if (ctl.progress) {
         const auto js = store.build_jobs(version);
-        const auto done = std::count_if(js.begin(), js.end(), [](const BuildJob& j) {
-          return j.state == BuildJobState::Done;
-        });
+        const auto done = std::count_if(
+            js.begin(), js.end(), [](const BuildJob& j) { return j.state == BuildJobState::Done; });
         ctl.progress("jobs", js.empty() ? 0.0 : static_cast<double>(done) / js.size());
       }
-      const bool idle = !ctl.run_jobs ||
-                        worker.run_one(store, version).status == BuildJobRun::Status::Idle;
+      const bool idle =
+          !ctl.run_jobs || worker.run_one(store, version).status == BuildJobRun::Status::Idle;
       if (idle) {
         std::this_thread::sleep_for(std::chrono::duration<double>(ctl.poll_interval_s));
       }
@@ -474,7 +476,8 @@ MapBuildResult run_partitioned(MapStore& store, std::int64_t version, const MapB
     result.error = e.what();
     try {
       const auto info = store.get_map_version(version);
-      if (info && info->status == MapVersionStatus::Building) store.fail_map_version(version, e.what());
+      if (info && info->status == MapVersionStatus::Building)
+        store.fail_map_version(version, e.what());
     } catch (const std::exception&) {  // reported through result.error already
     }
   }
@@ -554,6 +557,9 @@ BuildJobRun BuildWorker::run_one(MapStore& store, std::optional<std::int64_t> ve
     bool committed = true;
     if (job->kind == "region") {
       const BuildJobOutput out = detail::region_job(store, job->version, req, cfg, *job);
+      if (cfg_.hold_before_commit_s > 0.0) {
+        std::this_thread::sleep_for(std::chrono::duration<double>(cfg_.hold_before_commit_s));
+      }
       if (lost) throw detail::LeaseLost{};
       committed = store.complete_build_job(job->id, job->attempt, out);
     } else if (job->kind == "gridmap") {

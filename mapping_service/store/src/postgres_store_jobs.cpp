@@ -77,19 +77,19 @@ std::optional<BuildJob> PostgresMapStore::claim_build_job(std::string_view worke
             kNow + " + $2 FROM j WHERE build_jobs.job_id = j.job_id RETURNING build_jobs.job_id",
         std::string(worker), lease_s, version);
     if (r.empty()) return std::nullopt;
-    const Result row = c.run("SELECT " + job_columns() + " FROM build_jobs WHERE job_id = $1",
-                             r.i64(0, 0));
+    const Result row =
+        c.run("SELECT " + job_columns() + " FROM build_jobs WHERE job_id = $1", r.i64(0, 0));
     return Impl::build_job_from_row(row, 0);
   });
 }
 
 bool PostgresMapStore::renew_build_job(std::int64_t job, int attempt, double lease_s) {
   return impl_->transact([&](Connection& c) {
-    const Result r = c.run(
-        std::string("UPDATE build_jobs j SET lease_until = ") + kNow +
-            " + $3 FROM map_versions v WHERE j.job_id = $1 AND j.attempt = $2 AND j.state = "
-            "'running' AND v.version = j.version AND v.status = 'building'",
-        job, attempt, lease_s);
+    const Result r =
+        c.run(std::string("UPDATE build_jobs j SET lease_until = ") + kNow +
+                  " + $3 FROM map_versions v WHERE j.job_id = $1 AND j.attempt = $2 AND j.state = "
+                  "'running' AND v.version = j.version AND v.status = 'building'",
+              job, attempt, lease_s);
     return r.affected() == 1;
   });
 }

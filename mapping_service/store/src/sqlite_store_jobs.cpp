@@ -131,8 +131,9 @@ bool SqliteMapStore::complete_build_job(std::int64_t job, int attempt, const Bui
     if (!out.localization_tiles.empty()) {
       Impl::put_tiles_tx(c, version, TileLayer::Localization, out.localization_tiles);
     }
-    c.stmt("UPDATE build_jobs SET state = 'done', result_json = ?1, lease_until = 0 WHERE job_id "
-           "= ?2")
+    c.stmt(
+         "UPDATE build_jobs SET state = 'done', result_json = ?1, lease_until = 0 WHERE job_id "
+         "= ?2")
         .bind(1, out.result.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace))
         .bind(2, job)
         .run();

@@ -39,9 +39,8 @@ void put_drives(MapStore& store, const fs::path& tmp, const World& w, int n) {
   for (int d = 0; d < n; ++d) {
     std::string name = "d";
     name += std::to_string(d);
-    put_drive_along(store, tmp, w, name, 100 + d,
-                    {-kExtentM / 2, -kExtentM / 2}, {kExtentM / 2, kExtentM / 2},
-                    lawnmower(80.0, 10.0 + 7.0 * d), 30, 1000.0 * d);
+    put_drive_along(store, tmp, w, name, 100 + d, {-kExtentM / 2, -kExtentM / 2},
+                    {kExtentM / 2, kExtentM / 2}, lawnmower(80.0, 10.0 + 7.0 * d), 30, 1000.0 * d);
   }
 }
 
@@ -92,9 +91,7 @@ void run_workers(MapStore& store, std::int64_t version, int n, double lease_s = 
     ts.emplace_back([&, i] {
       std::string id = "w";
       id += std::to_string(i);
-      const BuildWorker w({.worker_id = id,
-                           .lease_s = lease_s,
-                           .renew_interval_s = lease_s / 5});
+      const BuildWorker w({.worker_id = id, .lease_s = lease_s, .renew_interval_s = lease_s / 5});
       for (;;) {
         const auto info = store.get_map_version(version);
         if (!info || info->status != MapVersionStatus::Building) return;
@@ -114,11 +111,11 @@ MapBuildResult enqueue_only(MapStore& store, std::int64_t version, const MapBuil
   BuildControl c;
   c.run_jobs = false;
   c.poll_interval_s = 0.02;
-  driver = std::thread([&store, version, r, c, &result] {
-    result = MapBuilder{}.run(store, version, r, c);
-  });
+  driver = std::thread(
+      [&store, version, r, c, &result] { result = MapBuilder{}.run(store, version, r, c); });
   // Until the jobs are enqueued.
-  while (store.build_jobs(version).empty()) std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  while (store.build_jobs(version).empty())
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
   return result;
 }
 
@@ -187,8 +184,9 @@ TEST_F(PartitionedBuild, CutsTheMapIntoRegionsWithLinesClippedAtTheirBorders) {
     EXPECT_TRUE(in_one) << "line " << ln.key << " crosses a region border";
   }
   const auto info = reference_->get_map_version(reference_version_);
-  EXPECT_EQ(info->statistics.value("tiles_total", 0),
-            static_cast<int>(reference_->list_tiles(reference_version_, TileLayer::Localization).size()));
+  EXPECT_EQ(
+      info->statistics.value("tiles_total", 0),
+      static_cast<int>(reference_->list_tiles(reference_version_, TileLayer::Localization).size()));
   EXPECT_EQ(info->statistics["partition"].value("regions", 0), regions);
 }
 
@@ -204,7 +202,7 @@ TEST_F(PartitionedBuild, ThreeWorkersGiveTheSameMapAsOneProcess) {
   ASSERT_EQ(result.status, MapBuildResult::Status::Published) << result.error;
   std::set<std::string> workers;
   for (const auto& j : store.build_jobs(v)) workers.insert(j.worker);
-  EXPECT_GE(workers.size(), 2U);  // the jobs were shared
+  EXPECT_GE(workers.size(), 2U);     // the jobs were shared
   ASSERT_EQ(v, reference_version_);  // same number: tiles carry it
   EXPECT_TRUE(served(store, v) == served(*reference_, reference_version_));
 }

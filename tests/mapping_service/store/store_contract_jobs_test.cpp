@@ -142,8 +142,9 @@ TEST_P(StoreJobs, AFailedVersionFailsItsJobsAndAQueuedBuildSurvivesAReopen) {
   ASSERT_TRUE(owns(*reopened));
   EXPECT_EQ(reopened->get_map_version(queued)->status, MapVersionStatus::Building);
   EXPECT_TRUE(reopened->claim_build_job("w", 30.0, queued).has_value());
-  EXPECT_THROW(reopened->enqueue_build_jobs(queued, std::vector<BuildJobSpec>{{"nonsense", {}, {}}}),
-               ValidationError);
+  EXPECT_THROW(
+      reopened->enqueue_build_jobs(queued, std::vector<BuildJobSpec>{{"nonsense", {}, {}}}),
+      ValidationError);
 }
 
 POLMAP_STORE_CONTRACT_BACKENDS(StoreJobs);

@@ -35,6 +35,9 @@ struct BuildWorkerConfig {
   /// while it runs; a worker silent for longer is presumed dead.
   double lease_s = 30.0;
   double renew_interval_s = 5.0;
+  /// Crash drills (tools/cluster-demo --kill-worker): each finished job is held this long
+  /// before its commit, so that a worker can be killed with its job in hand. 0 in service.
+  double hold_before_commit_s = 0.0;
 };
 
 /// What run_one did.

@@ -25,8 +25,10 @@ constexpr std::size_t kHeaderBytes = 32;
 // Columns per element (each costs at least one byte of body): the inflated size is at
 // least counts x columns, checked before anything is reserved.
 constexpr std::uint64_t kPointColumns = 6, kLineColumns = 5, kTrajectoryColumns = 10;
-// Bounds of decoded quantized values (|x| ≤ 1e5 km in mm, lat/lon in 1e-8°, ...).
-constexpr std::int64_t kMaxAbs = std::int64_t{1} << 50;
+// Bounds of decoded quantized values (|x| ≤ 4e6 km in mm, lat/lon in 1e-8°, UNIX times in
+// µs until the year 2112; 2^50 rejected times after 2005-09 and was raised, a relaxation that
+// every earlier file still meets). Exact in a double, far from int64 overflow in the deltas.
+constexpr std::int64_t kMaxAbs = std::int64_t{1} << 52;
 constexpr std::uint64_t kMaxStrengthCode = 200 * 50;  // strength ≤ e^50
 
 [[noreturn]] void bad(const std::string& field, const std::string& msg) {

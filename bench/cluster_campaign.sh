@@ -96,7 +96,7 @@ NGINX_PORT=$(free_port)
 # Per-client limits off: wrk is one client on loopback (the shipped defaults would answer
 # most of its requests 503, which is their job in service).
 deploy/nginx/render --prefix "$OUT/nginx" --listen "127.0.0.1:$NGINX_PORT" "${UP[@]}" \
-  --conn-per-ip 100000 --rate-per-ip 1000000 --burst-per-ip 1000000 >/dev/null 2>&1
+  --conn-per-ip 60000 --rate-per-ip 1000000 --burst-per-ip 1000000 >/dev/null 2>&1
 nginx -p "$OUT/nginx" -c "$OUT/nginx/nginx.conf" -e "$OUT/nginx/logs/error.log"
 URL="http://127.0.0.1:$NGINX_PORT"
 wait_health "$URL"

@@ -61,8 +61,7 @@ void run(const MigrateOptions& o) {
 
   const mapping::StoreVerifyReport v = mapping::verify_store_transfer(o.from, o.to);
   for (const auto& m : v.mismatches) std::fprintf(stderr, "migrate: verify: %s\n", m.c_str());
-  const double s =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   if (!v.ok()) {
     throw IoError("the copy in " + o.to + " differs from the source in " +
                   std::to_string(v.mismatches.size()) + " place(s) (listed above)");

@@ -63,7 +63,7 @@ struct TableSpec {
 constexpr Col I = Col::Int, R = Col::Real, T = Col::Text, J = Col::Json, B = Col::Blob;
 
 std::vector<ColumnSpec> tile_columns() {
-  return {{"version", I}, {"z", I},     {"x", I},        {"y", I},
+  return {{"version", I}, {"z", I},          {"x", I},        {"y", I},
           {"blob", I},    {"num_points", I}, {"num_lines", I}};
 }
 
@@ -73,11 +73,24 @@ std::vector<ColumnSpec> tile_columns() {
 const std::vector<TableSpec>& table_specs() {
   static const std::vector<TableSpec> specs = {
       {"drives",
-       {{"id", I},           {"drive_id", T},      {"content_hash", T}, {"vehicle_id", T},
-        {"start_time_s", R}, {"end_time_s", R},    {"min_lat_deg", R},  {"min_lon_deg", R},
-        {"max_lat_deg", R},  {"max_lon_deg", R},   {"pol_level", T},    {"distance_m", R},
-        {"num_points", I},   {"num_lines", I},     {"manifest_json", J}, {"package_path", T},
-        {"package_bytes", I}, {"ingested_at", T}},
+       {{"id", I},
+        {"drive_id", T},
+        {"content_hash", T},
+        {"vehicle_id", T},
+        {"start_time_s", R},
+        {"end_time_s", R},
+        {"min_lat_deg", R},
+        {"min_lon_deg", R},
+        {"max_lat_deg", R},
+        {"max_lon_deg", R},
+        {"pol_level", T},
+        {"distance_m", R},
+        {"num_points", I},
+        {"num_lines", I},
+        {"manifest_json", J},
+        {"package_path", T},
+        {"package_bytes", I},
+        {"ingested_at", T}},
        {"id"},
        Geometry::DriveBox},
       {"drive_trajectories",
@@ -152,7 +165,8 @@ const std::vector<TableSpec>& table_specs() {
         {"expires_at", T},
         {"file_path", T}},
        {"id"}},
-      {"gridmap_sum_inputs", {{"content_hash", T}, {"tiles", I}, {"added_at", T}},
+      {"gridmap_sum_inputs",
+       {{"content_hash", T}, {"tiles", I}, {"added_at", T}},
        {"content_hash"}},
       {"gridmap_sum_cover",
        {{"content_hash", T}, {"level", I}, {"x", I}, {"y", I}},
@@ -455,8 +469,8 @@ class PostgresReader final : public RawReader {
   }
   void scan(const TableSpec& t, const std::function<void(std::vector<Row>&)>& fn) override {
     // Keyset pagination in the snapshot: each batch is one query, memory stays bounded.
-    const bool big = std::string_view(t.name) == "tile_blobs" ||
-                     std::string_view(t.name) == "gridmap_sums";
+    const bool big =
+        std::string_view(t.name) == "tile_blobs" || std::string_view(t.name) == "gridmap_sums";
     const int limit = big ? 256 : 5000;
     const std::string base = "SELECT " + column_list(t) + " FROM " + t.name;
     const std::string order = " ORDER BY " + key_list(t) + " LIMIT " + std::to_string(limit);
@@ -706,7 +720,8 @@ class PostgresWriter final : public RawWriter {
   void insert(const TableSpec& t, const std::vector<Row>& rows) override {
     // Multi-row INSERTs: one round trip per batch instead of per row.
     const std::size_t per_row = t.columns.size() + (t.geometry == Geometry::None ? 0 : 1);
-    const std::size_t max_rows = std::max<std::size_t>(1, std::min<std::size_t>(500, 30000 / per_row));
+    const std::size_t max_rows =
+        std::max<std::size_t>(1, std::min<std::size_t>(500, 30000 / per_row));
     for (std::size_t first = 0; first < rows.size();) {
       std::size_t n = 0, bytes = 0;
       while (first + n < rows.size() && n < max_rows && bytes < (16u << 20)) {
@@ -731,7 +746,9 @@ class PostgresWriter final : public RawWriter {
         }
         if (t.geometry == Geometry::DriveBox) {
           // As put_drive writes it: the envelope of the row's own min/max columns.
-          auto col = [&](const char* c) { return "$" + std::to_string(row_first + column_index(t, c)); };
+          auto col = [&](const char* c) {
+            return "$" + std::to_string(row_first + column_index(t, c));
+          };
           sql += ", ST_MakeEnvelope(" + col("min_lon_deg") + ", " + col("min_lat_deg") + ", " +
                  col("max_lon_deg") + ", " + col("max_lat_deg") + ", 4326)";
         } else if (t.geometry != Geometry::None) {
@@ -758,7 +775,7 @@ class PostgresWriter final : public RawWriter {
     done_ = true;
     if (status != "COMMIT") throw IoError("postgresql: the transfer's transaction was rolled back");
     try {
-      c_.exec("ANALYZE");  // planner statistics for the freshly filled tables
+      c_.exec("ANALYZE");              // planner statistics for the freshly filled tables
     } catch (const std::exception&) {  // only statistics: the data is committed
     }
   }
@@ -791,9 +808,10 @@ Destination open_destination(const std::string& to, const StoreTransferOptions& 
     d.store = std::move(s);
   } else {
     if (!o.package_dir.empty()) {
-      throw ValidationError("--package-dir is for a PostgreSQL destination; a SQLite store keeps "
-                            "its packages in " +
-                            to + ".drives");
+      throw ValidationError(
+          "--package-dir is for a PostgreSQL destination; a SQLite store keeps "
+          "its packages in " +
+          to + ".drives");
     }
     auto s = std::make_unique<SqliteMapStore>(to);
     d.package_dir = s->drive_store_dir();
@@ -817,8 +835,8 @@ std::string file_sha256(const fs::path& file) {
 
 /// Places one package directory (hard links or copies) and checks every file its
 /// manifest.json lists against the listed size and sha256.
-void place_package(const fs::path& from, const fs::path& to, const std::string& drive_id,
-                   bool link, StoreTransferReport& report, std::vector<fs::path>& placed) {
+void place_package(const fs::path& from, const fs::path& to, const std::string& drive_id, bool link,
+                   StoreTransferReport& report, std::vector<fs::path>& placed) {
   std::error_code ec;
   if (!fs::is_directory(from, ec)) {
     throw IoError("drive '" + drive_id + "': package directory " + from.string() + " is missing");
@@ -946,8 +964,8 @@ StoreTransferReport transfer_store(const std::string& from, const std::string& t
         rethrow_in("table " + std::string(t.name));
       }
       if (done != total) {
-        throw IoError("table " + std::string(t.name) + ": copied " + std::to_string(done) +
-                      " of " + std::to_string(total) + " rows");
+        throw IoError("table " + std::string(t.name) + ": copied " + std::to_string(done) + " of " +
+                      std::to_string(total) + " rows");
       }
       if (o.progress && total == 0) o.progress({t.name, 0, 0});
       report.tables.push_back({t.name, done});
@@ -965,7 +983,8 @@ StoreTransferReport transfer_store(const std::string& from, const std::string& t
       place_package(src_packages / rel, dst.package_dir / rel, p.drive_id, o.hard_link_packages,
                     report, placed);
       ++report.packages;
-      if (o.progress) o.progress({"package files", ++n, static_cast<std::int64_t>(packages.size())});
+      if (o.progress)
+        o.progress({"package files", ++n, static_cast<std::int64_t>(packages.size())});
     }
     for (const auto& f : upload_files) {
       const fs::path src_file = src_uploads / f;
@@ -1076,7 +1095,8 @@ StoreVerifyReport verify_store_transfer(const std::string& from, const std::stri
       }
     }
   }
-  if (sa->current_map_version() != sb->current_map_version()) mismatch("current map version differs");
+  if (sa->current_map_version() != sb->current_map_version())
+    mismatch("current map version differs");
   for (const auto& v : sa->list_map_versions()) {
     if (v.status != MapVersionStatus::Published) continue;
     ++out.versions_compared;
@@ -1124,8 +1144,9 @@ StoreVerifyReport verify_store_transfer(const std::string& from, const std::stri
       for (std::size_t i = 0; same && i < ta.size(); ++i) {
         same = ta[i].key == tb[i].key && ta[i].etag == tb[i].etag;
       }
-      if (!same) mismatch(vs + ": tile listing (layer " + std::to_string(static_cast<int>(layer)) +
-                          ") differs");
+      if (!same)
+        mismatch(vs + ": tile listing (layer " + std::to_string(static_cast<int>(layer)) +
+                 ") differs");
     }
   }
   return out;

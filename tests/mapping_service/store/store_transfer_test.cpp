@@ -101,8 +101,8 @@ void expect_same_store(const MapStore& a, const MapStore& b, const std::string& 
     for (std::size_t k = 0; k < pa.size(); ++k) EXPECT_EQ(pa[k].lon_deg, pb[k].lon_deg);
   }
   // Region queries go through the R*Tree / GiST index the transfer wrote.
-  for (const auto& region : {std::optional<GeoBox>{}, std::optional<GeoBox>{GeoBox{
-                                                          -90.0, -180.0, 90.0, 180.0}}}) {
+  for (const auto& region :
+       {std::optional<GeoBox>{}, std::optional<GeoBox>{GeoBox{-90.0, -180.0, 90.0, 180.0}}}) {
     const CandidateSet ca = a.candidates_in(region), cb = b.candidates_in(region);
     ASSERT_EQ(ca.points.size(), cb.points.size());
     ASSERT_EQ(ca.lines.size(), cb.lines.size());
@@ -135,8 +135,8 @@ void expect_same_store(const MapStore& a, const MapStore& b, const std::string& 
     EXPECT_EQ(va[i].current, vb[i].current);
     if (va[i].status != MapVersionStatus::Published) continue;
     const std::int64_t v = va[i].version;
-    for (const auto& box : {std::optional<GeoBox>{},
-                            std::optional<GeoBox>{GeoBox{-90.0, -180.0, 90.0, 180.0}}}) {
+    for (const auto& box :
+         {std::optional<GeoBox>{}, std::optional<GeoBox>{GeoBox{-90.0, -180.0, 90.0, 180.0}}}) {
       const LandmarkSet la = a.landmarks_in(v, box), lb = b.landmarks_in(v, box);
       ASSERT_EQ(la.points.size(), lb.points.size());
       ASSERT_EQ(la.lines.size(), lb.lines.size());
@@ -233,13 +233,16 @@ class PostgresStoreTransfer : public ::testing::Test {
 
   fs::path src_path() const { return tmp.path() / "src.db"; }
 
-  /// The source: drives a, b -> build 1; an upload session with bytes; drive c -> build 2
-  /// (incremental: copied landmarks, changes, reused tiles); drive x put and deleted.
+  /// The source: drives a, b -> build 1 (landmarks of both); an upload session with bytes;
+  /// drive x put and deleted; b deleted and c (b's objects, seen 2 m off) put -> build 2
+  /// (incremental: copied tiles, landmark changes "retired", support links of b gone).
   void make_source() {
     SqliteMapStore s(src_path());
     put_package(s, tmp.path(), w, 0, "a");
-    put_package(s, tmp.path(), w, 1, "b", Eigen::Vector2d(30.0, 5.0), 5.0);
-    ASSERT_EQ(MapBuilder{}.build(s, {}).status, MapBuildResult::Status::Published);
+    put_package(s, tmp.path(), w, 1, "b", std::nullopt, 5.0);
+    const auto v1 = MapBuilder{}.build(s, {});
+    ASSERT_EQ(v1.status, MapBuildResult::Status::Published);
+    ASSERT_GT(s.landmarks_in(v1.version, std::nullopt).points.size(), 0u);
     UploadSessionRequest r;
     r.owner = std::string(64, 'f');
     r.length_bytes = 1000;
@@ -253,7 +256,8 @@ class PostgresStoreTransfer : public ::testing::Test {
     session_id_ = session.session.id;
     put_package(s, tmp.path(), w, 0, "x", Eigen::Vector2d(-20.0, 0.0), 7.0);
     ASSERT_TRUE(s.delete_drive("x"));
-    put_package(s, tmp.path(), w, 0, "c", Eigen::Vector2d(8.0, 3.0), 10.0);
+    ASSERT_TRUE(s.delete_drive("b"));
+    put_package(s, tmp.path(), w, 1, "c", Eigen::Vector2d(2.0, 0.0), 10.0);
     const auto v2 = MapBuilder{}.build(s, {});
     ASSERT_EQ(v2.status, MapBuildResult::Status::Published);
     ASSERT_GT(s.landmark_changes(v2.version).size(), 0u);
@@ -275,7 +279,7 @@ TEST_F(PostgresStoreTransfer, SqliteToPostgresToSqliteLosesNothingAndBuildsTheSa
     EXPECT_LE(p.done, p.total);
   };
   const auto to_pg = transfer_store(src_path().string(), url, o);
-  EXPECT_EQ(to_pg.packages, 3);  // a, b, c (x was deleted)
+  EXPECT_EQ(to_pg.packages, 2);  // a, c (b and x were deleted)
   EXPECT_EQ(to_pg.upload_files, 1);
   EXPECT_GT(to_pg.linked_files, 0);  // same file system: hard links
   EXPECT_EQ(seen.front(), "drives");
@@ -316,7 +320,7 @@ TEST_F(PostgresStoreTransfer, SqliteToPostgresToSqliteLosesNothingAndBuildsTheSa
     // same drive row, same landmarks (ids included) and tile ETags.
     std::vector<std::int64_t> versions;
     for (MapStore* s : std::initializer_list<MapStore*>{&src, &pg, &dst}) {
-      put_package(*s, tmp.path(), w, 1, "d", Eigen::Vector2d(-10.0, -6.0), 20.0);
+      put_package(*s, tmp.path(), w, 1, "d", std::nullopt, 20.0);
       const auto r = MapBuilder{}.build(*s, {});
       ASSERT_EQ(r.status, MapBuildResult::Status::Published) << r.error;
       versions.push_back(r.version);
@@ -352,17 +356,19 @@ std::int64_t rows_in(const std::string& db, const std::string& table) {
 
 void expect_empty(const std::string& db, const fs::path& packages, const std::string& what) {
   SCOPED_TRACE(what);
-  for (const char* t : {"drives", "candidates", "drive_trajectories", "map_versions",
-                        "current_map", "landmarks", "landmark_support", "landmark_changes",
-                        "tile_blobs", "tiles", "gridmap_tiles", "upload_sessions", "gridmap_sums",
-                        "gridmap_sum_inputs", "gridmap_sum_cover"}) {
+  for (const char* t :
+       {"drives", "candidates", "drive_trajectories", "map_versions", "current_map", "landmarks",
+        "landmark_support", "landmark_changes", "tile_blobs", "tiles", "gridmap_tiles",
+        "upload_sessions", "gridmap_sums", "gridmap_sum_inputs", "gridmap_sum_cover"}) {
     EXPECT_EQ(rows_in(db, t), 0) << t;
   }
   std::error_code ec;
   for (const auto& e : fs::directory_iterator(packages, ec)) {
     const std::string name = e.path().filename().string();
     EXPECT_TRUE(name == "uploads" || name == "quarantine") << "left behind: " << e.path();
-    if (name == "uploads") EXPECT_TRUE(fs::is_empty(e.path())) << e.path();
+    if (name == "uploads") {
+      EXPECT_TRUE(fs::is_empty(e.path())) << e.path();
+    }
   }
 }
 
@@ -383,20 +389,22 @@ TEST_F(PostgresStoreTransfer, AFailureMidwayLeavesTheDestinationEmpty) {
   const std::string url = PostgresCluster::instance().create_database();
   const fs::path pg_packages = tmp.path() / "pg_packages";
   const fs::path dst = tmp.path() / "dst.db";
-  for (const std::string stage : {"table:candidates", "table:landmarks", "table:gridmap_sums",
-                                  "files", "commit"}) {
+  for (const std::string stage :
+       {"table:candidates", "table:landmarks", "table:gridmap_sums", "files", "commit"}) {
     StoreTransferOptions o;
     o.fault_hook = [&](std::string_view s) {
       if (s == stage) throw IoError("injected failure at " + stage);
     };
     o.package_dir = pg_packages;
-    EXPECT_NE(error_of<IoError>([&] { transfer_store(src_path().string(), url, o); })
-                  .find("injected failure at " + stage),
+    EXPECT_NE(error_of<IoError>([&] {
+                transfer_store(src_path().string(), url, o);
+              }).find("injected failure at " + stage),
               std::string::npos);
     expect_empty(url, pg_packages, "PostgreSQL, failed at " + stage);
     o.package_dir.clear();
-    EXPECT_NE(error_of<IoError>([&] { transfer_store(src_path().string(), dst.string(), o); })
-                  .find("injected failure"),
+    EXPECT_NE(error_of<IoError>([&] {
+                transfer_store(src_path().string(), dst.string(), o);
+              }).find("injected failure"),
               std::string::npos);
     expect_empty(dst.string(), dst.string() + ".drives", "SQLite, failed at " + stage);
   }
@@ -453,7 +461,8 @@ TEST_F(PostgresStoreTransfer, RefusesNonEmptyDestinationsOtherSchemasUnknownTabl
   fs::copy_file(src_path(), old);
   const int latest = sqlite_store_migrations().back().version;
   testing::exec_sql(old, "DELETE FROM schema_migrations WHERE version = " + std::to_string(latest));
-  std::string e = error_of<ValidationError>([&] { transfer_store(old.string(), dst.string(), {}); });
+  std::string e =
+      error_of<ValidationError>([&] { transfer_store(old.string(), dst.string(), {}); });
   EXPECT_NE(e.find("has schema version " + std::to_string(latest - 1) + ", this build's is " +
                    std::to_string(latest)),
             std::string::npos)
@@ -474,6 +483,7 @@ TEST_F(PostgresStoreTransfer, RefusesNonEmptyDestinationsOtherSchemasUnknownTabl
 
   const fs::path jobs = tmp.path() / "jobs.db";
   fs::copy_file(src_path(), jobs);
+  fs::copy(src_path().string() + ".drives", jobs.string() + ".drives", fs::copy_options::recursive);
   testing::exec_sql(jobs,
                     "CREATE TABLE build_jobs (id INTEGER PRIMARY KEY, status TEXT); INSERT INTO "
                     "build_jobs VALUES (1, 'done')");

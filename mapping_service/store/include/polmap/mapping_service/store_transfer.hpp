@@ -68,8 +68,8 @@ struct StoreTableCount {
 };
 
 struct StoreTransferReport {
-  int schema_version = 0;               ///< of source and destination (they are equal)
-  std::vector<StoreTableCount> tables;  ///< rows copied per table, in copy order
+  int schema_version = 0;                     ///< of source and destination (they are equal)
+  std::vector<StoreTableCount> tables;        ///< rows copied per table, in copy order
   std::vector<std::string> transient_tables;  ///< `build_job*` tables of the source, skipped
   std::int64_t packages = 0;                  ///< package directories placed
   std::int64_t package_files = 0;             ///< files in them (manifest.json included)

@@ -484,9 +484,12 @@ TEST_F(PostgresStoreTransfer, RefusesNonEmptyDestinationsOtherSchemasUnknownTabl
   const fs::path jobs = tmp.path() / "jobs.db";
   fs::copy_file(src_path(), jobs);
   fs::copy(src_path().string() + ".drives", jobs.string() + ".drives", fs::copy_options::recursive);
+  // A finished partitioned build's job rows: transient, not copied.
   testing::exec_sql(jobs,
-                    "CREATE TABLE build_jobs (id INTEGER PRIMARY KEY, status TEXT); INSERT INTO "
-                    "build_jobs VALUES (1, 'done')");
+                    "INSERT INTO map_versions(version, status, created_at, parameters_json, "
+                    "error) VALUES (99, 'failed', '2026-12-03T00:00:00Z', '{}', 'x'); INSERT "
+                    "INTO build_jobs(version, kind, z, x, y, spec_json, state) VALUES (99, "
+                    "'region', 16, 1, 1, '{}', 'failed')");
   const auto r = transfer_store(jobs.string(), dst.string(), {});
   EXPECT_EQ(r.transient_tables, std::vector<std::string>{"build_jobs"});
   EXPECT_EQ(rows_in(dst.string(), "drives"), 1);

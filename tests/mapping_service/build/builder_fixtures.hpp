@@ -112,6 +112,23 @@ inline GridmapRaster make_raster(int q) {
   return r;
 }
 
+/// Writes `pkg` with `raster` as tmp/pkg_<name> (kept if a package of that name was written
+/// before: a drive put again after its delete) and its archive, validates the archive and
+/// puts it into the store.
+inline void put_written_package(MapStore& store, const fs::path& tmp, const std::string& name,
+                                const DrivePackage& pkg, const GridmapRaster& raster,
+                                const PackageWriteOptions& options) {
+  const fs::path dir = tmp / ("pkg_" + name);
+  if (!fs::exists(dir)) (void)write_drive_package(pkg, raster, dir, options);
+  const fs::path tar = tmp / ("pkg_" + name + ".tar");
+  if (!fs::exists(tar)) write_drive_package_archive(dir, tar);
+  const DrivePackage valid = read_and_validate_package(tar);
+  std::ifstream f(tar, std::ios::binary);
+  const std::string bytes((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+  ASSERT_EQ(store.put_drive(valid, tar, package_content_hash(bytes)).status,
+            PutDriveResult::Status::Inserted);
+}
+
 /// Writes drive d (0 or 1) of world w as a real package with make_raster(1) in the given
 /// format, validates its archive and puts it into the store.
 /// `origin_m`: moves the whole drive (frame origin, so candidates, trajectory and gridmap)
@@ -139,15 +156,7 @@ inline void put_real_package(MapStore& store, const fs::path& tmp, const World& 
   }
   GridmapRaster raster = make_raster(1);
   raster.noise_power = 1.0;  // format 2 needs the noise figure; format 1 ignores it
-  const fs::path dir = tmp / ("pkg_" + name);
-  (void)write_drive_package(pkg, raster, dir, options);
-  const fs::path tar = tmp / ("pkg_" + name + ".tar");
-  write_drive_package_archive(dir, tar);
-  const DrivePackage valid = read_and_validate_package(tar);
-  std::ifstream f(tar, std::ios::binary);
-  const std::string bytes((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
-  ASSERT_EQ(store.put_drive(valid, tar, package_content_hash(bytes)).status,
-            PutDriveResult::Status::Inserted);
+  put_written_package(store, tmp, name, pkg, raster, options);
 }
 
 /// A real package of a drive that observes the objects and walls of `w` inside [lo, hi]
@@ -190,15 +199,7 @@ inline void put_drive_along(MapStore& store, const fs::path& tmp, const World& w
   raster.noise_power = 1.0;
   PackageWriteOptions options;
   options.format_version = 2;
-  const fs::path dir = tmp / ("pkg_" + name);
-  (void)write_drive_package(pkg, raster, dir, options);
-  const fs::path tar = tmp / ("pkg_" + name + ".tar");
-  write_drive_package_archive(dir, tar);
-  const DrivePackage valid = read_and_validate_package(tar);
-  std::ifstream f(tar, std::ios::binary);
-  const std::string bytes((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
-  ASSERT_EQ(store.put_drive(valid, tar, package_content_hash(bytes)).status,
-            PutDriveResult::Status::Inserted);
+  put_written_package(store, tmp, name, pkg, raster, options);
 }
 
 }  // namespace polmap::mapping::builder_fixtures

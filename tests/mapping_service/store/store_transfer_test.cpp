@@ -32,37 +32,11 @@ PackageWriteOptions v2() {
   return o;
 }
 
-/// builder_fixtures' put_real_package on any backend: a real package (format 2, gridmap
-/// strip) of drive d of world w, validated, put into the store.
+/// A real package (format 2, gridmap strip) of drive d of world w, validated, put.
 void put_package(MapStore& store, const fs::path& tmp, const World& w, int d,
                  const std::string& name, std::optional<Eigen::Vector2d> origin_m = std::nullopt,
                  double start_time_s = 0.0) {
-  DrivePackage pkg = observe(w, name, d == 0 ? 45 : 51, {-25, -25}, {25, 25}, 0);
-  if (origin_m) pkg.manifest.origin = tiles::LocalFrame(kWorldOrigin).to_geo(*origin_m);
-  pkg.manifest.start_time_s = start_time_s;
-  pkg.manifest.end_time_s = start_time_s + 1.0;
-  pkg.manifest.pol_level = PolLevel::SingleLR;
-  pkg.manifest.sensors = default_front_mounts();
-  const tiles::LocalFrame drive_frame(pkg.manifest.origin);
-  for (int k = 0; k <= 10; ++k) {
-    const GeoPoint g = drive_frame.to_geo(Eigen::Vector2d(-25.0 + 5.0 * k, 0.0));
-    TrajectorySample t;
-    t.time_s = start_time_s + 0.1 * k;
-    t.lat_deg = g.lat_deg;
-    t.lon_deg = g.lon_deg;
-    t.speed_mps = 10.0;
-    pkg.trajectory.push_back(t);
-  }
-  GridmapRaster raster = make_raster(1);
-  raster.noise_power = 1.0;
-  const fs::path dir = tmp / ("pkg_" + name);
-  if (!fs::exists(dir)) (void)write_drive_package(pkg, raster, dir, v2());
-  const fs::path tar = tmp / ("pkg_" + name + ".tar");
-  if (!fs::exists(tar)) write_drive_package_archive(dir, tar);
-  const DrivePackage valid = read_and_validate_package(tar);
-  const std::string bytes = util::read_file_bytes(tar);
-  ASSERT_EQ(store.put_drive(valid, tar, package_content_hash(bytes)).status,
-            PutDriveResult::Status::Inserted);
+  put_real_package(store, tmp, w, d, name, v2(), origin_m, start_time_s);
 }
 
 /// Every table's rows, compared through the interface (what a server reads).

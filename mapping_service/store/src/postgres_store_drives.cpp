@@ -102,6 +102,10 @@ PutDriveResult PostgresMapStore::put_drive(const DrivePackage& package,
     return {PutDriveResult::Status::AlreadyPresent, *existing};
   }
   if (auto same_name = get_drive(m.drive_id)) {
+    // Stored by another thread or replica between the two reads: the same bytes.
+    if (same_name->content_hash == content_hash) {
+      return {PutDriveResult::Status::AlreadyPresent, *same_name};
+    }
     throw ConflictError("drive '" + m.drive_id + "' is already stored with content hash " +
                         same_name->content_hash + " (upload has " + content_hash + ")");
   }

@@ -200,6 +200,8 @@ struct Server::Impl {
   static bool reply_not_modified(const httplib::Request& req, httplib::Response& res,
                                  const std::string& etag, const std::string& cache_control);
   void register_gis_routes();
+  /// The web console (GET /, /console/...; server_console.cpp).
+  void register_console_routes();
 };
 
 /// The cpp-httplib server for `cfg`: plain, or TLS with cfg's certificate and key (checked

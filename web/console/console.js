@@ -1,0 +1,257 @@
+// polmap console (GET / of `polmap serve`): the map (landmarks, gridmap, coverage, version
+// diffs), map versions and the fleet, from the server's own API. No inline script, no CDN:
+// everything comes from this server (CSP in mapping_service/server/src/server_console.cpp).
+// The operator key lives in this script's memory only: it is sent as an Authorization
+// header, never put into a URL, the page's address or storage.
+'use strict';
+
+(function () {
+  const COLORS = {
+    odd: '#22c55e', even: '#d946ef', mixed: '#f59e0b', unknown: '#9ca3af', line: '#38bdf8',
+    added: '#f8fafc', moved: '#2563eb', retired: '#dc2626', coverage: '#facc15',
+  };
+  const state = { key: null, tilejson: null, map: null, versions: [], current: null };
+  const $ = (id) => document.getElementById(id);
+
+  function headers() {
+    return state.key ? { Authorization: 'Bearer ' + state.key } : {};
+  }
+
+  async function getJson(path, withKey) {
+    const res = await fetch(path, { headers: withKey ? headers() : {}, cache: 'no-cache' });
+    if (!res.ok) {
+      let msg = res.status + ' ' + res.statusText;
+      try { msg = (await res.json()).error || msg; } catch (e) { /* not JSON */ }
+      throw new Error(path.split('?')[0] + ': ' + msg);
+    }
+    return res.json();
+  }
+
+  function text(el, s) { el.textContent = s; return el; }
+
+  function cell(tr, s) { tr.appendChild(text(document.createElement('td'), String(s))); }
+
+  // ------------------------------------------------------------------ the map
+  function style(tj, gridmapMaxZoom) {
+    const p = tj.polmap || {};
+    const sources = {
+      landmarks: {
+        type: 'vector', tiles: tj.tiles, minzoom: tj.minzoom, maxzoom: tj.maxzoom,
+        bounds: tj.bounds,
+      },
+      diff: { type: 'geojson', data: { type: 'FeatureCollection', features: [] } },
+    };
+    const layers = [{ id: 'background', type: 'background', paint: { 'background-color': '#0c0c10' } }];
+    if (p.gridmap_tiles) {
+      sources.gridmap = { type: 'raster', tiles: [p.gridmap_tiles], tileSize: 256, minzoom: 14, maxzoom: gridmapMaxZoom, bounds: tj.bounds };
+      sources.mechanism = { type: 'raster', tiles: [p.gridmap_mechanism_tiles], tileSize: 256, minzoom: 14, maxzoom: gridmapMaxZoom, bounds: tj.bounds };
+      layers.push({ id: 'gridmap', type: 'raster', source: 'gridmap', paint: { 'raster-opacity': 0.85 } });
+      layers.push({ id: 'gridmap-mechanism', type: 'raster', source: 'mechanism', layout: { visibility: 'none' }, paint: { 'raster-opacity': 0.85 } });
+    }
+    layers.push(
+      { id: 'coverage', type: 'line', source: 'landmarks', 'source-layer': 'trajectories', layout: { visibility: 'none' },
+        paint: { 'line-color': COLORS.coverage, 'line-width': 2, 'line-opacity': 0.6 } },
+      { id: 'lines', type: 'line', source: 'landmarks', 'source-layer': 'lines',
+        paint: { 'line-color': COLORS.line, 'line-width': ['interpolate', ['linear'], ['zoom'], 14, 1, 20, 3] } },
+      { id: 'points', type: 'circle', source: 'landmarks', 'source-layer': 'points',
+        paint: {
+          'circle-radius': ['interpolate', ['linear'], ['zoom'], 14, 1.5, 20, 6],
+          'circle-color': ['match', ['get', 'class'], 'odd', COLORS.odd, 'even', COLORS.even, 'mixed', COLORS.mixed, COLORS.unknown],
+        } },
+      { id: 'diff-lines', type: 'line', source: 'diff', filter: ['==', ['geometry-type'], 'LineString'], layout: { visibility: 'none' },
+        paint: { 'line-width': 4, 'line-color': ['match', ['get', 'change'], 'added', COLORS.added, 'moved', COLORS.moved, COLORS.retired] } },
+      { id: 'diff-points', type: 'circle', source: 'diff', filter: ['==', ['geometry-type'], 'Point'], layout: { visibility: 'none' },
+        paint: { 'circle-radius': 6, 'circle-stroke-width': 1, 'circle-stroke-color': '#fff',
+          'circle-color': ['match', ['get', 'change'], 'added', COLORS.added, 'moved', COLORS.moved, COLORS.retired] } },
+    );
+    return { version: 8, sources, layers };
+  }
+
+  function setVisible(ids, on) {
+    for (const id of ids) {
+      if (state.map.getLayer(id)) state.map.setLayoutProperty(id, 'visibility', on ? 'visible' : 'none');
+    }
+  }
+
+  function gridmapLayers() {
+    const on = $('layer-gridmap').checked;
+    const mech = document.querySelector('input[name="gridmap-style"]:checked').value === 'mechanism';
+    setVisible(['gridmap'], on && !mech);
+    setVisible(['gridmap-mechanism'], on && mech);
+  }
+
+  function popupFor(f) {
+    const dl = document.createElement('dl');
+    dl.className = 'popup';
+    const p = f.properties;
+    const rows = [['kind', f.layer.id === 'points' ? 'point' : f.layer.id === 'lines' ? 'line' : f.layer.id],
+      ['id', p.id], ['class', p['class']], ['support (drives)', p.support_drives],
+      ['spread', p.spread_m !== undefined ? Number(p.spread_m).toFixed(3) + ' m' : undefined],
+      ['map version', p.map_version], ['change', p.change], ['moved by', p.distance_m !== undefined ? Number(p.distance_m).toFixed(3) + ' m' : undefined],
+      ['drive', p.drive_id], ['vehicle', p.vehicle_id]];
+    for (const [k, v] of rows) {
+      if (v === undefined || v === null) continue;
+      dl.appendChild(text(document.createElement('dt'), k));
+      dl.appendChild(text(document.createElement('dd'), String(v)));
+    }
+    return dl;
+  }
+
+  function initMap(tj, gridmapMaxZoom) {
+    const map = new maplibregl.Map({
+      container: 'map',
+      style: style(tj, gridmapMaxZoom),
+      center: [tj.center[0], tj.center[1]],
+      zoom: tj.center[2],
+      hash: true,  // #zoom/lat/lon keeps the view
+      attributionControl: { compact: true, customAttribution: 'polmap' },
+      // The key goes into a header of our own requests only (coverage needs it).
+      transformRequest: (url) => {
+        if (state.key && url.startsWith(window.location.origin + '/v1/mvt/')) return { url, headers: headers() };
+        return { url };
+      },
+    });
+    map.addControl(new maplibregl.NavigationControl(), 'top-left');
+    map.addControl(new maplibregl.ScaleControl({ unit: 'metric', maxWidth: 120 }), 'bottom-left');
+    map.on('error', (e) => { $('version-label').textContent = 'map error: ' + ((e.error && e.error.message) || e); });
+    const clickable = ['points', 'lines', 'diff-points', 'diff-lines', 'coverage'];
+    map.on('click', (e) => {
+      // A few pixels of slack: point landmarks are small circles.
+      const b = [[e.point.x - 4, e.point.y - 4], [e.point.x + 4, e.point.y + 4]];
+      const fs = map.queryRenderedFeatures(b, { layers: clickable.filter((id) => map.getLayer(id)) })
+        .sort((x, y) => clickable.indexOf(x.layer.id) - clickable.indexOf(y.layer.id));
+      if (!fs.length) return;
+      // A landmark and its change in the diff may lie on top of each other: show each once.
+      const box = document.createElement('div');
+      const seen = new Set();
+      for (const f of fs) {
+        if (seen.has(f.layer.id) || seen.size >= 3) continue;
+        seen.add(f.layer.id);
+        box.appendChild(popupFor(f));
+      }
+      new maplibregl.Popup({ maxWidth: '18em' }).setLngLat(e.lngLat).setDOMContent(box).addTo(map);
+    });
+    for (const id of clickable) {
+      map.on('mouseenter', id, () => { map.getCanvas().style.cursor = 'pointer'; });
+      map.on('mouseleave', id, () => { map.getCanvas().style.cursor = ''; });
+    }
+    state.map = map;
+    window.polmapConsole.map = map;
+    return map;
+  }
+
+  // ------------------------------------------------------------------ versions and diffs
+  function fillVersions() {
+    const body = $('versions').querySelector('tbody');
+    body.replaceChildren();
+    const from = $('diff-from'), to = $('diff-to');
+    from.replaceChildren();
+    to.replaceChildren();
+    const published = state.versions.filter((v) => v.status === 'published');
+    for (const v of state.versions.slice().reverse()) {
+      const tr = document.createElement('tr');
+      const s = v.statistics || {};
+      cell(tr, v.version + (v.current ? ' (current)' : ''));
+      cell(tr, v.status);
+      cell(tr, s.point_landmarks ?? '');
+      cell(tr, s.line_landmarks ?? '');
+      cell(tr, (v.published_at || '').replace('T', ' ').replace('Z', ''));
+      body.appendChild(tr);
+    }
+    for (const v of published) {
+      from.appendChild(text(document.createElement('option'), String(v.version))).value = String(v.version);
+      to.appendChild(text(document.createElement('option'), String(v.version))).value = String(v.version);
+    }
+    if (published.length >= 2) {
+      from.value = String(published[published.length - 2].version);
+      to.value = String(published[published.length - 1].version);
+    }
+  }
+
+  async function showDiff() {
+    const from = $('diff-from').value, to = $('diff-to').value;
+    if (!from || !to || from === to) { $('diff-summary').textContent = 'choose two different versions'; return; }
+    const d = await getJson('/v1/maps/' + encodeURIComponent(to) + '/diff?from=' + encodeURIComponent(from) + '&format=geojson');
+    state.map.getSource('diff').setData(d);
+    const s = (d.properties && d.properties.counts) || {};
+    $('diff-summary').textContent = 'v' + from + ' → v' + to + ': ' + (s.added || 0) + ' added, ' + (s.moved || 0) + ' moved, ' + (s.retired || 0) + ' retired';
+    $('layer-diff').disabled = false;
+    $('layer-diff').checked = true;
+    setVisible(['diff-points', 'diff-lines'], true);
+    window.polmapConsole.diff = d;
+  }
+
+  // ------------------------------------------------------------------ fleet
+  async function loadFleet() {
+    const status = $('fleet-status');
+    const body = $('drives').querySelector('tbody');
+    body.replaceChildren();
+    if (!state.key) { status.textContent = 'enter an operator key to see the drives'; return; }
+    try {
+      const d = await getJson('/v1/drives', true);
+      for (const r of d.drives) {
+        const tr = document.createElement('tr');
+        cell(tr, r.drive_id);
+        cell(tr, r.vehicle_id);
+        cell(tr, r.distance_m !== undefined ? (r.distance_m / 1000).toFixed(2) : '');
+        cell(tr, r.start_time_s ? new Date(r.start_time_s * 1000).toISOString().slice(0, 10) : '');
+        body.appendChild(tr);
+      }
+      status.textContent = d.count + ' drives';
+      $('layer-coverage').disabled = false;
+      // The coverage layer's tiles depend on the key: fetch them again with it.
+      const src = state.map.getSource('landmarks');
+      if (src && src.setTiles) src.setTiles(state.tilejson.tiles.slice());
+    } catch (e) {
+      status.textContent = String(e.message || e);
+    }
+  }
+
+  // ------------------------------------------------------------------ start
+  async function start() {
+    window.polmapConsole = { ready: false };
+    $('panel-toggle').addEventListener('click', () => {
+      const p = $('panel');
+      p.classList.toggle('hidden');
+      $('panel-toggle').setAttribute('aria-expanded', String(!p.classList.contains('hidden')));
+      if (state.map) state.map.resize();
+    });
+    const list = await getJson('/v1/maps');
+    state.versions = list.versions;
+    state.current = list.current;
+    if (list.current === null) {
+      $('version-label').textContent = 'no map version published yet';
+      window.polmapConsole.ready = true;
+      return;
+    }
+    const cur = state.versions.find((v) => v.version === list.current) || {};
+    const g = (cur.statistics && cur.statistics.gridmap) || {};
+    state.tilejson = await getJson('/v1/tilejson.json');
+    $('version-label').textContent = 'map version ' + list.current;
+    const map = initMap(state.tilejson, Number.isInteger(g.base_zoom) ? g.base_zoom : 20);
+    fillVersions();
+    $('layer-points').addEventListener('change', (e) => setVisible(['points'], e.target.checked));
+    $('layer-lines').addEventListener('change', (e) => setVisible(['lines'], e.target.checked));
+    $('layer-gridmap').addEventListener('change', gridmapLayers);
+    for (const r of document.querySelectorAll('input[name="gridmap-style"]')) r.addEventListener('change', gridmapLayers);
+    $('layer-coverage').addEventListener('change', (e) => setVisible(['coverage'], e.target.checked));
+    $('layer-diff').addEventListener('change', (e) => setVisible(['diff-points', 'diff-lines'], e.target.checked));
+    $('diff-show').addEventListener('click', () => showDiff().catch((e) => { $('diff-summary').textContent = String(e.message || e); }));
+    $('key-form').addEventListener('submit', (e) => {
+      e.preventDefault();
+      const input = $('api-key');
+      state.key = input.value.trim() || null;
+      input.value = '';  // out of the DOM as soon as it is read
+      loadFleet();
+    });
+    loadFleet();
+    map.once('idle', () => { window.polmapConsole.ready = true; });
+  }
+
+  document.addEventListener('DOMContentLoaded', () => {
+    start().catch((e) => {
+      $('version-label').textContent = String(e.message || e);
+      window.polmapConsole = { ready: true, error: String(e.message || e) };
+    });
+  });
+})();

@@ -54,7 +54,7 @@ const browser = await chromium.launch({
   executablePath: process.env.POLMAP_CHROMIUM || '/usr/bin/chromium',
   headless: true,
   // CI runs as root (no sandbox there); WebGL on the CPU (SwiftShader), no GPU.
-  args: ['--no-sandbox', '--use-angle=swiftshader', '--enable-unsafe-swiftshader', '--ignore-gpu-blocklist'],
+  args: ['--no-sandbox', '--disable-dev-shm-usage', '--use-angle=swiftshader', '--enable-unsafe-swiftshader', '--ignore-gpu-blocklist'],
 });
 // Playwright's waitForFunction evaluates its predicate with eval in the page, which the
 // console's CSP forbids (as it should); page.evaluate goes through the debugger protocol.

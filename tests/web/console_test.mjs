@@ -163,6 +163,22 @@ await check('the operator key shows the fleet and never reaches the URL or the l
   assert.ok(!stored.includes(KEY), 'nor in storage or cookies');
 });
 
+await check('an operator starts a build and sees its progress, then deletes a drive', async () => {
+  await page.click('#build-start');
+  await waitFor(page, () => /^version [0-9]+: published/.test(document.getElementById('build-status').textContent));
+  const list = await (await fetch(URL + '/v1/maps')).json();
+  assert.equal(list.current, 3);
+  assert.equal(list.versions.find((v) => v.version === 3).parameters.notes, 'started from the console');
+  assert.equal(await page.textContent('#version-label'), 'map version 3');
+  assert.equal(await page.$$eval('#versions tbody tr', (t) => t.length), 3);
+  page.once('dialog', (d) => d.accept());
+  await page.click('#drives tbody tr:first-child button');
+  await waitFor(page, () => document.querySelectorAll('#drives tbody tr').length === 2);
+  const drives = await (await fetch(URL + '/v1/drives', { headers: { Authorization: 'Bearer ' + KEY } })).json();
+  assert.equal(drives.count, 2);
+  assert.ok(!fs.readFileSync(LOG, 'utf8').includes(KEY), 'the key is not in the server log');
+});
+
 await check('a landmark click shows its attributes', async () => {
   const pt = await page.evaluate(() => {
     const m = window.polmapConsole.map;

@@ -17,6 +17,16 @@
     return state.key ? { Authorization: 'Bearer ' + state.key } : {};
   }
 
+  async function sendJson(method, path, body) {
+    const h = headers();
+    if (body !== undefined) h['Content-Type'] = 'application/json';
+    const res = await fetch(path, { method, headers: h, body: body === undefined ? undefined : JSON.stringify(body) });
+    let j = null;
+    try { j = await res.json(); } catch (e) { /* 204: no body */ }
+    if (!res.ok) throw new Error(method + ' ' + path + ': ' + ((j && j.error) || res.status));
+    return j;
+  }
+
   async function getJson(path, withKey) {
     const res = await fetch(path, { headers: withKey ? headers() : {}, cache: 'no-cache' });
     if (!res.ok) {
@@ -195,15 +205,76 @@
         cell(tr, r.vehicle_id);
         cell(tr, r.distance_m !== undefined ? (r.distance_m / 1000).toFixed(2) : '');
         cell(tr, r.start_time_s ? new Date(r.start_time_s * 1000).toISOString().slice(0, 10) : '');
+        const td = document.createElement('td');
+        const del = text(document.createElement('button'), 'delete');
+        del.type = 'button';
+        del.setAttribute('aria-label', 'delete drive ' + r.drive_id);
+        del.addEventListener('click', () => deleteDrive(r.drive_id));
+        td.appendChild(del);
+        tr.appendChild(td);
         body.appendChild(tr);
       }
       status.textContent = d.count + ' drives';
       $('layer-coverage').disabled = false;
+      $('build-start').disabled = false;
       // The coverage layer's tiles depend on the key: fetch them again with it.
       const src = state.map.getSource('landmarks');
       if (src && src.setTiles) src.setTiles(state.tilejson.tiles.slice());
     } catch (e) {
       status.textContent = String(e.message || e);
+    }
+  }
+
+  // ------------------------------------------------------------------ operator actions
+  async function deleteDrive(id) {
+    if (!window.confirm('Delete drive ' + id + ' and its package? The next build leaves it out.')) return;
+    try {
+      await sendJson('DELETE', '/v1/drives/' + encodeURIComponent(id));
+      $('fleet-status').textContent = 'drive ' + id + ' deleted';
+    } catch (e) {
+      $('fleet-status').textContent = String(e.message || e);
+    }
+    await loadFleet();
+  }
+
+  async function refreshVersions() {
+    const list = await getJson('/v1/maps');
+    state.versions = list.versions;
+    state.current = list.current;
+    fillVersions();
+    $('version-label').textContent = 'map version ' + list.current;
+    // Tiles of "current" changed: fetch them again.
+    const p = state.tilejson.polmap || {};
+    const urls = { landmarks: state.tilejson.tiles, gridmap: [p.gridmap_tiles], mechanism: [p.gridmap_mechanism_tiles] };
+    for (const [id, tiles] of Object.entries(urls)) {
+      const src = state.map.getSource(id);
+      if (src && src.setTiles && tiles[0]) src.setTiles(tiles.slice());
+    }
+  }
+
+  async function startBuild() {
+    const status = $('build-status'), bar = $('build-progress');
+    $('build-start').disabled = true;
+    try {
+      const r = await sendJson('POST', '/v1/maps', { notes: 'started from the console' });
+      bar.hidden = false;
+      for (;;) {
+        const v = await getJson('/v1/maps/' + r.version, false);
+        const p = v.progress || {};
+        bar.value = p.fraction || 0;
+        status.textContent = 'version ' + r.version + ': ' + v.status + (p.stage ? ' (' + p.stage + ', ' + Math.round(100 * (p.fraction || 0)) + ' %)' : '');
+        if (v.status !== 'building') {
+          if (v.status === 'published') await refreshVersions();
+          if (v.error) status.textContent += ': ' + v.error;
+          break;
+        }
+        await new Promise((res) => setTimeout(res, 300));
+      }
+    } catch (e) {
+      status.textContent = String(e.message || e);
+    } finally {
+      bar.hidden = true;
+      $('build-start').disabled = !state.key;
     }
   }
 
@@ -237,6 +308,7 @@
     $('layer-coverage').addEventListener('change', (e) => setVisible(['coverage'], e.target.checked));
     $('layer-diff').addEventListener('change', (e) => setVisible(['diff-points', 'diff-lines'], e.target.checked));
     $('diff-show').addEventListener('click', () => showDiff().catch((e) => { $('diff-summary').textContent = String(e.message || e); }));
+    $('build-start').addEventListener('click', startBuild);
     $('key-form').addEventListener('submit', (e) => {
       e.preventDefault();
       const input = $('api-key');

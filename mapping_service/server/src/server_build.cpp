@@ -38,10 +38,12 @@ std::int64_t begin_build(MapStore& store, const nlohmann::json& request) {
 }
 
 nlohmann::json execute_build(MapStore& store, std::int64_t version, const nlohmann::json& request,
-                             const std::atomic<bool>& stop, bool run_jobs) {
+                             const std::atomic<bool>& stop, bool run_jobs,
+                             const std::function<void(std::string_view, double)>& progress) {
   BuildControl control;
   control.cancel = &stop;
   control.run_jobs = run_jobs;
+  control.progress = progress;
   const MapBuildResult r = builder().run(store, version, to_request(request), control);
   if (r.status != MapBuildResult::Status::Published) {
     const std::string status(to_string(r.status));

@@ -1,4 +1,6 @@
 #pragma once
+#include <functional>
+#include <string_view>
 // Internal: the server's adapter to MapBuilder (map_builder.hpp). Kept apart so the
 // HTTP side does not depend on the builder's request/result types.
 #include <atomic>
@@ -17,7 +19,9 @@ std::int64_t begin_build(MapStore& store, const nlohmann::json& request);
 /// Returns the build statistics; throws on failure (the caller fails the version).
 /// A partitioned build ({"partition": {"zoom", "halo_m"}} in the request) runs its jobs
 /// here when run_jobs, else waits for `polmap build-worker` processes to run them.
+/// `progress` (may be empty) receives the stage and the fraction done.
 nlohmann::json execute_build(MapStore& store, std::int64_t version, const nlohmann::json& request,
-                             const std::atomic<bool>& stop, bool run_jobs);
+                             const std::atomic<bool>& stop, bool run_jobs,
+                             const std::function<void(std::string_view, double)>& progress);
 
 }  // namespace polmap::mapping

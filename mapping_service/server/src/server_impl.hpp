@@ -176,6 +176,10 @@ struct Server::Impl {
   std::map<std::int64_t, std::string> builds_to_fail;
   bool build_running = false;
   bool build_shutdown = false;
+  /// The running build's stage and fraction (GET /v1/maps/{v} "progress"; under build_mutex).
+  std::int64_t progress_version = 0;
+  std::string progress_stage;
+  double progress_fraction = 0.0;
   std::thread build_thread;
 
   // ---- routes (one function per file)

@@ -1,5 +1,6 @@
 // Map version endpoints: POST /v1/maps (build in the background), GET /v1/maps[/{version}],
 // GET /v1/maps/{version}/diff?from=U (landmark changes between two versions).
+#include <algorithm>
 #include <cmath>
 #if defined(__GLIBC__)
 #include <malloc.h>
@@ -129,6 +130,7 @@ void Server::Impl::build_loop() {
     {
       std::lock_guard lock(build_mutex);
       build_running = false;
+      progress_version = 0;
     }
     build_cv.notify_all();
   }
@@ -139,7 +141,13 @@ void Server::Impl::run_build(const BuildJob& job) {
   log("info", "map build " + std::to_string(job.version) + " started");
   try {
     const nlohmann::json stats =
-        execute_build(store, job.version, job.request, stopping, cfg.run_build_jobs);
+        execute_build(store, job.version, job.request, stopping, cfg.run_build_jobs,
+                      [this, v = job.version](std::string_view stage, double fraction) {
+                        std::lock_guard lock(build_mutex);
+                        progress_version = v;
+                        progress_stage = std::string(stage);
+                        progress_fraction = fraction;
+                      });
     invalidate_current_version();
     cache.clear();  // current-version entries may now be stale (versioned keys stay valid)
     metrics.build_finished("published");
@@ -383,18 +391,39 @@ void Server::Impl::register_map_routes() {
     res.set_header("Cache-Control", "public, max-age=3600");  // published versions are immutable
   });
 
-  http.Get(R"(/v1/maps/([^/]+))",
-           [this, version_param](const httplib::Request& req, httplib::Response& res) {
-             set_route("maps_get");
-             const auto v = version_param(req.matches[1], res, "version");
-             if (!v) return;
-             const auto info = store.get_map_version(*v);
-             if (!info) {
-               return reply_error(res, 404, "map version " + std::to_string(*v) + " does not exist",
-                                  "version");
-             }
-             reply_json(res, 200, version_to_json(*info));
-           });
+  http.Get(R"(/v1/maps/([^/]+))", [this, version_param](const httplib::Request& req,
+                                                        httplib::Response& res) {
+    set_route("maps_get");
+    const auto v = version_param(req.matches[1], res, "version");
+    if (!v) return;
+    const auto info = store.get_map_version(*v);
+    if (!info) {
+      return reply_error(res, 404, "map version " + std::to_string(*v) + " does not exist",
+                         "version");
+    }
+    nlohmann::json j = version_to_json(*info);
+    if (info->status == MapVersionStatus::Building) {
+      // Live progress: this replica's build thread, or the jobs of a partitioned
+      // build that workers (on any host) run.
+      std::lock_guard lock(build_mutex);
+      if (progress_version == *v) {
+        j["progress"] = {{"stage", progress_stage}, {"fraction", progress_fraction}};
+      }
+    }
+    if (info->status == MapVersionStatus::Building && !j.contains("progress")) {
+      const auto jobs = store.build_jobs(*v);
+      if (!jobs.empty()) {
+        const auto done = std::count_if(jobs.begin(), jobs.end(), [](const mapping::BuildJob& b) {
+          return b.state == BuildJobState::Done;
+        });
+        j["progress"] = {{"stage", "jobs"},
+                         {"fraction", static_cast<double>(done) / jobs.size()},
+                         {"jobs_done", done},
+                         {"jobs", jobs.size()}};
+      }
+    }
+    reply_json(res, 200, j);
+  });
 }
 
 }  // namespace polmap::mapping

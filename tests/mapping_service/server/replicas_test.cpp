@@ -6,6 +6,7 @@
 #include "mapping_service/store/store_backends.hpp"
 // After the store headers: server_fixture.hpp ends with httplib.
 #include "mapping_service/server_fixture.hpp"
+#include "polmap/mapping_service/build_worker.hpp"
 
 namespace polmap::mapping::testing {
 namespace {
@@ -15,8 +16,9 @@ using Clock = std::chrono::steady_clock;
 /// One replica: a store object on the shared database and a server over it.
 class Replica {
  public:
+  /// partition_zoom > 0: this replica partitions its builds and leaves the jobs to workers.
   Replica(const std::string& url, const std::filesystem::path& packages,
-          const std::filesystem::path& uploads) {
+          const std::filesystem::path& uploads, int partition_zoom = 0) {
     PostgresStoreOptions o;
     o.conninfo = url;
     o.package_dir = packages;
@@ -27,6 +29,11 @@ class Replica {
     cfg.upload_dir = uploads;
     cfg.threads = 4;
     cfg.log_requests = false;
+    cfg.fail_stale_builds_on_start = false;  // as polmap serve on PostgreSQL
+    if (partition_zoom > 0) {
+      cfg.build_partition_zoom = partition_zoom;
+      cfg.run_build_jobs = false;
+    }
     server_ = std::make_unique<Server>(*store_, cfg);
     thread_ = std::thread([this] { server_->listen("127.0.0.1", 0); });
     ok_ = server_->wait_until_listening(std::chrono::seconds(10));
@@ -147,6 +154,73 @@ TEST(Replicas, TwoServersOnOnePostgresStoreAnswerAlike) {
     }
   }
   EXPECT_EQ(ca.Get("/v1/tilejson.json", host)->body, cb.Get("/v1/tilejson.json", host)->body);
+}
+
+TEST(Replicas, APartitionedBuildQueuedOnOneIsRunByWorkersWithItsProgressOnTheOther) {
+  polmap::test::TestDir tmp("replicas-workers");
+  const std::string url = PostgresCluster::instance().create_database();
+  Replica a(url, tmp.path() / "packages", tmp.path() / "uploads-a", 16);
+  Replica b(url, tmp.path() / "packages", tmp.path() / "uploads-b");
+  ASSERT_TRUE(a.ok());
+  ASSERT_TRUE(b.ok());
+  auto ca = a.client();
+  auto cb = b.client();
+  ASSERT_EQ(
+      ca.Post("/v1/drives", auth(), scene_tar("replica_drive_1", 22), "application/x-tar")->status,
+      201);
+  ASSERT_EQ(
+      cb.Post("/v1/drives", auth(), scene_tar("replica_drive_2", 23), "application/x-tar")->status,
+      201);
+  auto r = ca.Post("/v1/maps", auth(), "{}", "application/json");
+  ASSERT_EQ(r->status, 202);
+  const std::int64_t version = nlohmann::json::parse(r->body)["version"].get<std::int64_t>();
+  const std::string path = "/v1/maps/" + std::to_string(version);
+  // No worker yet: the build waits, and the other replica shows its jobs.
+  nlohmann::json j;
+  for (int i = 0; i < 200; ++i) {
+    j = nlohmann::json::parse(cb.Get(path)->body);
+    if (j.contains("progress")) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(25));
+  }
+  ASSERT_EQ(j["status"], "building");
+  ASSERT_TRUE(j.contains("progress")) << j.dump();
+  EXPECT_EQ(j["progress"]["stage"], "jobs");
+  EXPECT_EQ(j["progress"]["jobs_done"], 0);
+  EXPECT_GE(j["progress"]["jobs"].get<int>(), 3);  // gridmap, regions, publish
+  // Two workers with stores of their own (as two more processes) finish it.
+  std::atomic<bool> stop{false};
+  std::vector<std::thread> workers;
+  for (int w = 0; w < 2; ++w) {
+    workers.emplace_back([&, w] {
+      PostgresStoreOptions o;
+      o.conninfo = url;
+      PostgresMapStore store(std::move(o));
+      std::string id = "worker-";
+      id += std::to_string(w);
+      const BuildWorker worker({.worker_id = id});
+      while (!stop) {
+        if (worker.run_one(store).status == BuildJobRun::Status::Idle) {
+          std::this_thread::sleep_for(std::chrono::milliseconds(20));
+        }
+      }
+    });
+  }
+  a.server().wait_for_builds();
+  stop = true;
+  for (auto& t : workers) t.join();
+  j = nlohmann::json::parse(cb.Get(path)->body);
+  EXPECT_EQ(j["status"], "published") << j.dump();
+  EXPECT_FALSE(j.contains("progress"));
+  EXPECT_GT(j["statistics"]["point_landmarks"].get<int>(), 0);
+  EXPECT_GE(j["statistics"]["partition"]["regions"].get<int>(), 1);
+  // Served by the other replica within a second.
+  bool served = false;
+  for (int i = 0; i < 40 && !served; ++i) {
+    const auto t = cb.Get("/v1/tilejson.json");
+    served = t && nlohmann::json::parse(t->body)["polmap"]["map_version"] == version;
+    if (!served) std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+  EXPECT_TRUE(served);
 }
 
 }  // namespace

@@ -170,6 +170,8 @@ await check('an operator starts a build and sees its progress, then deletes a dr
   assert.equal(list.current, 3);
   assert.equal(list.versions.find((v) => v.version === 3).parameters.notes, 'started from the console');
   assert.equal(await page.textContent('#version-label'), 'map version 3');
+  // The map reloads its tiles for the new current version and shows its landmarks again.
+  await waitFor(page, () => window.polmapConsole.map.queryRenderedFeatures({ layers: ['points'] }).length > 0);
   assert.equal(await page.$$eval('#versions tbody tr', (t) => t.length), 3);
   page.once('dialog', (d) => d.accept());
   await page.click('#drives tbody tr:first-child button');
@@ -180,6 +182,8 @@ await check('an operator starts a build and sees its progress, then deletes a dr
 });
 
 await check('a landmark click shows its attributes', async () => {
+  await waitFor(page, () => window.polmapConsole.map.loaded() &&
+    window.polmapConsole.map.queryRenderedFeatures({ layers: ['points'] }).length > 0);
   const pt = await page.evaluate(() => {
     const m = window.polmapConsole.map;
     const f = m.queryRenderedFeatures({ layers: ['points'] })[0];

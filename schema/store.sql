@@ -55,6 +55,12 @@
 --                     gridmap_sum_cover the sum tiles each touched. Not tied to drives by a
 --                     foreign key: a deleted drive stays an input until the next build takes
 --                     its contribution out (recomputing its tiles from the remaining inputs).
+--   localization_runs (migration 9) localization run reports sent by vehicles (POST /v1/runs,
+--                     schema/localization_run.md): the list's columns, the server's summary and
+--                     the canonical report bytes (body). The newest N are kept.
+--   localization_run_cells (migration 9) a run's samples binned into Web-Mercator tiles
+--                     (zoom z): sums that add up over runs for the fleet-wide quality layer.
+--                     Deleted with their run (cascade).
 --   landmark_changes  (migration 4) per map version: landmarks added, moved or retired against the version
 --                     current when its build started, with the builder's reason (JSON).
 --   tile_blobs        content-addressed tile payloads: etag = SHA-256 hex of payload, unique,
@@ -314,3 +320,34 @@ CREATE TABLE build_jobs (
 );
 CREATE INDEX build_jobs_claim ON build_jobs(state, job_id);
 CREATE INDEX build_jobs_version ON build_jobs(version, kind, state);
+
+-- migration 9: localization run reports (schema/localization_run.md) and their quality cells
+CREATE TABLE localization_runs (
+  id           INTEGER PRIMARY KEY,
+  received_at  TEXT NOT NULL,
+  vehicle_id   TEXT NOT NULL,
+  map_version  INTEGER NOT NULL,
+  label        TEXT NOT NULL,
+  samples      INTEGER NOT NULL,
+  min_lat_deg  REAL NOT NULL,
+  min_lon_deg  REAL NOT NULL,
+  max_lat_deg  REAL NOT NULL,
+  max_lon_deg  REAL NOT NULL,
+  summary_json TEXT NOT NULL,
+  body         BLOB NOT NULL
+);
+CREATE INDEX localization_runs_vehicle ON localization_runs(vehicle_id, id);
+CREATE TABLE localization_run_cells (
+  run               INTEGER NOT NULL REFERENCES localization_runs(id) ON DELETE CASCADE,
+  z                 INTEGER NOT NULL,
+  x                 INTEGER NOT NULL,
+  y                 INTEGER NOT NULL,
+  samples           INTEGER NOT NULL,
+  degraded          INTEGER NOT NULL,
+  evaluated         INTEGER NOT NULL,
+  sum_sigma_lat_m   REAL NOT NULL,
+  sum_err_lat2_m2   REAL NOT NULL,
+  max_abs_err_lat_m REAL NOT NULL,
+  PRIMARY KEY (run, z, x, y)
+) WITHOUT ROWID;
+CREATE INDEX localization_run_cells_tile ON localization_run_cells(z, x, y);

@@ -264,3 +264,34 @@ CREATE TABLE build_jobs (
 );
 CREATE INDEX build_jobs_claim ON build_jobs(state, job_id);
 CREATE INDEX build_jobs_version ON build_jobs(version, kind, state);
+
+-- migration 3: localization run reports and their quality cells (store.sql migration 9)
+CREATE TABLE localization_runs (
+  id           bigint PRIMARY KEY,
+  received_at  text NOT NULL,
+  vehicle_id   text NOT NULL,
+  map_version  bigint NOT NULL,
+  label        text NOT NULL,
+  samples      bigint NOT NULL,
+  min_lat_deg  double precision NOT NULL,
+  min_lon_deg  double precision NOT NULL,
+  max_lat_deg  double precision NOT NULL,
+  max_lon_deg  double precision NOT NULL,
+  summary_json jsonb NOT NULL,
+  body         bytea NOT NULL
+);
+CREATE INDEX localization_runs_vehicle ON localization_runs(vehicle_id, id);
+CREATE TABLE localization_run_cells (
+  run               bigint NOT NULL REFERENCES localization_runs(id) ON DELETE CASCADE,
+  z                 integer NOT NULL,
+  x                 integer NOT NULL,
+  y                 integer NOT NULL,
+  samples           bigint NOT NULL,
+  degraded          bigint NOT NULL,
+  evaluated         bigint NOT NULL,
+  sum_sigma_lat_m   double precision NOT NULL,
+  sum_err_lat2_m2   double precision NOT NULL,
+  max_abs_err_lat_m double precision NOT NULL,
+  PRIMARY KEY (run, z, x, y)
+);
+CREATE INDEX localization_run_cells_tile ON localization_run_cells(z, x, y);

@@ -163,6 +163,36 @@ await check('the operator key shows the fleet and never reaches the URL or the l
   assert.ok(!stored.includes(KEY), 'nor in storage or cookies');
 });
 
+await check('the reported localization run is drawn coloured by error, with its plot and the fleet layer', async () => {
+  // tests/web/console_test.sh localized the held-out drive with --report and --truth.
+  const runs = await (await fetch(URL + '/v1/runs', { headers: { Authorization: 'Bearer ' + KEY } })).json();
+  assert.equal(runs.count, 1);
+  const s = runs.runs[0].summary;
+  assert.ok(s.evaluated > 20, 'the run carries errors: ' + JSON.stringify(s));
+  assert.ok(s.lat_rmse_m < 0.3, 'lateral RMSE ' + s.lat_rmse_m);
+  await waitFor(page, () => window.polmapConsole.run !== undefined);
+  assert.equal(await page.$$eval('#runs tbody tr', (t) => t.length), 1);
+  assert.match(await page.textContent('#run-summary'), /lateral RMSE 0\.[0-9]{3} m/);
+  assert.ok(await page.isChecked('input[name="run-colour"][value="error"]'), 'coloured by error');
+  const segments = await page.evaluate(() => window.polmapConsole.run.features.length);
+  assert.equal(segments, runs.runs[0].samples - 1);
+  await page.click('#runs tbody tr:first-child button');  // fits the map to the run
+  await idle();
+  assert.ok((await renderedCount('run')) > 0, 'run segments drawn');
+  const curve = await page.getAttribute('#run-plot path.curve', 'd');
+  assert.ok(curve && curve.split('L').length > 20, 'the error-vs-distance plot has a curve');
+  await page.screenshot({ path: path.join(ART, 'console-run.png') });
+  await page.check('input[name="run-colour"][value="status"]');
+  const colour = await page.evaluate(() => window.polmapConsole.map.getPaintProperty('run', 'line-color'));
+  assert.equal(colour[0], 'match', 'coloured by status');
+  await page.click('#layer-quality');
+  await idle();
+  assert.ok((await renderedCount('quality')) > 0, 'fleet quality cells drawn');
+  await page.screenshot({ path: path.join(ART, 'console-run-status.png') });
+  await page.click('#layer-quality');
+  await page.check('input[name="run-colour"][value="error"]');
+});
+
 await check('an operator starts a build and sees its progress, then deletes a drive', async () => {
   await page.click('#build-start');
   await waitFor(page, () => /^version [0-9]+: published/.test(document.getElementById('build-status').textContent));

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The web console in a real browser (Debian's Chromium, driven by playwright-core from
 # web/console's npm lock file): a small simulated map (3 drives of 300 m, two versions, so
-# there is a diff), `polmap serve` on loopback, then tests/web/console_test.mjs. Screenshots
+# there is a diff, and the held-out drive's localization run reported), `polmap serve` on
+# loopback, then tests/web/console_test.mjs. Screenshots
 # go to ${POLMAP_TEST_ARTIFACTS:-build/test-artifacts}/console/.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
@@ -30,6 +31,11 @@ done
 URL="http://127.0.0.1:$PORT"
 for i in 0 1; do "$POLMAP" upload --server "$URL" --package "$work/pkg_$i" --api-key "$KEY" >/dev/null; done
 "$POLMAP" build-map --server "$URL" --api-key "$KEY" --wait >/dev/null
+# The held-out drive localizes against version 1 and reports its run (errors from the
+# simulator's truth), as tools/demo does.
+"$POLMAP" localize --server "$URL" --recording "$work/sim/drive_2.pmrec" --cache "$work/cache" \
+  --out "$work/loc_2.csv" --report "$URL" --api-key "$KEY" \
+  --truth "$work/sim/truth/drive_2_trajectory.csv" >/dev/null
 "$POLMAP" upload --server "$URL" --package "$work/pkg_2" --api-key "$KEY" >/dev/null
 "$POLMAP" build-map --server "$URL" --api-key "$KEY" --wait >/dev/null
 POLMAP_URL="$URL" POLMAP_KEY="$KEY" POLMAP_SERVER_LOG="$work/server.log" POLMAP_ARTIFACTS="$ART" \

@@ -21,6 +21,13 @@
 // ahead in the background. The cache directory (default
 // $XDG_CACHE_HOME/polmap/tiles or ~/.cache/polmap/tiles) makes later runs work
 // offline.
+//
+// Run report (--report URL --api-key KEY): after the drive, a summary of the run
+// (schema/localization_run.md: the trajectory decimated to 5 Hz with status and
+// covariance) is sent to the mapping service (POST /v1/runs), where the web console draws
+// it. With --truth CSV (the simulator's exact poses) or --report-errors-from-recording
+// (the recording's GNSS/INS), the report carries the errors against that reference,
+// computed after the run as `polmap eval` computes them; the localization never sees it.
 #include <CLI/CLI.hpp>
 #include <chrono>
 #include <cmath>
@@ -35,9 +42,12 @@
 #include <string>
 
 #include "command.hpp"
+#include "polmap/eval/run_errors.hpp"
 #include "polmap/eval/stage_budget.hpp"
 #include "polmap/eval/trajectory_eval.hpp"
 #include "polmap/localization_client/localizer.hpp"
+#include "polmap/localization_client/run_recorder.hpp"
+#include "polmap/localization_client/run_reporter.hpp"
 #include "polmap/localization_client/tile_fetcher.hpp"
 #include "polmap/schema/errors.hpp"
 #include "polmap/schema/recording_io.hpp"
@@ -63,7 +73,40 @@ struct LocalizeOptions {
   std::int64_t map_version = 0;
   std::uint64_t seed = 1;
   bool json = false;
+  std::string report;
+  std::string api_key;
+  std::string truth;
+  bool report_errors_from_recording = false;
+  std::string label;
 };
+
+/// After the run: the report's errors against the chosen reference, then POST /v1/runs.
+/// Returns the report's JSON summary for the command's output.
+nlohmann::json send_report(const LocalizeOptions& o, LocalizationRun run) {
+  nlohmann::json j;
+  if (!o.truth.empty() || o.report_errors_from_recording) {
+    std::vector<TrajectorySample> gnss;  // read only now: the run is over
+    RecordingReader reader(o.recording);
+    while (auto rec = reader.next()) {
+      if (const auto* t = std::get_if<TrajectorySample>(&*rec)) gnss.push_back(*t);
+    }
+    const bool truth = !o.truth.empty();
+    const auto reference =
+        truth ? eval::reference_from_truth_csv(o.truth, gnss) : eval::reference_from_samples(gnss);
+    const auto m = eval::attach_run_errors(
+        run, reference, truth ? RunReference::SimulatorTruth : RunReference::GnssIns);
+    j["evaluated"] = m.evaluated;
+    j["lat_rmse_m"] = m.lat_rmse_m;
+  }
+  const auto r = loc::report_localization_run(o.report, o.api_key, run);
+  if (r.status != loc::RunReportResult::Status::Stored) {
+    throw IoError("--report " + o.report + ": the run report was not stored: " + r.message);
+  }
+  j["run_id"] = r.id;
+  j["samples"] = run.samples.size();
+  j["url"] = o.report + "/v1/runs/" + std::to_string(r.id);
+  return j;
+}
 
 std::vector<double> parse_numbers(const std::string& s, std::size_t n, const std::string& option) {
   std::vector<double> out;
@@ -172,6 +215,7 @@ void run(const LocalizeOptions& o) {
   localizer.set_initial_pose(initial, sigma_xy_m, sigma_yaw_rad);
 
   eval::TrajectoryCsvWriter writer(o.out);
+  loc::RunRecorder recorder;
   std::map<std::string, int> status_rows;
   int frames = 0, rows = 0, extractions = 0, graph_solves = 0;
   double proc_sum = 0.0, proc_max = 0.0, graph_sum = 0.0, first_tracking = -1.0;
@@ -182,6 +226,7 @@ void run(const LocalizeOptions& o) {
   Progress progress("localize " + o.recording, static_cast<double>(reader.file_size()));
   auto handle = [&](const SensorFrame& f) {
     const loc::LocalizationOutput out = localizer.process(f);
+    if (!o.report.empty()) recorder.add(out);
     stage_cpu += out.cpu;
     ++frames;
     t_last = f.time_s;
@@ -253,6 +298,15 @@ void run(const LocalizeOptions& o) {
                 {"transport_errors", fs_stats.transport_errors},
                 {"bytes_downloaded", fs_stats.bytes_downloaded},
                 {"cache_dir", fcfg.cache_dir.string()}};
+  if (!o.report.empty()) {
+    std::string label = o.label.empty() ? fs::path(o.recording).stem().string() : o.label;
+    if (label.size() > LocalizationRunLimits::kMaxLabelBytes) {
+      label.resize(LocalizationRunLimits::kMaxLabelBytes);  // a label, not an identity
+    }
+    j["report"] = send_report(
+        o, recorder.run(label, o.pol,
+                        wall_s > 0 ? std::optional((t_last - t_first) / wall_s) : std::nullopt));
+  }
   if (o.json) {
     std::printf("%s\n", j.dump(2).c_str());
     return;
@@ -280,6 +334,12 @@ void run(const LocalizeOptions& o) {
       static_cast<unsigned long long>(fs_stats.bytes_downloaded), fcfg.cache_dir.string().c_str());
   if (drive_s > 0) {
     std::printf("%s", eval::format_stage_budget(stage_cpu, drive_s, fs_stats.worker_cpu_s).c_str());
+  }
+  if (j.contains("report")) {
+    std::printf("report:      run %lld (%zu samples) at %s\n",
+                static_cast<long long>(j["report"]["run_id"].get<std::int64_t>()),
+                j["report"]["samples"].get<std::size_t>(),
+                j["report"]["url"].get<std::string>().c_str());
   }
 }
 
@@ -315,6 +375,23 @@ void setup(CLI::App& app) {
       ->check(CLI::ExistingFile);
   cmd->add_option("--map-version", o->map_version, "pin a map version (default: current)");
   cmd->add_flag("--json", o->json, "print a JSON summary");
+  auto* rep = cmd->add_option("--report", o->report,
+                              "after the run, send a run report to this mapping service "
+                              "(POST /v1/runs; schema/localization_run.md)");
+  auto* key = cmd->add_option("--api-key", o->api_key, "vehicle (or operator) key for --report");
+  rep->needs(key);
+  key->needs(rep);
+  auto* truth = cmd->add_option("--truth", o->truth,
+                                "with --report: the simulator's exact poses (truth CSV); the "
+                                "report carries the errors against them")
+                    ->check(CLI::ExistingFile);
+  auto* from_rec = cmd->add_flag("--report-errors-from-recording", o->report_errors_from_recording,
+                                 "with --report: errors against the recording's GNSS/INS");
+  truth->needs(rep);
+  from_rec->needs(rep);
+  truth->excludes(from_rec);
+  cmd->add_option("--label", o->label, "with --report: the run's label (default: recording name)")
+      ->needs(rep);
   cmd->callback([o] { run(*o); });
 }
 

@@ -9,7 +9,15 @@
   const COLORS = {
     odd: '#22c55e', even: '#d946ef', mixed: '#f59e0b', unknown: '#9ca3af', line: '#38bdf8',
     added: '#f8fafc', moved: '#2563eb', retired: '#dc2626', coverage: '#facc15',
+    err0: '#22d3ee', err1: '#a3e635', err2: '#facc15', err3: '#ef4444', noerr: '#737373',
+    tracking: '#60a5fa', degraded: '#f97316', lost: '#b91c1c', initializing: '#a3a3a3',
+    weak: '#ef4444', fine: '#22c55e',
   };
+  // Run colouring by |lateral error| (m): the legend's classes.
+  const ERROR_COLOUR = ['case', ['==', ['get', 'abs_err_lat_m'], null], COLORS.noerr,
+    ['step', ['get', 'abs_err_lat_m'], COLORS.err0, 0.05, COLORS.err1, 0.15, COLORS.err2, 0.3, COLORS.err3]];
+  const STATUS_COLOUR = ['match', ['get', 'status'], 'tracking', COLORS.tracking, 'degraded', COLORS.degraded,
+    'lost', COLORS.lost, COLORS.initializing];
   const state = { key: null, tilejson: null, map: null, versions: [], current: null };
   const $ = (id) => document.getElementById(id);
 
@@ -50,6 +58,8 @@
         bounds: tj.bounds,
       },
       diff: { type: 'geojson', data: { type: 'FeatureCollection', features: [] } },
+      run: { type: 'geojson', data: { type: 'FeatureCollection', features: [] } },
+      quality: { type: 'geojson', data: { type: 'FeatureCollection', features: [] } },
     };
     const layers = [{ id: 'background', type: 'background', paint: { 'background-color': '#0c0c10' } }];
     if (p.gridmap_tiles) {
@@ -59,6 +69,9 @@
       layers.push({ id: 'gridmap-mechanism', type: 'raster', source: 'mechanism', layout: { visibility: 'none' }, paint: { 'raster-opacity': 0.85 } });
     }
     layers.push(
+      { id: 'quality', type: 'fill', source: 'quality', layout: { visibility: 'none' },
+        paint: { 'fill-color': ['case', ['get', 'weak'], COLORS.weak, COLORS.fine],
+          'fill-opacity': ['case', ['get', 'weak'], 0.45, 0.15], 'fill-outline-color': '#0c0c10' } },
       { id: 'coverage', type: 'line', source: 'landmarks', 'source-layer': 'trajectories', layout: { visibility: 'none' },
         paint: { 'line-color': COLORS.coverage, 'line-width': 2, 'line-opacity': 0.6 } },
       { id: 'lines', type: 'line', source: 'landmarks', 'source-layer': 'lines',
@@ -68,6 +81,8 @@
           'circle-radius': ['interpolate', ['linear'], ['zoom'], 14, 1.5, 20, 6],
           'circle-color': ['match', ['get', 'class'], 'odd', COLORS.odd, 'even', COLORS.even, 'mixed', COLORS.mixed, COLORS.unknown],
         } },
+      { id: 'run', type: 'line', source: 'run', layout: { visibility: 'none', 'line-cap': 'round' },
+        paint: { 'line-width': ['interpolate', ['linear'], ['zoom'], 14, 3, 20, 7], 'line-color': ERROR_COLOUR } },
       { id: 'diff-lines', type: 'line', source: 'diff', filter: ['==', ['geometry-type'], 'LineString'], layout: { visibility: 'none' },
         paint: { 'line-width': 4, 'line-color': ['match', ['get', 'change'], 'added', COLORS.added, 'moved', COLORS.moved, COLORS.retired] } },
       { id: 'diff-points', type: 'circle', source: 'diff', filter: ['==', ['geometry-type'], 'Point'], layout: { visibility: 'none' },
@@ -99,6 +114,18 @@
       ['spread', p.spread_m !== undefined ? Number(p.spread_m).toFixed(3) + ' m' : undefined],
       ['map version', p.map_version], ['change', p.change], ['moved by', p.distance_m !== undefined ? Number(p.distance_m).toFixed(3) + ' m' : undefined],
       ['drive', p.drive_id], ['vehicle', p.vehicle_id]];
+    if (f.layer.id === 'run') {
+      rows.splice(0, rows.length, ['kind', 'run sample'], ['status', p.status],
+        ['lateral error', p.err_lat_m !== undefined && p.err_lat_m !== null ? Number(p.err_lat_m).toFixed(3) + ' m' : 'not evaluated'],
+        ['lateral σ', Number(p.sigma_lat_m).toFixed(3) + ' m'], ['distance', Number(p.distance_m).toFixed(1) + ' m'],
+        ['time', Number(p.t_s).toFixed(2) + ' s']);
+    } else if (f.layer.id === 'quality') {
+      rows.splice(0, rows.length, ['kind', 'fleet localization quality'], ['cell', p.tile], ['runs', p.runs],
+        ['samples', p.samples], ['degraded or lost', (100 * Number(p.degraded_share)).toFixed(1) + ' %'],
+        ['mean lateral σ', Number(p.mean_sigma_lat_m).toFixed(3) + ' m'],
+        ['lateral RMSE', p.lat_rmse_m !== undefined && p.lat_rmse_m !== null ? Number(p.lat_rmse_m).toFixed(3) + ' m' : 'no reference'],
+        ['weak', p.weak ? 'yes' : 'no']);
+    }
     for (const [k, v] of rows) {
       if (v === undefined || v === null) continue;
       dl.appendChild(text(document.createElement('dt'), k));
@@ -124,7 +151,7 @@
     map.addControl(new maplibregl.NavigationControl(), 'top-left');
     map.addControl(new maplibregl.ScaleControl({ unit: 'metric', maxWidth: 120 }), 'bottom-left');
     map.on('error', (e) => { $('version-label').textContent = 'map error: ' + ((e.error && e.error.message) || e); });
-    const clickable = ['points', 'lines', 'diff-points', 'diff-lines', 'coverage'];
+    const clickable = ['points', 'lines', 'diff-points', 'diff-lines', 'run', 'coverage', 'quality'];
     map.on('click', (e) => {
       // A few pixels of slack: point landmarks are small circles.
       const b = [[e.point.x - 4, e.point.y - 4], [e.point.x + 4, e.point.y + 4]];
@@ -145,6 +172,7 @@
       map.on('mouseenter', id, () => { map.getCanvas().style.cursor = 'pointer'; });
       map.on('mouseleave', id, () => { map.getCanvas().style.cursor = ''; });
     }
+    map.once('load', () => { state.loaded = true; });
     state.map = map;
     window.polmapConsole.map = map;
     return map;
@@ -220,6 +248,133 @@
       // The coverage layer's tiles depend on the key: fetch them again with it.
       const src = state.map.getSource('landmarks');
       if (src && src.setTiles) src.setTiles(state.tilejson.tiles.slice());
+    } catch (e) {
+      status.textContent = String(e.message || e);
+    }
+  }
+
+  // ------------------------------------------------------------------ localization runs
+  const SVG = 'http://www.w3.org/2000/svg';
+
+  function svg(tag, attrs, parent) {
+    const e = document.createElementNS(SVG, tag);
+    for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, String(v));
+    if (parent) parent.appendChild(e);
+    return e;
+  }
+
+  // |lateral error| and the localizer's lateral σ against distance: the paper's spatially
+  // resolved error, as a plot. Gaps where samples were not evaluated.
+  function plotRun(g) {
+    const plot = $('run-plot');
+    for (const c of Array.from(plot.childNodes)) if (c.nodeName !== 'title') plot.removeChild(c);
+    const fs = g.features.map((f) => f.properties);
+    const W = 320, H = 150, L = 38, R = 8, T = 8, B = 24;
+    const dmax = Math.max(1, ...fs.map((p) => p.distance_m));
+    const errs = fs.filter((p) => p.abs_err_lat_m !== null).map((p) => p.abs_err_lat_m);
+    const ymax = Math.max(0.1, ...errs.map((e) => e * 1.1), ...fs.map((p) => Math.min(p.sigma_lat_m, 1)));
+    const x = (d) => L + (W - L - R) * d / dmax;
+    const y = (e) => H - B - (H - T - B) * Math.min(e, ymax) / ymax;
+    for (let k = 0; k <= 4; ++k) {
+      const v = ymax * k / 4;
+      svg('line', { class: 'grid', x1: L, x2: W - R, y1: y(v), y2: y(v) }, plot);
+      svg('text', { x: L - 4, y: y(v) + 3, 'text-anchor': 'end' }, plot).textContent = v.toFixed(2);
+    }
+    for (let k = 0; k <= 4; ++k) {
+      const d = dmax * k / 4;
+      svg('text', { x: x(d), y: H - B + 12, 'text-anchor': 'middle' }, plot).textContent = d.toFixed(0);
+    }
+    svg('path', { class: 'axis', d: `M${L} ${T}V${H - B}H${W - R}` }, plot);
+    const path = (key) => {
+      let d = '', pen = false;
+      for (const p of fs) {
+        const v = p[key];
+        if (v === null || v === undefined) { pen = false; continue; }
+        d += (pen ? 'L' : 'M') + x(p.distance_m).toFixed(1) + ' ' + y(v).toFixed(1);
+        pen = true;
+      }
+      return d;
+    };
+    svg('path', { class: 'sigma', d: path('sigma_lat_m') || 'M0 0' }, plot);
+    svg('path', { class: 'curve', d: path('abs_err_lat_m') || 'M0 0' }, plot);
+    $('run-figure').hidden = false;
+  }
+
+  function runColouring() {
+    if (!state.map.getLayer('run')) return;
+    const by = document.querySelector('input[name="run-colour"]:checked').value;
+    state.map.setPaintProperty('run', 'line-color', by === 'status' ? STATUS_COLOUR : ERROR_COLOUR);
+  }
+
+  // Sources exist once the style is loaded (asynchronously, even from an object).
+  function styleReady() {
+    return state.loaded ? Promise.resolve() : new Promise((res) => state.map.once('load', res));
+  }
+
+  async function showRun(id, fit) {
+    const g = await getJson('/v1/runs/' + encodeURIComponent(id) + '?format=geojson', true);
+    await styleReady();
+    state.map.getSource('run').setData(g);
+    const r = g.properties || {};
+    const s = r.summary || {};
+    const pct = (v) => (100 * (v || 0)).toFixed(0) + ' %';
+    const m = (v) => (v === null || v === undefined ? 'n/a' : Number(v).toFixed(3) + ' m');
+    $('run-summary').textContent = 'run ' + r.id + ' (' + (r.label || 'no label') + ', vehicle ' + (r.vehicle_id || 'unnamed') +
+      ', map v' + r.map_version + ', ' + (r.received_at || '').replace('T', ' ').replace('Z', ' UTC') + '): ' +
+      (s.length_m / 1000).toFixed(2) + ' km, tracking ' + pct(s.status_share && s.status_share.tracking) +
+      ', degraded ' + pct(s.status_share && s.status_share.degraded) + ', lateral RMSE ' + m(s.lat_rmse_m) +
+      ', longitudinal ' + m(s.long_rmse_m) + ', reference: ' + s.reference;
+    for (const tr of $('runs').querySelectorAll('tbody tr')) tr.classList.toggle('selected', tr.dataset.run === String(id));
+    // Colour by error when the run has errors, else by status.
+    const byError = (s.evaluated || 0) > 0;
+    document.querySelector('input[name="run-colour"][value="' + (byError ? 'error' : 'status') + '"]').checked = true;
+    runColouring();
+    $('layer-run').disabled = false;
+    $('layer-run').checked = true;
+    setVisible(['run'], true);
+    plotRun(g);
+    if (fit && r.bounds) {
+      state.map.fitBounds([[r.bounds.min_lon_deg, r.bounds.min_lat_deg], [r.bounds.max_lon_deg, r.bounds.max_lat_deg]], { padding: 40 });
+    }
+    window.polmapConsole.run = g;
+  }
+
+  async function loadQuality() {
+    const g = await getJson('/v1/runs/quality', true);
+    await styleReady();
+    state.map.getSource('quality').setData(g);
+    $('layer-quality').disabled = false;
+    window.polmapConsole.quality = g;
+  }
+
+  async function loadRuns() {
+    const status = $('runs-status');
+    const body = $('runs').querySelector('tbody');
+    body.replaceChildren();
+    if (!state.key) { status.textContent = 'enter an operator key to see the runs'; return; }
+    try {
+      const d = await getJson('/v1/runs?limit=50', true);
+      for (const r of d.runs) {
+        const s = r.summary || {};
+        const tr = document.createElement('tr');
+        tr.dataset.run = String(r.id);
+        cell(tr, r.id);
+        cell(tr, r.label);
+        cell(tr, ((s.length_m || 0) / 1000).toFixed(2));
+        cell(tr, s.lat_rmse_m === null || s.lat_rmse_m === undefined ? 'n/a' : Number(s.lat_rmse_m).toFixed(3));
+        cell(tr, (100 * ((s.status_share && s.status_share.tracking) || 0)).toFixed(0) + ' %');
+        const td = document.createElement('td');
+        const show = text(document.createElement('button'), 'show');
+        show.type = 'button';
+        show.setAttribute('aria-label', 'show run ' + r.id + ' on the map');
+        show.addEventListener('click', () => showRun(r.id, true).catch((e) => { status.textContent = String(e.message || e); }));
+        td.appendChild(show);
+        tr.appendChild(td);
+        body.appendChild(tr);
+      }
+      status.textContent = d.count + ' runs' + (d.count ? '' : ' (polmap localize --report URL sends one)');
+      await loadQuality();
+      if (d.runs.length) await showRun(d.runs[0].id, false);  // the newest, where the view is
     } catch (e) {
       status.textContent = String(e.message || e);
     }
@@ -307,6 +462,9 @@
     for (const r of document.querySelectorAll('input[name="gridmap-style"]')) r.addEventListener('change', gridmapLayers);
     $('layer-coverage').addEventListener('change', (e) => setVisible(['coverage'], e.target.checked));
     $('layer-diff').addEventListener('change', (e) => setVisible(['diff-points', 'diff-lines'], e.target.checked));
+    $('layer-run').addEventListener('change', (e) => setVisible(['run'], e.target.checked));
+    $('layer-quality').addEventListener('change', (e) => setVisible(['quality'], e.target.checked));
+    for (const r of document.querySelectorAll('input[name="run-colour"]')) r.addEventListener('change', runColouring);
     $('diff-show').addEventListener('click', () => showDiff().catch((e) => { $('diff-summary').textContent = String(e.message || e); }));
     $('build-start').addEventListener('click', startBuild);
     $('key-form').addEventListener('submit', (e) => {
@@ -315,8 +473,10 @@
       state.key = input.value.trim() || null;
       input.value = '';  // out of the DOM as soon as it is read
       loadFleet();
+      loadRuns();
     });
     loadFleet();
+    loadRuns();
     map.once('idle', () => { window.polmapConsole.ready = true; });
   }
 

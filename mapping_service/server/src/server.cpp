@@ -123,8 +123,8 @@ Server::Impl::Impl(MapStore& s, ServerConfig config)
   http.set_read_timeout(30, 0);
   http.set_write_timeout(30, 0);
   // Uploads are limited by our own handler (JSON error, 413); this is the hard stop.
-  http.set_payload_max_length(
-      static_cast<size_t>(std::max(cfg.max_upload_bytes, cfg.max_json_bytes) + (1u << 20)));
+  http.set_payload_max_length(static_cast<size_t>(
+      std::max({cfg.max_upload_bytes, cfg.max_json_bytes, cfg.max_run_report_bytes}) + (1u << 20)));
   http.set_tcp_nodelay(true);
   if (!cfg.cors_allow_origin.empty()) {
     http.set_default_headers({{"Access-Control-Allow-Origin", cfg.cors_allow_origin},
@@ -459,10 +459,23 @@ bool Server::Impl::admit(const httplib::Request& req, httplib::Response& res) co
     return refuse(411, "send a Content-Length (chunked request bodies are not accepted here)",
                   "Transfer-Encoding");
   }
+  // Run reports (POST /v1/runs) have their own cap, and only keys that may send them get
+  // their body read.
+  const bool run_report = req.method == "POST" && req.path == "/v1/runs";
+  if (run_report) {
+    const auto key = authenticate(req);
+    if (key && !allows(*key, Access::Upload)) {
+      (void)require(req, res, Access::Upload);  // writes the 403
+      set_route("refused");
+      res.set_header("Connection", "close");
+      return false;
+    }
+  }
+  const std::uint64_t cap = run_report ? cfg.max_run_report_bytes : cfg.max_json_bytes;
   if (req.has_header("Content-Length")) {
     const auto len = http::parse_int(req.get_header_value("Content-Length"));
-    if (!len || *len < 0 || static_cast<std::uint64_t>(*len) > cfg.max_json_bytes) {
-      return refuse(413, "request body exceeds " + std::to_string(cfg.max_json_bytes) + " bytes",
+    if (!len || *len < 0 || static_cast<std::uint64_t>(*len) > cap) {
+      return refuse(413, "request body exceeds " + std::to_string(cap) + " bytes",
                     "Content-Length");
     }
   }
@@ -648,6 +661,7 @@ void Server::Impl::register_routes() {
   });
 
   register_drive_routes();
+  register_run_routes();
   register_upload_routes();
   register_map_routes();
   register_gis_routes();

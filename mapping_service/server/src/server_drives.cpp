@@ -342,18 +342,32 @@ void Server::Impl::register_drive_routes() {
   });
 
   // Erasure on request: every drive of one vehicle (its data subject's right to erasure).
-  http.Delete(R"(/v1/vehicles/([^/]+)/drives)", [this](const httplib::Request& req,
-                                                       httplib::Response& res) {
-    set_route("vehicle_erase");
-    if (!require(req, res, Access::Operate)) return;
-    const std::string vehicle = req.matches[1];
-    nlohmann::json ids = nlohmann::json::array();
-    for (const DriveRecord& d : store.list_drives()) {
-      if (d.vehicle_id == vehicle && store.delete_drive(d.drive_id)) ids.push_back(d.drive_id);
-    }
-    log("info", "vehicle " + vehicle + ": " + std::to_string(ids.size()) + " drives erased");
-    reply_json(res, 200, {{"vehicle_id", vehicle}, {"deleted", ids.size()}, {"drive_ids", ids}});
-  });
+  http.Delete(R"(/v1/vehicles/([^/]+)/drives)",
+              [this](const httplib::Request& req, httplib::Response& res) {
+                set_route("vehicle_erase");
+                if (!require(req, res, Access::Operate)) return;
+                const std::string vehicle = req.matches[1];
+                nlohmann::json ids = nlohmann::json::array();
+                for (const DriveRecord& d : store.list_drives()) {
+                  if (d.vehicle_id == vehicle && store.delete_drive(d.drive_id))
+                    ids.push_back(d.drive_id);
+                }
+                // Its localization run reports are its data too.
+                std::size_t runs = 0;
+                if (!vehicle.empty()) {
+                  for (const auto& r : store.list_localization_runs(
+                           static_cast<std::size_t>(cfg.max_localization_runs), vehicle)) {
+                    if (store.delete_localization_run(r.id)) ++runs;
+                  }
+                }
+                log("info", "vehicle " + vehicle + ": " + std::to_string(ids.size()) +
+                                " drives and " + std::to_string(runs) + " runs erased");
+                reply_json(res, 200,
+                           {{"vehicle_id", vehicle},
+                            {"deleted", ids.size()},
+                            {"drive_ids", ids},
+                            {"runs_deleted", runs}});
+              });
 
   http.Delete(R"(/v1/drives/([^/]+))", [this](const httplib::Request& req, httplib::Response& res) {
     set_route("drives_delete");

@@ -188,6 +188,8 @@ struct Server::Impl {
   void register_upload_routes();
   void register_map_routes();
   void register_tile_routes();
+  /// Localization run reports (server_runs.cpp).
+  void register_run_routes();
   // tile handlers (server_tiles.cpp)
   void get_localization_tile(const httplib::Request& req, httplib::Response& res);
   void get_mvt_tile(const httplib::Request& req, httplib::Response& res);

@@ -361,6 +361,25 @@ void create_session_file(const fs::path& path) {
   ::close(fd);
 }
 
+void check_localization_run(const LocalizationRunRecord& record,
+                            std::span<const LocalizationRunCell> cells, std::size_t keep_newest) {
+  const auto& b = record.bounds;
+  const bool finite = std::isfinite(b.min_lat_deg) && std::isfinite(b.max_lat_deg) &&
+                      std::isfinite(b.min_lon_deg) && std::isfinite(b.max_lon_deg);
+  if (!finite || b.min_lat_deg > b.max_lat_deg || b.min_lon_deg > b.max_lon_deg) {
+    throw ValidationError("put_localization_run: bounds must be finite and ordered");
+  }
+  if (record.samples < 0 || record.map_version < 0) {
+    throw ValidationError("put_localization_run: samples and map_version must be >= 0");
+  }
+  if (keep_newest == 0) throw ValidationError("put_localization_run: keep_newest must be >= 1");
+  for (const LocalizationRunCell& c : cells) {
+    if (c.z < 0 || c.z > 24 || c.x < 0 || c.y < 0 || c.x >= (1 << c.z) || c.y >= (1 << c.z)) {
+      throw ValidationError("put_localization_run: cell outside its zoom's tile range");
+    }
+  }
+}
+
 void validate_upload_request(const UploadSessionRequest& r) {
   if (r.owner.empty()) throw ValidationError("create_upload_session: owner is empty");
   if (r.length_bytes == 0 ||

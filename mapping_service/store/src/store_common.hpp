@@ -8,6 +8,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <nlohmann/json.hpp>
+#include <span>
 #include <string>
 #include <string_view>
 #include <system_error>
@@ -71,6 +72,9 @@ void stage_package_files(const std::filesystem::path& package_location,
 nlohmann::json geometry_json(const std::vector<GeoPoint>& g);
 std::vector<GeoPoint> geometry_from_json(const nlohmann::json& j);
 
+/// The checks of put_localization_run shared by the backends (ValidationError).
+void check_localization_run(const LocalizationRunRecord& record,
+                            std::span<const LocalizationRunCell> cells, std::size_t keep_newest);
 /// 128 bits from the kernel's CSPRNG as 32 lower-case hex digits.
 std::string random_session_id();
 /// Creates the empty session file (O_EXCL, mode 0600). StorageFullError on ENOSPC/EDQUOT.

@@ -67,7 +67,7 @@ std::vector<ColumnSpec> tile_columns() {
           {"blob", I},    {"num_points", I}, {"num_lines", I}};
 }
 
-/// Every table of store.sql migration 7 / store_postgres.sql migration 1, parents first.
+/// Every table of store.sql migration 9 / store_postgres.sql migration 3, parents first.
 /// A new table or column in a later migration must be added here (the transfer refuses a
 /// source with one it does not know).
 const std::vector<TableSpec>& table_specs() {
@@ -174,6 +174,32 @@ const std::vector<TableSpec>& table_specs() {
       {"gridmap_sums",
        {{"level", I}, {"x", I}, {"y", I}, {"data", B}, {"updated_by", I}},
        {"level", "x", "y"}},
+      {"localization_runs",
+       {{"id", I},
+        {"received_at", T},
+        {"vehicle_id", T},
+        {"map_version", I},
+        {"label", T},
+        {"samples", I},
+        {"min_lat_deg", R},
+        {"min_lon_deg", R},
+        {"max_lat_deg", R},
+        {"max_lon_deg", R},
+        {"summary_json", J},
+        {"body", B}},
+       {"id"}},
+      {"localization_run_cells",
+       {{"run", I},
+        {"z", I},
+        {"x", I},
+        {"y", I},
+        {"samples", I},
+        {"degraded", I},
+        {"evaluated", I},
+        {"sum_sigma_lat_m", R},
+        {"sum_err_lat2_m2", R},
+        {"max_abs_err_lat_m", R}},
+       {"run", "z", "x", "y"}},
   };
   return specs;
 }

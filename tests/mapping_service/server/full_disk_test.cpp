@@ -186,6 +186,27 @@ class WriteTriggerStore final : public MapStore {
   std::size_t sweep_expired_upload_sessions(std::chrono::system_clock::time_point now) override {
     return s_.sweep_expired_upload_sessions(now);
   }
+  std::int64_t put_localization_run(const LocalizationRunRecord& r, std::string_view body,
+                                    std::span<const LocalizationRunCell> cells,
+                                    std::size_t keep) override {
+    if (before_write) before_write("put_localization_run");
+    return s_.put_localization_run(r, body, cells, keep);
+  }
+  std::vector<LocalizationRunRecord> list_localization_runs(std::size_t limit,
+                                                            std::string_view v) const override {
+    return s_.list_localization_runs(limit, v);
+  }
+  std::optional<LocalizationRunRecord> get_localization_run(std::int64_t id) const override {
+    return s_.get_localization_run(id);
+  }
+  std::optional<std::string> localization_run_body(std::int64_t id) const override {
+    return s_.localization_run_body(id);
+  }
+  bool delete_localization_run(std::int64_t id) override { return s_.delete_localization_run(id); }
+  std::vector<LocalizationRunCell> localization_run_cells(int z, int x0, int y0, int x1, int y1,
+                                                          std::size_t limit) const override {
+    return s_.localization_run_cells(z, x0, y0, x1, y1, limit);
+  }
   std::vector<GridmapSumInput> gridmap_sum_inputs() const override {
     return s_.gridmap_sum_inputs();
   }

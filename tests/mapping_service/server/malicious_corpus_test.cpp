@@ -671,6 +671,33 @@ std::vector<Row> request_rows(const tiles::TileKey& tile) {
     add("build request excluding 50000 unknown drives",
         json_post("/v1/maps", json{{"exclude_drives", ex}}.dump()), 422, "exclude_drives[0]");
   }
+  // Localization run reports (POST /v1/runs, schema/localization_run.md).
+  add("run report of a million nested arrays",
+      json_post("/v1/runs", std::string(500'000, '[') + std::string(500'000, ']')), 400, "nested");
+  add("run report with a number of 1e400",
+      json_post("/v1/runs", R"({"format": "polmap-localization-run", "version": 1e400})"), 400,
+      "not JSON");
+  {
+    std::string many = R"({"format":"polmap-localization-run","version":1,"map_version":1,)"
+                       R"("pol":"full","reference":"none","samples":[)";
+    for (int i = 0; i < 150'000; ++i) many += i ? ",{}" : "{}";
+    many += "]}";
+    add("run report of 150000 samples (each empty)", json_post("/v1/runs", many), 413,
+        "\"field\":\"samples\"");
+  }
+  add("run report announcing 1 GiB",
+      "POST /v1/runs HTTP/1.1\r\nHost: corpus\r\n" + key_header() +
+          "Content-Type: application/json\r\nContent-Length: 1073741824\r\nConnection: "
+          "close\r\n\r\n{",
+      413, "Content-Length");
+  add("run report with a sample at latitude 1e308",
+      json_post("/v1/runs",
+                R"({"format":"polmap-localization-run","version":1,"map_version":1,"pol":"full",)"
+                R"("reference":"none","samples":[{"t_s":0,"lat_deg":1e308,"lon_deg":0,)"
+                R"("yaw_enu_deg":0,"status":"tracking","cov_xx_m2":0,"cov_xy_m2":0,)"
+                R"("cov_yy_m2":0,"cov_yaw_rad2":0},{}]})"),
+      422, "samples[0].lat_deg");
+  add("run id 10^20", get_request("/v1/runs/100000000000000000000", key_header()), 400, "run_id");
   // Map diffs (public reads: every parameter checked before two maps are read).
   add("diff from 10^20", get_request("/v1/maps/current/diff?from=100000000000000000000"), 400,
       "\"field\":\"from\"");

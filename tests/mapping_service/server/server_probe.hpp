@@ -103,7 +103,8 @@ inline RawReply raw_request(int port, const std::string& request, double timeout
 }
 
 /// Everything the store holds, as text: drive rows (id, hash, counts), map versions
-/// (number, status, current), and every file below the drive store with its size.
+/// (number, status, current), localization runs, and every file below the drive store with
+/// its size.
 inline std::string store_digest(const SqliteMapStore& store) {
   std::string s;
   for (const DriveRecord& d : store.list_drives()) {
@@ -113,6 +114,9 @@ inline std::string store_digest(const SqliteMapStore& store) {
   for (const MapVersionInfo& v : store.list_map_versions()) {
     s += "version " + std::to_string(v.version) + " " + std::string(to_string(v.status)) +
          (v.current ? " current" : "") + "\n";
+  }
+  for (const LocalizationRunRecord& r : store.list_localization_runs(1u << 20)) {
+    s += "run " + std::to_string(r.id) + " " + std::to_string(r.samples) + "\n";
   }
   std::set<std::string> files;  // directory order is not stable
   for (const auto& e : std::filesystem::recursive_directory_iterator(store.drive_store_dir())) {

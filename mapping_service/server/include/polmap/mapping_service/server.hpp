@@ -113,6 +113,14 @@ struct ServerConfig {
   int max_concurrent_exports = 1;
   /// Largest accepted JSON request body (POST /v1/maps).
   std::uint64_t max_json_bytes = 1ull << 20;
+  /// Largest accepted localization run report (POST /v1/runs; 413 before the body beyond).
+  /// 4 MiB holds a report of about 20,000 samples: over an hour of driving at 5 Hz.
+  std::uint64_t max_run_report_bytes = 4ull << 20;
+  /// Samples one run report may carry (413 beyond, before they are converted).
+  std::size_t max_run_samples = 100'000;
+  /// Run reports kept: storing one more deletes the oldest (reports are operational data
+  /// about vehicles: keep a bounded history).
+  std::int64_t max_localization_runs = 10'000;
   /// Directory for in-flight uploads (removed after each request); empty = system temp dir.
   std::filesystem::path upload_dir;
   /// Drives ingested longer ago than this are deleted (at start, then every 10 minutes);

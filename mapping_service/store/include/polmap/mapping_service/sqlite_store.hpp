@@ -167,6 +167,18 @@ class SqliteMapStore final : public MapStore {
   bool complete_build_job(std::int64_t job, int attempt, const BuildJobOutput& output) override;
   bool fail_build_job(std::int64_t job, int attempt, std::string_view error) override;
   [[nodiscard]] std::vector<BuildJob> build_jobs(std::int64_t version) const override;
+  std::int64_t put_localization_run(const LocalizationRunRecord& record,
+                                    std::string_view canonical_body,
+                                    std::span<const LocalizationRunCell> cells,
+                                    std::size_t keep_newest) override;
+  [[nodiscard]] std::vector<LocalizationRunRecord> list_localization_runs(
+      std::size_t limit, std::string_view vehicle_id = {}) const override;
+  [[nodiscard]] std::optional<LocalizationRunRecord> get_localization_run(
+      std::int64_t id) const override;
+  [[nodiscard]] std::optional<std::string> localization_run_body(std::int64_t id) const override;
+  bool delete_localization_run(std::int64_t id) override;
+  [[nodiscard]] std::vector<LocalizationRunCell> localization_run_cells(
+      int z, int x0, int y0, int x1, int y1, std::size_t limit) const override;
   [[nodiscard]] StoreStats stats() const override;
 
  private:

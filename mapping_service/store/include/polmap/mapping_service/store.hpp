@@ -334,6 +334,34 @@ struct BuildJobOutput {
   nlohmann::json result;  ///< the job's statistics
 };
 
+/// A stored localization run report (POST /v1/runs; schema/localization_run.md): what the
+/// list shows, without the samples (the canonical report is read with
+/// localization_run_body).
+struct LocalizationRunRecord {
+  std::int64_t id = 0;      ///< assigned by the store (ignored on write)
+  std::string received_at;  ///< ISO 8601 UTC
+  std::string vehicle_id;   ///< of the key that sent it ("" when the key names none)
+  std::int64_t map_version = 0;
+  std::string label;
+  std::int64_t samples = 0;
+  GeoBox bounds;
+  nlohmann::json summary;  ///< computed by the server from the validated samples
+};
+
+/// A run's samples binned into one Web-Mercator tile of zoom `z` (the fleet-wide
+/// localization quality layer). Sums, so that cells of many runs add up; aggregated over
+/// runs by localization_run_cells, which also fills `runs`.
+struct LocalizationRunCell {
+  int z = 0, x = 0, y = 0;
+  std::int64_t samples = 0;        ///< samples of tracking/degraded/lost status
+  std::int64_t degraded = 0;       ///< of them degraded or lost
+  std::int64_t evaluated = 0;      ///< of them with an error against a reference
+  double sum_sigma_lat_m = 0.0;    ///< Σ lateral 1-σ of the samples
+  double sum_err_lat2_m2 = 0.0;    ///< Σ lateral error² of the evaluated samples
+  double max_abs_err_lat_m = 0.0;  ///< max |lateral error|
+  std::int64_t runs = 0;           ///< aggregated: distinct runs in the cell
+};
+
 /// Strong ETag of a payload: lower-case SHA-256 hex (64 chars).
 std::string content_etag(std::string_view payload);
 
@@ -504,6 +532,28 @@ class MapStore {
   virtual bool fail_build_job(std::int64_t job, int attempt, std::string_view error) = 0;
   /// The jobs of a version, by id.
   [[nodiscard]] virtual std::vector<BuildJob> build_jobs(std::int64_t version) const = 0;
+
+  // ------------------------------------------------------------ localization runs
+  /// Stores a validated run report: its record, its canonical bytes and its cells, in one
+  /// transaction; then keeps only the newest `keep_newest` runs (older ones are deleted
+  /// with their cells). Returns the new id.
+  virtual std::int64_t put_localization_run(const LocalizationRunRecord& record,
+                                            std::string_view canonical_body,
+                                            std::span<const LocalizationRunCell> cells,
+                                            std::size_t keep_newest) = 0;
+  /// The newest runs first, at most `limit`; with `vehicle_id` non-empty only its runs.
+  [[nodiscard]] virtual std::vector<LocalizationRunRecord> list_localization_runs(
+      std::size_t limit, std::string_view vehicle_id = {}) const = 0;
+  [[nodiscard]] virtual std::optional<LocalizationRunRecord> get_localization_run(
+      std::int64_t id) const = 0;
+  /// The canonical report bytes as stored; nullopt if the run is unknown.
+  [[nodiscard]] virtual std::optional<std::string> localization_run_body(std::int64_t id) const = 0;
+  /// Deletes a run and its cells; false if unknown.
+  virtual bool delete_localization_run(std::int64_t id) = 0;
+  /// The cells of zoom `z` within tile columns [x0, x1] and rows [y0, y1], summed over all
+  /// stored runs (`runs` = distinct runs), ordered by (x, y), at most `limit`.
+  [[nodiscard]] virtual std::vector<LocalizationRunCell> localization_run_cells(
+      int z, int x0, int y0, int x1, int y1, std::size_t limit) const = 0;
 
   [[nodiscard]] virtual StoreStats stats() const = 0;
 };

@@ -57,6 +57,11 @@
 --                     its contribution out (recomputing its tiles from the remaining inputs).
 --   landmark_changes  (migration 4) per map version: landmarks added, moved or retired against the version
 --                     current when its build started, with the builder's reason (JSON).
+--   hdmap_comparisons (migration 10) per published map version and HD-map name: a comparison
+--                     with a Lanelet2 HD map (polmap compare-hdmap --store): summary_json = the
+--                     metrics and parameters, features_json = a GeoJSON FeatureCollection of
+--                     matched / unmatched HD features and landmarks. Replaced by a new run of
+--                     the same name; deleted with its version (cascade).
 --   tile_blobs        content-addressed tile payloads: etag = SHA-256 hex of payload, unique,
 --                     so an unchanged tile shared by many versions is stored once (and keeps
 --                     its ETag, so vehicle caches stay valid across versions). Blobs no
@@ -314,3 +319,21 @@ CREATE TABLE build_jobs (
 );
 CREATE INDEX build_jobs_claim ON build_jobs(state, job_id);
 CREATE INDEX build_jobs_version ON build_jobs(version, kind, state);
+
+-- migration 9: reserved (localization runs, merged from main)
+-- The migration runner needs contiguous numbers: on this branch a no-op holds the place of
+-- main's number 9, whose section replaces it at the merge.
+SELECT 1;
+
+-- migration 10: HD-map comparisons stored per map version (polmap compare-hdmap --store);
+-- landmarks looked up by their stable key (GET /v1/maps/{v}/landmarks/{key})
+CREATE TABLE hdmap_comparisons (
+  version       INTEGER NOT NULL REFERENCES map_versions(version) ON DELETE CASCADE,
+  name          TEXT NOT NULL,
+  hdmap_file    TEXT NOT NULL,
+  created_at    TEXT NOT NULL,
+  summary_json  TEXT NOT NULL,
+  features_json TEXT NOT NULL,
+  PRIMARY KEY (version, name)
+) WITHOUT ROWID;
+CREATE INDEX landmarks_key ON landmarks(key, version);

@@ -264,3 +264,20 @@ CREATE TABLE build_jobs (
 );
 CREATE INDEX build_jobs_claim ON build_jobs(state, job_id);
 CREATE INDEX build_jobs_version ON build_jobs(version, kind, state);
+
+-- migration 3: reserved (localization runs, merged from main)
+-- The migration runner needs contiguous numbers: on this branch a no-op holds the place of
+-- main's number 3, whose section replaces it at the merge.
+SELECT 1;
+
+-- migration 4: HD-map comparisons (store.sql migration 10); landmarks by key
+CREATE TABLE hdmap_comparisons (
+  version       bigint NOT NULL REFERENCES map_versions(version) ON DELETE CASCADE,
+  name          text COLLATE "C" NOT NULL,
+  hdmap_file    text NOT NULL,
+  created_at    text NOT NULL,
+  summary_json  jsonb NOT NULL,
+  features_json jsonb NOT NULL,
+  PRIMARY KEY (version, name)
+);
+CREATE INDEX landmarks_key ON landmarks(key, version);

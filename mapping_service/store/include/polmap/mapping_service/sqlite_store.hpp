@@ -167,6 +167,13 @@ class SqliteMapStore final : public MapStore {
   bool complete_build_job(std::int64_t job, int attempt, const BuildJobOutput& output) override;
   bool fail_build_job(std::int64_t job, int attempt, std::string_view error) override;
   [[nodiscard]] std::vector<BuildJob> build_jobs(std::int64_t version) const override;
+  void put_hdmap_comparison(const HdMapComparisonRecord& record) override;
+  [[nodiscard]] std::vector<HdMapComparisonRecord> list_hdmap_comparisons(
+      std::int64_t version) const override;
+  [[nodiscard]] std::optional<HdMapComparisonRecord> get_hdmap_comparison(
+      std::int64_t version, std::string_view name) const override;
+  [[nodiscard]] std::optional<LandmarkDetail> landmark_detail(std::int64_t version,
+                                                              std::int64_t key) const override;
   [[nodiscard]] StoreStats stats() const override;
 
  private:

@@ -167,7 +167,8 @@ await check('the HD-map overlay draws the stored comparison, matched and unmatch
     const m = window.polmapConsole.map;
     const out = {};
     for (const f of m.queryRenderedFeatures({ layers: ['hdmap-hd-points', 'hdmap-map-points', 'hdmap-map-lines', 'hdmap-hd-lines'] })) {
-      const k = f.layer.id + ':' + (f.properties.matched ? 'matched' : 'unmatched');
+      const p = f.properties;
+      const k = f.layer.id + ':' + (!p.in_area || p.judged === false ? 'grey' : p.matched ? 'matched' : 'unmatched');
       out[k] = (out[k] || 0) + 1;
     }
     return out;

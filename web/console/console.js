@@ -14,7 +14,8 @@
     outside: '#6b7280',
   };
   // HD-map overlay: matched / unmatched / outside the compared area, per role.
-  const hdColor = (matched, unmatched) => ['case', ['!', ['get', 'in_area']], COLORS.outside,
+  const hdColor = (matched, unmatched) => ['case',
+    ['!', ['all', ['get', 'in_area'], ['coalesce', ['get', 'judged'], true]]], COLORS.outside,
     ['get', 'matched'], matched, unmatched];
   const HDMAP_LAYERS = ['hdmap-hd-lines', 'hdmap-map-lines', 'hdmap-hd-points', 'hdmap-map-points'];
   const state = { key: null, tilejson: null, map: null, versions: [], current: null };
@@ -128,7 +129,9 @@
     const dl = document.createElement('dl');
     dl.className = 'popup';
     const p = f.properties;
-    const status = !p.in_area ? 'outside the compared area' : p.matched ? 'matched' : 'unmatched';
+    const status = !p.in_area ? 'outside the compared area'
+      : p.judged === false ? 'not judged (the other map has nothing of this kind here)'
+        : p.matched ? 'matched' : 'unmatched';
     addRows(dl, [[p.role === 'hd' ? 'HD-map feature' : 'map landmark (HD comparison)', p.type],
       ['subtype', p.subtype || undefined], ['status', status], ['HD id', p.hd_id], ['landmark', p.key],
       ['matched landmark', p.landmark_key], ['matched HD type', p.hd_type],

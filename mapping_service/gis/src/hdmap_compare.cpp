@@ -477,6 +477,13 @@ nlohmann::json hdmap_comparison_geojson(const LandmarkSet& lm, const HdMap& hd,
     by_map[m.map_index] = &m;
     by_hd[m.hd_index] = &m;
   }
+  // A feature is judged only when the other map has features of its kind in the area: radar
+  // points against an HD map without signs or poles are neither matched nor unmatched (as
+  // their precision is undefined then).
+  const bool judged_hd_points = c.map_points > 0;
+  const bool judged_map_points = c.hd_points > 0;
+  const bool judged_hd_lines = !lm.lines.empty();
+  const bool judged_map_lines = c.line_total_length_m > 0;
   nlohmann::json features = nlohmann::json::array();
   for (std::size_t j = 0; j < hd.points.size(); ++j) {
     const HdMapPoint& p = hd.points[j];
@@ -485,6 +492,7 @@ nlohmann::json hdmap_comparison_geojson(const LandmarkSet& lm, const HdMap& hd,
                          {"subtype", p.subtype},
                          {"hd_id", p.id},
                          {"in_area", bool(c.hd_point_in_area[j])},
+                         {"judged", judged_hd_points},
                          {"matched", false}};
     if (const auto it = by_hd.find(j); it != by_hd.end()) {
       props["matched"] = true;
@@ -501,6 +509,7 @@ nlohmann::json hdmap_comparison_geojson(const LandmarkSet& lm, const HdMap& hd,
                          {"class", std::string(to_string(p.scattering))},
                          {"support_drives", p.support_drives},
                          {"in_area", bool(c.map_point_in_area[i])},
+                         {"judged", judged_map_points},
                          {"matched", false}};
     if (const auto it = by_map.find(i); it != by_map.end()) {
       props["matched"] = true;
@@ -518,13 +527,14 @@ nlohmann::json hdmap_comparison_geojson(const LandmarkSet& lm, const HdMap& hd,
     in_len[r.line] += r.length_m;
     if (r.matched) cov_len[r.line] += r.length_m;
   }
-  const auto line_feature = [&](const std::vector<GeoPoint>& pl, const HdLineRun& r,
+  const auto line_feature = [&](const std::vector<GeoPoint>& pl, const HdLineRun& r, bool judged,
                                 nlohmann::json props) {
     const std::vector<GeoPoint> part = sub_polyline(pl, r.begin, r.end);
     if (part.size() < 2) return;  // a single-vertex line has nothing to draw
     nlohmann::json coords = nlohmann::json::array();
     for (const auto& g : part) coords.push_back(lonlat(g));
     props["in_area"] = r.in_area;
+    props["judged"] = judged;
     props["matched"] = r.matched;
     props["length_m"] = r.length_m;
     features.push_back(
@@ -533,7 +543,7 @@ nlohmann::json hdmap_comparison_geojson(const LandmarkSet& lm, const HdMap& hd,
   for (const HdLineRun& r : c.hd_line_runs) {
     const HdMapLine& l = hd.lines[r.line];
     line_feature(
-        l.polyline, r,
+        l.polyline, r, judged_hd_lines,
         {{"role", "hd"},
          {"type", l.type},
          {"subtype", l.subtype},
@@ -544,7 +554,7 @@ nlohmann::json hdmap_comparison_geojson(const LandmarkSet& lm, const HdMap& hd,
   for (const HdLineRun& r : c.map_line_runs) {
     POLMAP_EXPECT(r.line < lm.lines.size());
     const StoredLineLandmark& l = lm.lines[r.line];
-    line_feature(l.polyline, r,
+    line_feature(l.polyline, r, judged_map_lines,
                  {{"role", "map"},
                   {"type", "line_landmark"},
                   {"key", std::to_string(l.key)},

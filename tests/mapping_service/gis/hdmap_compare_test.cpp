@@ -406,6 +406,16 @@ TEST(HdMapCompare, GeoJsonHasOneFeaturePerPointAndRunWithTheVerdicts) {
   EXPECT_EQ(hd_runs, 2);  // covered 0..10, uncovered 10..20
   EXPECT_EQ(map_runs, 1);
   EXPECT_NEAR(*c.line_coverage, 0.55, 0.03);  // 0..11 m of 20 (1 m band beyond the end)
+  for (const auto& feat : g["features"]) EXPECT_TRUE(feat["properties"]["judged"].get<bool>());
+
+  // Without HD point features the landmarks' points are not judged (precision undefined);
+  // the lines still are.
+  hd.points.clear();
+  const auto c2 = compare_with_hdmap(lm, hd);
+  for (const auto& feat : hdmap_comparison_geojson(lm, hd, c2)["features"]) {
+    const auto& pr = feat["properties"];
+    EXPECT_EQ(pr["judged"].get<bool>(), feat["geometry"]["type"] != "Point") << pr.dump();
+  }
 }
 
 }  // namespace

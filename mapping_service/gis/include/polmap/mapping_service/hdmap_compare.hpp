@@ -162,7 +162,9 @@ struct HdMapComparison {
 /// one Point feature per HD point and per map point landmark, one LineString per run of
 /// HD lines and map lines (comparison.hd_line_runs / map_line_runs). Properties: `role`
 /// ("hd" | "map"), `type` (the HD type, or "point_landmark" / "line_landmark"),
-/// `matched`, `in_area`; HD features `hd_id`, `subtype`; landmarks `key` (decimal string:
+/// `matched`, `in_area`, `judged` (false when the other map has no features of that kind in
+/// the area, e.g. radar points against an HD map without signs or poles: neither matched
+/// nor unmatched); HD features `hd_id`, `subtype`; landmarks `key` (decimal string:
 /// keys use 63 bits, more than a JavaScript number holds), `class`, `support_drives`;
 /// matched points `distance_m` and the partner (`landmark_key` or `hd_id`); runs
 /// `length_m`, HD line runs `line_coverage` (the covered share of their whole HD line),

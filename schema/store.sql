@@ -63,6 +63,11 @@
 --                     Deleted with their run (cascade).
 --   landmark_changes  (migration 4) per map version: landmarks added, moved or retired against the version
 --                     current when its build started, with the builder's reason (JSON).
+--   hdmap_comparisons (migration 10) per published map version and HD-map name: a comparison
+--                     with a Lanelet2 HD map (polmap compare-hdmap --store): summary_json = the
+--                     metrics and parameters, features_json = a GeoJSON FeatureCollection of
+--                     matched / unmatched HD features and landmarks. Replaced by a new run of
+--                     the same name; deleted with its version (cascade).
 --   tile_blobs        content-addressed tile payloads: etag = SHA-256 hex of payload, unique,
 --                     so an unchanged tile shared by many versions is stored once (and keeps
 --                     its ETag, so vehicle caches stay valid across versions). Blobs no
@@ -351,3 +356,16 @@ CREATE TABLE localization_run_cells (
   PRIMARY KEY (run, z, x, y)
 ) WITHOUT ROWID;
 CREATE INDEX localization_run_cells_tile ON localization_run_cells(z, x, y);
+
+-- migration 10: HD-map comparisons stored per map version (polmap compare-hdmap --store);
+-- landmarks looked up by their stable key (GET /v1/maps/{v}/landmarks/{key})
+CREATE TABLE hdmap_comparisons (
+  version       INTEGER NOT NULL REFERENCES map_versions(version) ON DELETE CASCADE,
+  name          TEXT NOT NULL,
+  hdmap_file    TEXT NOT NULL,
+  created_at    TEXT NOT NULL,
+  summary_json  TEXT NOT NULL,
+  features_json TEXT NOT NULL,
+  PRIMARY KEY (version, name)
+) WITHOUT ROWID;
+CREATE INDEX landmarks_key ON landmarks(key, version);

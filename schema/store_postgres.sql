@@ -295,3 +295,15 @@ CREATE TABLE localization_run_cells (
   PRIMARY KEY (run, z, x, y)
 );
 CREATE INDEX localization_run_cells_tile ON localization_run_cells(z, x, y);
+
+-- migration 4: HD-map comparisons (store.sql migration 10); landmarks by key
+CREATE TABLE hdmap_comparisons (
+  version       bigint NOT NULL REFERENCES map_versions(version) ON DELETE CASCADE,
+  name          text COLLATE "C" NOT NULL,
+  hdmap_file    text NOT NULL,
+  created_at    text NOT NULL,
+  summary_json  jsonb NOT NULL,
+  features_json jsonb NOT NULL,
+  PRIMARY KEY (version, name)
+);
+CREATE INDEX landmarks_key ON landmarks(key, version);

@@ -1,7 +1,9 @@
 // The web console in Debian's Chromium (playwright-core), against a server with a small
 // simulated map and two versions (tests/web/console_test.sh sets it up): the page loads
 // with no console errors, renders landmark features (asked of the map, not the DOM),
-// toggles layers, shows the diff between the two versions as the server computes it, lists
+// toggles layers, shows the diff between the two versions as the server computes it, draws
+// the stored HD-map comparison (matched and unmatched features, summary), shows a
+// landmark's first/last seen and version history in its popup, lists
 // the fleet with an operator key that never reaches the URL or the server's log, is served
 // with the security headers a console needs, and works on a phone-sized viewport.
 // Screenshots go to $POLMAP_ARTIFACTS.
@@ -145,6 +147,54 @@ await check('the diff between the two versions is drawn as the server computes i
   await page.screenshot({ path: path.join(ART, 'console-diff.png') });
 });
 
+await check('the HD-map overlay draws the stored comparison, matched and unmatched', async () => {
+  const list = await (await fetch(URL + '/v1/maps/current/hdmap-comparison')).json();
+  assert.equal(list.comparisons.length, 1);
+  const name = list.comparisons[0].name;
+  assert.equal(await page.isDisabled('#layer-hdmap'), false, 'the toggle is enabled');
+  const summary = await page.textContent('#hdmap-summary');
+  for (const k of ['point precision', 'point recall', 'median point offset', 'line coverage', 'median lateral line offset']) {
+    assert.ok(summary.includes(k), k + ' in the summary: ' + summary);
+  }
+  const s = list.comparisons[0].summary;
+  assert.ok(summary.includes((100 * s.line_coverage).toFixed(1) + ' %'), 'coverage as the server has it');
+  const g = await (await fetch(URL + '/v1/maps/current/hdmap-comparison/' + name)).json();
+  assert.equal(await page.evaluate(() => window.polmapConsole.hdmap.features.length), g.features.length);
+  await page.click('#layer-diff');  // off: only the overlay on top of the landmarks
+  await page.click('#layer-hdmap');
+  await idle();
+  const drawn = await page.evaluate(() => {
+    const m = window.polmapConsole.map;
+    const out = {};
+    for (const f of m.queryRenderedFeatures({ layers: ['hdmap-hd-points', 'hdmap-map-points', 'hdmap-map-lines', 'hdmap-hd-lines'] })) {
+      const p = f.properties;
+      const k = f.layer.id + ':' + (!p.in_area || p.judged === false ? 'grey' : p.matched ? 'matched' : 'unmatched');
+      out[k] = (out[k] || 0) + 1;
+    }
+    return out;
+  });
+  const n = (prefix) => Object.entries(drawn).filter(([k]) => k.startsWith(prefix)).reduce((a, [, v]) => a + v, 0);
+  assert.ok(n('hdmap-hd-lines') > 0, 'HD lines drawn: ' + JSON.stringify(drawn));
+  assert.ok(n('hdmap-map-') > 0, 'landmarks of the comparison drawn: ' + JSON.stringify(drawn));
+  assert.ok(n('hdmap-hd-lines:matched') + n('hdmap-map-lines:matched') > 0, 'matched features: ' + JSON.stringify(drawn));
+  assert.ok(Object.keys(drawn).some((k) => k.endsWith(':unmatched')), 'unmatched features: ' + JSON.stringify(drawn));
+  await page.screenshot({ path: path.join(ART, 'console-hdmap.png') });
+  // A click on an HD line tells what it is.
+  const pt = await page.evaluate(() => {
+    const m = window.polmapConsole.map;
+    const f = m.queryRenderedFeatures({ layers: ['hdmap-hd-lines'] })[0];
+    const c = f.geometry.type === 'LineString' ? f.geometry.coordinates : f.geometry.coordinates[0];
+    const a = m.project(c[0]), b = m.project(c[1]);
+    const r = m.getContainer().getBoundingClientRect();
+    return { x: r.left + (a.x + b.x) / 2, y: r.top + (a.y + b.y) / 2 };
+  });
+  await page.mouse.click(pt.x, pt.y);
+  await page.waitForSelector('.maplibregl-popup .popup');
+  assert.match(await page.textContent('.maplibregl-popup'), /HD-map feature|HD comparison/);
+  await page.click('#layer-hdmap');
+  assert.equal(await page.evaluate(() => window.polmapConsole.map.getLayoutProperty('hdmap-hd-lines', 'visibility')), 'none');
+});
+
 await check('the operator key shows the fleet and never reaches the URL or the log', async () => {
   assert.match(await page.textContent('#fleet-status'), /operator key/);
   await page.fill('#api-key', KEY);
@@ -226,6 +276,20 @@ await check('a landmark click shows its attributes', async () => {
   const text = await page.textContent('.maplibregl-popup .popup');
   assert.match(text, /support \(drives\)/);
   assert.match(text, /spread/);
+  // Support times and version history, from GET /v1/maps/{v}/landmarks/{key}.
+  await waitFor(page, () => /history/.test((document.querySelector('.maplibregl-popup .popup') || {}).textContent || ''));
+  const full = await page.textContent('.maplibregl-popup .popup');
+  assert.match(full, /first seen\s*\d{4}-\d\d-\d\d/);
+  assert.match(full, /last seen\s*\d{4}-\d\d-\d\d/);
+  const d = await page.evaluate(() => window.polmapConsole.landmark);
+  assert.ok(d.history.length > 0, 'a history: ' + JSON.stringify(d));
+  const h = d.history[d.history.length - 1];
+  assert.ok(full.includes('v' + h.version + ' ' + h.change), 'the oldest entry shown: ' + full);
+  const again = await (await fetch(URL + '/v1/maps/' + d.version + '/landmarks/' + d.key)).json();
+  assert.deepEqual(again.history, d.history);
+  assert.equal(again.supporting_drives, d.supporting_drives);
+  assert.ok(Array.isArray(d.drives), 'the drives with the operator key');
+  await page.screenshot({ path: path.join(ART, 'console-landmark-popup.png') });
 });
 
 await check('the view is kept in the URL and restored on load', async () => {

@@ -1,11 +1,15 @@
 // `polmap compare-hdmap --db FILE --hdmap FILE.osm [--json] [--version V] [--radius M]
-//  [--band M] [--no-overlap]`: compares a published radar landmark map with a Lanelet2
-// HD map (mapping_service/hdmap_compare.hpp): point precision/recall/median offset against
-// signs, lights and poles; line lateral offset and coverage against curbs, road borders,
-// walls, fences and guard rails.
+//  [--band M] [--no-overlap] [--store [--name NAME]]`: compares a published radar landmark
+// map with a Lanelet2 HD map (mapping_service/hdmap_compare.hpp): point precision/recall/
+// median offset against signs, lights and poles; line lateral offset and coverage against
+// curbs, road borders, walls, fences and guard rails. --store keeps the result with the map
+// version (summary and per-feature GeoJSON; GET /v1/maps/{v}/hdmap-comparison/{name}, the
+// console's HD-map overlay); printing only is the default, so a read-only look never
+// writes to the store.
 #include <CLI/CLI.hpp>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <memory>
 #include <string>
 
@@ -23,6 +27,8 @@ struct CompareOptions {
   std::int64_t version = 0;
   bool json = false;
   bool no_overlap = false;
+  bool store = false;
+  std::string name;  ///< stored comparison's name (default: the HD map file's stem)
   mapping::HdMapCompareConfig cfg;
 };
 
@@ -33,8 +39,27 @@ std::string fmt(const std::optional<double>& v, const char* spec, double scale =
   return buf;
 }
 
+/// The file stem with characters outside [A-Za-z0-9._-] replaced by '_' (a valid name).
+std::string default_name(const std::string& file) {
+  std::string n = std::filesystem::path(file).stem().string();
+  for (char& ch : n) {
+    const bool ok = (ch >= 'a' && ch <= 'z') || (ch >= 'A' && ch <= 'Z') ||
+                    (ch >= '0' && ch <= '9') || ch == '.' || ch == '_' || ch == '-';
+    if (!ok) ch = '_';
+  }
+  if (n.empty() || n.front() == '.') n = "hdmap" + n;
+  return n.substr(0, 64);
+}
+
 void run(CompareOptions o) {
   require_map_db(o.db);
+  if (o.store) {
+    if (o.name.empty()) o.name = default_name(o.hdmap);
+    if (!mapping::is_valid_hdmap_comparison_name(o.name)) {
+      throw ValidationError("--name '" + o.name +
+                            "' must be 1..64 characters of [A-Za-z0-9._-], not starting with '.'");
+    }
+  }
   const mapping::HdMap hd = mapping::read_lanelet2_osm(o.hdmap);
   const auto opened = mapping::open_map_store(o.db);
   mapping::MapStore& store = *opened;
@@ -55,14 +80,27 @@ void run(CompareOptions o) {
   }
   const mapping::LandmarkSet lm = store.landmarks_in(version, box, /*with_support=*/false);
   const mapping::HdMapComparison r = mapping::compare_with_hdmap(lm, hd, o.cfg);
+  auto j = mapping::to_json(r);
+  j["map_version"] = version;
+  j["hdmap"] = o.hdmap;
+  j["hdmap_point_features"] = hd.points.size();
+  j["hdmap_line_features"] = hd.lines.size();
+  j["point_match_radius_m"] = o.cfg.point_match_radius_m;
+  j["line_band_m"] = o.cfg.line_band_m;
+  j["line_sample_step_m"] = o.cfg.line_sample_step_m;
+  j["restrict_to_overlap"] = o.cfg.restrict_to_overlap;
+  if (o.store) {
+    mapping::HdMapComparisonRecord rec;
+    rec.version = version;
+    rec.name = o.name;
+    rec.hdmap_file = o.hdmap;
+    rec.summary = j;
+    rec.features = mapping::hdmap_comparison_geojson(lm, hd, r);
+    rec.features["properties"]["summary"] = j;
+    store.put_hdmap_comparison(rec);
+    j["stored_as"] = o.name;
+  }
   if (o.json) {
-    auto j = mapping::to_json(r);
-    j["map_version"] = version;
-    j["hdmap"] = o.hdmap;
-    j["hdmap_point_features"] = hd.points.size();
-    j["hdmap_line_features"] = hd.lines.size();
-    j["point_match_radius_m"] = o.cfg.point_match_radius_m;
-    j["line_band_m"] = o.cfg.line_band_m;
     std::printf("%s\n", j.dump(2).c_str());
     return;
   }
@@ -82,6 +120,11 @@ void run(CompareOptions o) {
       fmt(r.line_median_lateral_offset_m, "%.3f").c_str(), r.matched_line_samples,
       r.map_line_samples, o.cfg.line_band_m, r.line_covered_length_m, r.line_total_length_m,
       fmt(r.line_coverage, "%.1f", 100.0).c_str());
+  if (o.store) {
+    std::printf("stored as '%s' with map version %lld (GET /v1/maps/%lld/hdmap-comparison/%s)\n",
+                o.name.c_str(), static_cast<long long>(version), static_cast<long long>(version),
+                o.name.c_str());
+  }
 }
 
 void setup(CLI::App& app) {
@@ -104,6 +147,11 @@ void setup(CLI::App& app) {
       ->check(CLI::PositiveNumber);
   cmd->add_flag("--no-overlap", opts->no_overlap,
                 "Count all features, not only where both maps exist");
+  cmd->add_flag("--store", opts->store,
+                "Store the result (metrics and per-feature GeoJSON) with the map version, "
+                "replacing a stored comparison of the same name");
+  cmd->add_option("--name", opts->name,
+                  "Name of the stored comparison (default: the HD map file's stem)");
   cmd->callback([opts] { run(*opts); });
 }
 

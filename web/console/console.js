@@ -1,5 +1,6 @@
 // polmap console (GET / of `polmap serve`): the map (landmarks, gridmap, coverage, version
-// diffs), map versions and the fleet, from the server's own API. No inline script, no CDN:
+// diffs, the HD-map overlay of a stored comparison), landmark details with their version
+// history, map versions and the fleet, from the server's own API. No inline script, no CDN:
 // everything comes from this server (CSP in mapping_service/server/src/server_console.cpp).
 // The operator key lives in this script's memory only: it is sent as an Authorization
 // header, never put into a URL, the page's address or storage.
@@ -12,12 +13,19 @@
     err0: '#22d3ee', err1: '#a3e635', err2: '#facc15', err3: '#ef4444', noerr: '#737373',
     tracking: '#60a5fa', degraded: '#f97316', lost: '#b91c1c', initializing: '#a3a3a3',
     weak: '#ef4444', fine: '#22c55e',
+    hdMatched: '#84cc16', hdUnmatched: '#f97316', mapMatched: '#e0f2fe', mapUnmatched: '#e11d48',
+    outside: '#6b7280',
   };
   // Run colouring by |lateral error| (m): the legend's classes.
   const ERROR_COLOUR = ['case', ['==', ['get', 'abs_err_lat_m'], null], COLORS.noerr,
     ['step', ['get', 'abs_err_lat_m'], COLORS.err0, 0.05, COLORS.err1, 0.15, COLORS.err2, 0.3, COLORS.err3]];
   const STATUS_COLOUR = ['match', ['get', 'status'], 'tracking', COLORS.tracking, 'degraded', COLORS.degraded,
     'lost', COLORS.lost, COLORS.initializing];
+  // HD-map overlay: matched / unmatched / outside the compared area, per role.
+  const hdColor = (matched, unmatched) => ['case',
+    ['!', ['all', ['get', 'in_area'], ['coalesce', ['get', 'judged'], true]]], COLORS.outside,
+    ['get', 'matched'], matched, unmatched];
+  const HDMAP_LAYERS = ['hdmap-hd-lines', 'hdmap-map-lines', 'hdmap-hd-points', 'hdmap-map-points'];
   const state = { key: null, tilejson: null, map: null, versions: [], current: null };
   const $ = (id) => document.getElementById(id);
 
@@ -60,6 +68,7 @@
       diff: { type: 'geojson', data: { type: 'FeatureCollection', features: [] } },
       run: { type: 'geojson', data: { type: 'FeatureCollection', features: [] } },
       quality: { type: 'geojson', data: { type: 'FeatureCollection', features: [] } },
+      hdmap: { type: 'geojson', data: { type: 'FeatureCollection', features: [] } },
     };
     const layers = [{ id: 'background', type: 'background', paint: { 'background-color': '#0c0c10' } }];
     if (p.gridmap_tiles) {
@@ -88,6 +97,20 @@
       { id: 'diff-points', type: 'circle', source: 'diff', filter: ['==', ['geometry-type'], 'Point'], layout: { visibility: 'none' },
         paint: { 'circle-radius': 6, 'circle-stroke-width': 1, 'circle-stroke-color': '#fff',
           'circle-color': ['match', ['get', 'change'], 'added', COLORS.added, 'moved', COLORS.moved, COLORS.retired] } },
+      // HD features wide and under the landmarks; HD points as rings around them.
+      { id: 'hdmap-hd-lines', type: 'line', source: 'hdmap', layout: { visibility: 'none' },
+        filter: ['all', ['==', ['get', 'role'], 'hd'], ['==', ['geometry-type'], 'LineString']],
+        paint: { 'line-width': 6, 'line-opacity': 0.55, 'line-color': hdColor(COLORS.hdMatched, COLORS.hdUnmatched) } },
+      { id: 'hdmap-map-lines', type: 'line', source: 'hdmap', layout: { visibility: 'none' },
+        filter: ['all', ['==', ['get', 'role'], 'map'], ['==', ['geometry-type'], 'LineString']],
+        paint: { 'line-width': 2, 'line-color': hdColor(COLORS.mapMatched, COLORS.mapUnmatched) } },
+      { id: 'hdmap-hd-points', type: 'circle', source: 'hdmap', layout: { visibility: 'none' },
+        filter: ['all', ['==', ['get', 'role'], 'hd'], ['==', ['geometry-type'], 'Point']],
+        paint: { 'circle-radius': 7, 'circle-opacity': 0, 'circle-stroke-width': 2.5,
+          'circle-stroke-color': hdColor(COLORS.hdMatched, COLORS.hdUnmatched) } },
+      { id: 'hdmap-map-points', type: 'circle', source: 'hdmap', layout: { visibility: 'none' },
+        filter: ['all', ['==', ['get', 'role'], 'map'], ['==', ['geometry-type'], 'Point']],
+        paint: { 'circle-radius': 3.5, 'circle-color': hdColor(COLORS.mapMatched, COLORS.mapUnmatched) } },
     );
     return { version: 8, sources, layers };
   }
@@ -105,12 +128,80 @@
     setVisible(['gridmap-mechanism'], on && mech);
   }
 
+  function fixed(v, digits, unit) {
+    return v === undefined || v === null ? undefined : Number(v).toFixed(digits) + (unit || '');
+  }
+
+  function addRows(dl, rows) {
+    for (const [k, v] of rows) {
+      if (v === undefined || v === null) continue;
+      dl.appendChild(text(document.createElement('dt'), k));
+      dl.appendChild(text(document.createElement('dd'), String(v)));
+    }
+  }
+
+  function hdmapPopup(f) {
+    const dl = document.createElement('dl');
+    dl.className = 'popup';
+    const p = f.properties;
+    const status = !p.in_area ? 'outside the compared area'
+      : p.judged === false ? 'not judged (the other map has nothing of this kind here)'
+        : p.matched ? 'matched' : 'unmatched';
+    addRows(dl, [[p.role === 'hd' ? 'HD-map feature' : 'map landmark (HD comparison)', p.type],
+      ['subtype', p.subtype || undefined], ['status', status], ['HD id', p.hd_id], ['landmark', p.key],
+      ['matched landmark', p.landmark_key], ['matched HD type', p.hd_type],
+      ['offset', fixed(p.distance_m, 3, ' m')], ['median offset', fixed(p.median_offset_m, 3, ' m')],
+      ['length', fixed(p.length_m, 1, ' m')],
+      ['HD line covered', p.line_coverage === undefined || p.line_coverage === null ? undefined : Math.round(100 * p.line_coverage) + ' %']]);
+    return dl;
+  }
+
+  function when(iso) { return iso ? iso.replace('T', ' ').replace('Z', ' UTC') : undefined; }
+
+  // first/last seen: drive times when the drives' clock is UTC (the server says so with an
+  // ISO time), otherwise when the drives were uploaded.
+  function seen(d, which) {
+    if (d[which + '_seen']) return when(d[which + '_seen']);
+    const up = d[which + '_ingested_at'];
+    return up ? when(up) + ' (upload)' : '—';
+  }
+
+  async function landmarkDetails(p, dl) {
+    if (!p.key || !p.map_version) return;
+    try {
+      const d = await getJson('/v1/maps/' + encodeURIComponent(p.map_version) + '/landmarks/' + encodeURIComponent(p.key), true);
+      addRows(dl, [['supporting drives (stored)', d.supporting_drives], ['first seen', seen(d, 'first')], ['last seen', seen(d, 'last')]]);
+      dl.appendChild(text(document.createElement('dt'), 'history'));
+      const dd = document.createElement('dd');
+      const ol = document.createElement('ol');
+      ol.className = 'history';
+      for (const h of d.history) {
+        const r = h.reason && h.reason.rule ? ' · ' + h.reason.rule : '';
+        const moved = h.change === 'moved' ? ' ' + Number(h.distance_m).toFixed(2) + ' m' : '';
+        const note = h.inferred ? ' (first version)' : '';
+        text(ol.appendChild(document.createElement('li')),
+          'v' + h.version + ' ' + h.change + moved + r + note + (h.published_at ? ' · ' + h.published_at.slice(0, 10) : ''));
+      }
+      if (!d.history.length) text(ol.appendChild(document.createElement('li')), 'no recorded changes');
+      dd.appendChild(ol);
+      dl.appendChild(dd);
+      if (d.drives) {
+        addRows(dl, [['drives', d.drives.map((x) => x.drive_id).join(', ')]]);
+      }
+      window.polmapConsole.landmark = d;
+    } catch (e) {
+      addRows(dl, [['details', String(e.message || e)]]);
+    }
+  }
+
   function popupFor(f) {
+    if (f.layer.id.startsWith('hdmap-')) return hdmapPopup(f);
     const dl = document.createElement('dl');
     dl.className = 'popup';
     const p = f.properties;
     const rows = [['kind', f.layer.id === 'points' ? 'point' : f.layer.id === 'lines' ? 'line' : f.layer.id],
-      ['id', p.id], ['class', p['class']], ['support (drives)', p.support_drives],
+      // The key as a string: a 63-bit id read as a JavaScript number is rounded.
+      ['id', p.key !== undefined ? p.key : p.id], ['class', p['class']], ['support (drives)', p.support_drives],
       ['spread', p.spread_m !== undefined ? Number(p.spread_m).toFixed(3) + ' m' : undefined],
       ['map version', p.map_version], ['change', p.change], ['moved by', p.distance_m !== undefined ? Number(p.distance_m).toFixed(3) + ' m' : undefined],
       ['drive', p.drive_id], ['vehicle', p.vehicle_id]];
@@ -126,11 +217,9 @@
         ['lateral RMSE', p.lat_rmse_m !== undefined && p.lat_rmse_m !== null ? Number(p.lat_rmse_m).toFixed(3) + ' m' : 'no reference'],
         ['weak', p.weak ? 'yes' : 'no']);
     }
-    for (const [k, v] of rows) {
-      if (v === undefined || v === null) continue;
-      dl.appendChild(text(document.createElement('dt'), k));
-      dl.appendChild(text(document.createElement('dd'), String(v)));
-    }
+    addRows(dl, rows);
+    // Landmarks: support times and version history from the server.
+    if (f.layer.id === 'points' || f.layer.id === 'lines') landmarkDetails(p, dl);
     return dl;
   }
 
@@ -151,7 +240,8 @@
     map.addControl(new maplibregl.NavigationControl(), 'top-left');
     map.addControl(new maplibregl.ScaleControl({ unit: 'metric', maxWidth: 120 }), 'bottom-left');
     map.on('error', (e) => { $('version-label').textContent = 'map error: ' + ((e.error && e.error.message) || e); });
-    const clickable = ['points', 'lines', 'diff-points', 'diff-lines', 'run', 'coverage', 'quality'];
+    const clickable = ['points', 'lines', 'diff-points', 'diff-lines', 'run', 'hdmap-hd-points', 'hdmap-map-points',
+      'hdmap-map-lines', 'hdmap-hd-lines', 'coverage', 'quality'];
     map.on('click', (e) => {
       // A few pixels of slack: point landmarks are small circles.
       const b = [[e.point.x - 4, e.point.y - 4], [e.point.x + 4, e.point.y + 4]];
@@ -160,13 +250,14 @@
       if (!fs.length) return;
       // A landmark and its change in the diff may lie on top of each other: show each once.
       const box = document.createElement('div');
+      box.className = 'popup-box';
       const seen = new Set();
       for (const f of fs) {
         if (seen.has(f.layer.id) || seen.size >= 3) continue;
         seen.add(f.layer.id);
         box.appendChild(popupFor(f));
       }
-      new maplibregl.Popup({ maxWidth: '18em' }).setLngLat(e.lngLat).setDOMContent(box).addTo(map);
+      new maplibregl.Popup({ maxWidth: '20em' }).setLngLat(e.lngLat).setDOMContent(box).addTo(map);
     });
     for (const id of clickable) {
       map.on('mouseenter', id, () => { map.getCanvas().style.cursor = 'pointer'; });
@@ -217,6 +308,51 @@
     $('layer-diff').checked = true;
     setVisible(['diff-points', 'diff-lines'], true);
     window.polmapConsole.diff = d;
+  }
+
+  // ------------------------------------------------------------------ HD-map overlay
+  function pct(v) { return v === null || v === undefined ? 'n/a' : (100 * v).toFixed(1) + ' %'; }
+  function metres(v) { return v === null || v === undefined ? 'n/a' : Number(v).toFixed(3) + ' m'; }
+
+  async function showHdmap(name) {
+    const summary = $('hdmap-summary');
+    const g = await getJson('/v1/maps/' + state.current + '/hdmap-comparison/' + encodeURIComponent(name) + '?format=geojson');
+    state.map.getSource('hdmap').setData(g);
+    const s = (g.properties && g.properties.summary) || {};
+    const dl = document.createElement('dl');
+    dl.className = 'summary';
+    addRows(dl, [['HD map', g.properties.hdmap_file || name],
+      ['point precision', pct(s.point_precision)], ['point recall', pct(s.point_recall)],
+      ['matched points', (s.matched_points ?? 0) + ' of ' + (s.map_points ?? 0) + ' map / ' + (s.hd_points ?? 0) + ' HD'],
+      ['median point offset', metres(s.point_median_offset_m)],
+      ['line coverage', pct(s.line_coverage) + ' of ' + Number(s.line_total_length_m || 0).toFixed(0) + ' m'],
+      ['median lateral line offset', metres(s.line_median_lateral_offset_m)]]);
+    summary.replaceChildren(dl);
+    window.polmapConsole.hdmap = g;
+  }
+
+  // The comparisons stored with the current version (polmap compare-hdmap --store).
+  async function loadHdmap() {
+    const box = $('layer-hdmap'), select = $('hdmap-name'), summary = $('hdmap-summary');
+    select.replaceChildren();
+    let list = [];
+    try {
+      list = (await getJson('/v1/maps/' + state.current + '/hdmap-comparison')).comparisons;
+    } catch (e) {
+      summary.textContent = String(e.message || e);
+    }
+    for (const c of list) select.appendChild(text(document.createElement('option'), c.name)).value = c.name;
+    select.disabled = list.length < 2;
+    box.disabled = list.length === 0;
+    if (!list.length) {
+      box.checked = false;
+      setVisible(HDMAP_LAYERS, false);
+      state.map.getSource('hdmap').setData({ type: 'FeatureCollection', features: [] });
+      summary.textContent = 'no HD-map comparison stored for version ' + state.current + ' (polmap compare-hdmap --store)';
+      window.polmapConsole.hdmap = null;
+      return;
+    }
+    await showHdmap(list[0].name);
   }
 
   // ------------------------------------------------------------------ fleet
@@ -398,6 +534,7 @@
     state.current = list.current;
     fillVersions();
     $('version-label').textContent = 'map version ' + list.current;
+    loadHdmap();
     // Tiles of "current" changed: fetch them again.
     const p = state.tilejson.polmap || {};
     const urls = { landmarks: state.tilejson.tiles, gridmap: [p.gridmap_tiles], mechanism: [p.gridmap_mechanism_tiles] };
@@ -465,6 +602,8 @@
     $('layer-run').addEventListener('change', (e) => setVisible(['run'], e.target.checked));
     $('layer-quality').addEventListener('change', (e) => setVisible(['quality'], e.target.checked));
     for (const r of document.querySelectorAll('input[name="run-colour"]')) r.addEventListener('change', runColouring);
+    $('layer-hdmap').addEventListener('change', (e) => setVisible(HDMAP_LAYERS, e.target.checked));
+    $('hdmap-name').addEventListener('change', (e) => showHdmap(e.target.value).catch((err) => { $('hdmap-summary').textContent = String(err.message || err); }));
     $('diff-show').addEventListener('click', () => showDiff().catch((e) => { $('diff-summary').textContent = String(e.message || e); }));
     $('build-start').addEventListener('click', startBuild);
     $('key-form').addEventListener('submit', (e) => {
@@ -477,7 +616,9 @@
     });
     loadFleet();
     loadRuns();
-    map.once('idle', () => { window.polmapConsole.ready = true; });
+    // The overlay's source exists once the style has loaded.
+    const hdmapLoaded = new Promise((resolve) => map.once('load', () => loadHdmap().finally(resolve)));
+    map.once('idle', async () => { await hdmapLoaded; window.polmapConsole.ready = true; });
   }
 
   document.addEventListener('DOMContentLoaded', () => {

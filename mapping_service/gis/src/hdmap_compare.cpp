@@ -191,34 +191,6 @@ Box bounds_of(const std::vector<Vec>& pts, const std::vector<std::vector<Vec>>& 
   return b;
 }
 
-/// Calls fn(midpoint, length) for pieces of <= step along every line.
-template <typename Fn>
-void for_each_piece(const std::vector<std::vector<Vec>>& lines, double step, Fn&& fn) {
-  for (const auto& l : lines) {
-    for (std::size_t i = 1; i < l.size(); ++i) {
-      const Vec d = l[i] - l[i - 1];
-      const double len = d.norm();
-      if (len <= 0) continue;
-      const int n = std::max(1, static_cast<int>(std::ceil(len / step)));
-      for (int k = 0; k < n; ++k) fn(l[i - 1] + d * ((k + 0.5) / n), len / n);
-    }
-  }
-}
-
-/// Calls fn(sample) for the vertices of every line plus samples <= step apart.
-template <typename Fn>
-void for_each_sample(const std::vector<std::vector<Vec>>& lines, double step, Fn&& fn) {
-  for (const auto& l : lines) {
-    if (l.empty()) continue;
-    fn(l.front());
-    for (std::size_t i = 1; i < l.size(); ++i) {
-      const Vec d = l[i] - l[i - 1];
-      const int n = std::max(1, static_cast<int>(std::ceil(d.norm() / step)));
-      for (int k = 1; k <= n; ++k) fn(l[i - 1] + d * (static_cast<double>(k) / n));
-    }
-  }
-}
-
 }  // namespace
 
 HdMapComparison compare_hdmap_metric(const std::vector<Vec>& map_points,
@@ -248,6 +220,10 @@ HdMapComparison compare_hdmap_metric(const std::vector<Vec>& map_points,
   }
   out.map_points = mp.size();
   out.hd_points = hp.size();
+  out.map_point_in_area.assign(map_points.size(), false);
+  out.hd_point_in_area.assign(hd_points.size(), false);
+  for (std::size_t i : mp) out.map_point_in_area[i] = true;
+  for (std::size_t j : hp) out.hd_point_in_area[j] = true;
   {
     // Candidate pairs within the radius via a grid over HD points.
     const double r = cfg.point_match_radius_m;
@@ -302,26 +278,97 @@ HdMapComparison compare_hdmap_metric(const std::vector<Vec>& map_points,
   }
 
   // ---------------------------------------------------------------- lines
+  // Samples of map lines and pieces of HD lines are visited line by line, in order, so
+  // that consecutive ones with the same verdict form the runs a caller draws.
   const double band = cfg.line_band_m;
   const double cell = std::max(band, 0.5);
   {
     const SegmentGrid hd_grid(segments_of(hd_lines), cell);
     std::vector<double> offsets;
-    for_each_sample(map_lines, cfg.line_sample_step_m, [&](const Vec& p) {
-      if (!in_hd_area(p)) return;
-      ++out.map_line_samples;
-      if (const auto d = hd_grid.nearest(p, band)) offsets.push_back(*d);
-    });
+    for (std::size_t li = 0; li < map_lines.size(); ++li) {
+      const auto& l = map_lines[li];
+      std::vector<double> run_offsets;
+      Vec prev;
+      bool first = true;
+      const auto close_run = [&](HdLinePosition end) {
+        if (out.map_line_runs.empty() || out.map_line_runs.back().line != li) return;
+        HdLineRun& r = out.map_line_runs.back();
+        r.end = end;
+        r.median_offset_m = median(run_offsets);
+        run_offsets.clear();
+      };
+      const auto visit = [&](const Vec& p, HdLinePosition pos) {
+        const bool in = in_hd_area(p);
+        std::optional<double> d;
+        if (in) {
+          ++out.map_line_samples;
+          d = hd_grid.nearest(p, band);
+          if (d) offsets.push_back(*d);
+        }
+        const bool on = d.has_value();
+        const double step_m = first ? 0.0 : (p - prev).norm();
+        // The stretch from the previous sample belongs to the run that sample is in.
+        if (!first) out.map_line_runs.back().length_m += step_m;
+        if (first || out.map_line_runs.back().in_area != in ||
+            out.map_line_runs.back().matched != on) {
+          close_run(pos);
+          out.map_line_runs.push_back({li, pos, pos, in, on, 0.0, 0, std::nullopt});
+        }
+        HdLineRun& r = out.map_line_runs.back();
+        ++r.samples;
+        r.end = pos;
+        if (d) run_offsets.push_back(*d);
+        prev = p;
+        first = false;
+      };
+      if (l.empty()) continue;
+      visit(l.front(), {0, 0.0});
+      for (std::size_t i = 1; i < l.size(); ++i) {
+        const Vec d = l[i] - l[i - 1];
+        const int n = std::max(1, static_cast<int>(std::ceil(d.norm() / cfg.line_sample_step_m)));
+        for (int k = 1; k <= n; ++k) {
+          const double t = static_cast<double>(k) / n;
+          visit(l[i - 1] + d * t, {i - 1, t});
+        }
+      }
+      close_run(out.map_line_runs.back().end);
+    }
     out.matched_line_samples = offsets.size();
     out.line_median_lateral_offset_m = median(offsets);
   }
   {
     const SegmentGrid map_grid(segments_of(map_lines), cell);
-    for_each_piece(hd_lines, cfg.line_sample_step_m, [&](const Vec& mid, double len) {
-      if (!in_map_area(mid)) return;
-      out.line_total_length_m += len;
-      if (map_grid.nearest(mid, band)) out.line_covered_length_m += len;
-    });
+    for (std::size_t li = 0; li < hd_lines.size(); ++li) {
+      const auto& l = hd_lines[li];
+      bool first = true;
+      for (std::size_t i = 1; i < l.size(); ++i) {
+        const Vec d = l[i] - l[i - 1];
+        const double len = d.norm();
+        if (len <= 0) continue;
+        const int n = std::max(1, static_cast<int>(std::ceil(len / cfg.line_sample_step_m)));
+        for (int k = 0; k < n; ++k) {
+          const Vec mid = l[i - 1] + d * ((k + 0.5) / n);
+          const double piece = len / n;
+          const bool in = in_map_area(mid);
+          const bool covered = in && map_grid.nearest(mid, band).has_value();
+          if (in) {
+            out.line_total_length_m += piece;
+            if (covered) out.line_covered_length_m += piece;
+          }
+          const HdLinePosition b{i - 1, static_cast<double>(k) / n};
+          const HdLinePosition e{i - 1, static_cast<double>(k + 1) / n};
+          if (first || out.hd_line_runs.back().in_area != in ||
+              out.hd_line_runs.back().matched != covered) {
+            out.hd_line_runs.push_back({li, b, e, in, covered, 0.0, 0, std::nullopt});
+          }
+          HdLineRun& r = out.hd_line_runs.back();
+          r.end = e;
+          r.length_m += piece;
+          ++r.samples;
+          first = false;
+        }
+      }
+    }
     if (out.line_total_length_m > 0) {
       out.line_coverage = out.line_covered_length_m / out.line_total_length_m;
     }
@@ -373,6 +420,151 @@ HdMapComparison compare_with_hdmap(const LandmarkSet& landmarks, const HdMap& hd
     for (const auto& p : l.polyline) v.push_back(frame.to_local(p));
   }
   return compare_hdmap_metric(mp, ml, hp, hl, cfg);
+}
+
+namespace {
+
+GeoPoint along(const std::vector<GeoPoint>& pl, HdLinePosition p) {
+  const GeoPoint& a = pl[p.segment];
+  if (p.segment + 1 >= pl.size()) return a;
+  const GeoPoint& b = pl[p.segment + 1];
+  // Linear in degrees: a segment spans metres to a few hundred metres, where the
+  // difference to the metric interpolation is far below the comparison's tolerances.
+  return {a.lat_deg + p.t * (b.lat_deg - a.lat_deg), a.lon_deg + p.t * (b.lon_deg - a.lon_deg),
+          a.alt_m + p.t * (b.alt_m - a.alt_m)};
+}
+
+/// The part of `pl` between two positions (consecutive duplicates dropped).
+std::vector<GeoPoint> sub_polyline(const std::vector<GeoPoint>& pl, HdLinePosition b,
+                                   HdLinePosition e) {
+  std::vector<GeoPoint> out;
+  const auto push = [&](const GeoPoint& g) {
+    if (out.empty() || out.back().lat_deg != g.lat_deg || out.back().lon_deg != g.lon_deg) {
+      out.push_back(g);
+    }
+  };
+  push(along(pl, b));
+  for (std::size_t v = b.segment + 1; v <= e.segment && v < pl.size(); ++v) push(pl[v]);
+  push(along(pl, e));
+  return out;
+}
+
+nlohmann::json lonlat(const GeoPoint& g) { return nlohmann::json::array({g.lon_deg, g.lat_deg}); }
+
+nlohmann::json feature(nlohmann::json geometry, nlohmann::json properties) {
+  return {{"type", "Feature"},
+          {"geometry", std::move(geometry)},
+          {"properties", std::move(properties)}};
+}
+
+nlohmann::json point_geometry(const GeoPoint& g) {
+  return {{"type", "Point"}, {"coordinates", lonlat(g)}};
+}
+
+nlohmann::json opt_json(const std::optional<double>& v) {
+  return v ? nlohmann::json(*v) : nlohmann::json(nullptr);
+}
+
+}  // namespace
+
+nlohmann::json hdmap_comparison_geojson(const LandmarkSet& lm, const HdMap& hd,
+                                        const HdMapComparison& c) {
+  POLMAP_EXPECT(c.map_point_in_area.size() == lm.points.size() &&
+                c.hd_point_in_area.size() == hd.points.size());
+  std::unordered_map<std::size_t, const HdPointMatch*> by_map, by_hd;
+  for (const auto& m : c.point_matches) {
+    POLMAP_EXPECT(m.map_index < lm.points.size() && m.hd_index < hd.points.size());
+    by_map[m.map_index] = &m;
+    by_hd[m.hd_index] = &m;
+  }
+  // A feature is judged only when the other map has features of its kind in the area: radar
+  // points against an HD map without signs or poles are neither matched nor unmatched (as
+  // their precision is undefined then).
+  const bool judged_hd_points = c.map_points > 0;
+  const bool judged_map_points = c.hd_points > 0;
+  const bool judged_hd_lines = !lm.lines.empty();
+  const bool judged_map_lines = c.line_total_length_m > 0;
+  nlohmann::json features = nlohmann::json::array();
+  for (std::size_t j = 0; j < hd.points.size(); ++j) {
+    const HdMapPoint& p = hd.points[j];
+    nlohmann::json props{{"role", "hd"},
+                         {"type", p.type},
+                         {"subtype", p.subtype},
+                         {"hd_id", p.id},
+                         {"in_area", bool(c.hd_point_in_area[j])},
+                         {"judged", judged_hd_points},
+                         {"matched", false}};
+    if (const auto it = by_hd.find(j); it != by_hd.end()) {
+      props["matched"] = true;
+      props["distance_m"] = it->second->distance_m;
+      props["landmark_key"] = std::to_string(lm.points[it->second->map_index].key);
+    }
+    features.push_back(feature(point_geometry(p.position), std::move(props)));
+  }
+  for (std::size_t i = 0; i < lm.points.size(); ++i) {
+    const StoredPointLandmark& p = lm.points[i];
+    nlohmann::json props{{"role", "map"},
+                         {"type", "point_landmark"},
+                         {"key", std::to_string(p.key)},
+                         {"class", std::string(to_string(p.scattering))},
+                         {"support_drives", p.support_drives},
+                         {"in_area", bool(c.map_point_in_area[i])},
+                         {"judged", judged_map_points},
+                         {"matched", false}};
+    if (const auto it = by_map.find(i); it != by_map.end()) {
+      props["matched"] = true;
+      props["distance_m"] = it->second->distance_m;
+      props["hd_id"] = hd.points[it->second->hd_index].id;
+      props["hd_type"] = hd.points[it->second->hd_index].type;
+    }
+    features.push_back(feature(point_geometry(p.position), std::move(props)));
+  }
+  // Per HD line: covered share of its length inside the evaluation area.
+  std::vector<double> in_len(hd.lines.size(), 0.0), cov_len(hd.lines.size(), 0.0);
+  for (const HdLineRun& r : c.hd_line_runs) {
+    POLMAP_EXPECT(r.line < hd.lines.size());
+    if (!r.in_area) continue;
+    in_len[r.line] += r.length_m;
+    if (r.matched) cov_len[r.line] += r.length_m;
+  }
+  const auto line_feature = [&](const std::vector<GeoPoint>& pl, const HdLineRun& r, bool judged,
+                                nlohmann::json props) {
+    const std::vector<GeoPoint> part = sub_polyline(pl, r.begin, r.end);
+    if (part.size() < 2) return;  // a single-vertex line has nothing to draw
+    nlohmann::json coords = nlohmann::json::array();
+    for (const auto& g : part) coords.push_back(lonlat(g));
+    props["in_area"] = r.in_area;
+    props["judged"] = judged;
+    props["matched"] = r.matched;
+    props["length_m"] = r.length_m;
+    features.push_back(
+        feature({{"type", "LineString"}, {"coordinates", std::move(coords)}}, std::move(props)));
+  };
+  for (const HdLineRun& r : c.hd_line_runs) {
+    const HdMapLine& l = hd.lines[r.line];
+    line_feature(
+        l.polyline, r, judged_hd_lines,
+        {{"role", "hd"},
+         {"type", l.type},
+         {"subtype", l.subtype},
+         {"hd_id", l.id},
+         {"line_coverage", in_len[r.line] > 0 ? nlohmann::json(cov_len[r.line] / in_len[r.line])
+                                              : nlohmann::json(nullptr)}});
+  }
+  for (const HdLineRun& r : c.map_line_runs) {
+    POLMAP_EXPECT(r.line < lm.lines.size());
+    const StoredLineLandmark& l = lm.lines[r.line];
+    line_feature(l.polyline, r, judged_map_lines,
+                 {{"role", "map"},
+                  {"type", "line_landmark"},
+                  {"key", std::to_string(l.key)},
+                  {"support_drives", l.support_drives},
+                  {"samples", r.samples},
+                  {"median_offset_m", opt_json(r.median_offset_m)}});
+  }
+  return {{"type", "FeatureCollection"},
+          {"features", std::move(features)},
+          {"properties", {{"summary", to_json(c)}}}};
 }
 
 nlohmann::json to_json(const HdMapComparison& c) {

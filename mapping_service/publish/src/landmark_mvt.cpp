@@ -13,6 +13,7 @@ LandmarkMvtLayers landmark_mvt_layers(const LandmarkSet& lm, std::int64_t versio
                                    tiles::MvtGeometryType::Point,
                                    {{p.position}},
                                    {{"id", std::int64_t{p.key}},
+                                    {"key", std::to_string(p.key)},
                                     {"class", std::string(to_string(p.scattering))},
                                     {"support_drives", std::uint64_t{p.support_drives}},
                                     {"spread_m", p.spread_m},
@@ -23,6 +24,7 @@ LandmarkMvtLayers landmark_mvt_layers(const LandmarkSet& lm, std::int64_t versio
                                   tiles::MvtGeometryType::LineString,
                                   {l.polyline},
                                   {{"id", std::int64_t{l.key}},
+                                   {"key", std::to_string(l.key)},
                                    {"support_drives", std::uint64_t{l.support_drives}},
                                    {"spread_m", l.spread_m},
                                    {"map_version", version}}});
@@ -32,6 +34,9 @@ LandmarkMvtLayers landmark_mvt_layers(const LandmarkSet& lm, std::int64_t versio
 
 nlohmann::json landmark_vector_layers_json() {
   nlohmann::json landmark_fields{{"id", "Number: stable landmark id"},
+                                 {"key",
+                                  "String: the stable id in decimal (exact where a Number is a "
+                                  "double, e.g. in JavaScript)"},
                                  {"support_drives", "Number: distinct drives that saw it"},
                                  {"spread_m", "Number: RMS distance of members to the mean, m"},
                                  {"map_version", "Number: map version"}};

@@ -665,6 +665,7 @@ void Server::Impl::register_routes() {
   register_upload_routes();
   register_map_routes();
   register_gis_routes();
+  register_hdmap_routes();
   register_console_routes();
 }
 

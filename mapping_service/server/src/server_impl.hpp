@@ -206,6 +206,9 @@ struct Server::Impl {
   static bool reply_not_modified(const httplib::Request& req, httplib::Response& res,
                                  const std::string& etag, const std::string& cache_control);
   void register_gis_routes();
+  /// GET /v1/maps/{v}/hdmap-comparison[/{name}] and /v1/maps/{v}/landmarks/{key}
+  /// (server_hdmap.cpp).
+  void register_hdmap_routes();
   /// The web console (GET /, /console/...; server_console.cpp).
   void register_console_routes();
 };

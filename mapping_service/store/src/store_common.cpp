@@ -38,6 +38,14 @@ std::string_view to_string(MapVersionStatus s) {
 
 std::string content_etag(std::string_view payload) { return util::sha256_hex(payload); }
 
+bool is_valid_hdmap_comparison_name(std::string_view name) {
+  if (name.empty() || name.size() > 64 || name.front() == '.') return false;
+  return std::all_of(name.begin(), name.end(), [](char ch) {
+    return (ch >= 'a' && ch <= 'z') || (ch >= 'A' && ch <= 'Z') || (ch >= '0' && ch <= '9') ||
+           ch == '.' || ch == '_' || ch == '-';
+  });
+}
+
 std::string_view to_string(LandmarkChangeKind k) {
   switch (k) {
     case LandmarkChangeKind::Moved:
@@ -437,6 +445,39 @@ void check_build_job_specs(std::span<const BuildJobSpec> jobs) {
 
 double epoch_seconds_now() {
   return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
+}
+
+std::vector<LandmarkHistoryEntry> walk_landmark_history(
+    std::int64_t key, std::int64_t version, bool is_line,
+    const std::function<std::optional<LandmarkHistoryEntry>(std::int64_t, std::int64_t)>& latest,
+    const std::function<std::optional<std::pair<std::int64_t, std::string>>(
+        std::int64_t, std::int64_t)>& first_version) {
+  std::vector<LandmarkHistoryEntry> out;
+  std::int64_t k = key;
+  std::int64_t upto = version;
+  // Each step goes at least one version back, so versions bound the walk.
+  while (upto > 0) {
+    auto e = latest(k, upto);
+    if (!e) break;
+    upto = e->version - 1;
+    if (e->change.change == LandmarkChangeKind::Moved && e->change.previous_key != 0) {
+      k = e->change.previous_key;
+    }
+    out.push_back(std::move(*e));
+  }
+  if (upto > 0) {
+    if (const auto first = first_version(k, upto)) {
+      LandmarkHistoryEntry e;
+      e.version = first->first;
+      e.published_at = first->second;
+      e.change.change = LandmarkChangeKind::Added;
+      e.change.is_line = is_line;
+      e.change.key = k;
+      e.inferred = true;
+      out.push_back(std::move(e));
+    }
+  }
+  return out;
 }
 
 }  // namespace polmap::mapping::store_detail

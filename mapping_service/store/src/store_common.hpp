@@ -7,7 +7,9 @@
 #include <chrono>
 #include <cstdint>
 #include <filesystem>
+#include <functional>
 #include <nlohmann/json.hpp>
+#include <optional>
 #include <span>
 #include <string>
 #include <string_view>
@@ -86,5 +88,17 @@ void validate_upload_request(const UploadSessionRequest& r);
 BuildJobState parse_build_job_state(std::string_view s);
 void check_build_job_specs(std::span<const BuildJobSpec> jobs);
 double epoch_seconds_now();
+
+/// landmark_detail's history walk, the same in every backend. `latest(key, upto)`: the
+/// newest recorded change (any kind) of that key in a published version <= upto (version
+/// and published_at filled in); `first_version(key, upto)`: the earliest published version
+/// <= upto holding a landmark with that key (with its published_at). Moved changes lead to
+/// their previous_key one version earlier; where the walk ends, the first version holding
+/// the last key becomes an inferred "added" entry when no change recorded it. Newest first.
+std::vector<LandmarkHistoryEntry> walk_landmark_history(
+    std::int64_t key, std::int64_t version, bool is_line,
+    const std::function<std::optional<LandmarkHistoryEntry>(std::int64_t, std::int64_t)>& latest,
+    const std::function<std::optional<std::pair<std::int64_t, std::string>>(
+        std::int64_t, std::int64_t)>& first_version);
 
 }  // namespace polmap::mapping::store_detail

@@ -67,7 +67,7 @@ std::vector<ColumnSpec> tile_columns() {
           {"blob", I},    {"num_points", I}, {"num_lines", I}};
 }
 
-/// Every table of store.sql migration 9 / store_postgres.sql migration 3, parents first.
+/// Every table of store.sql migration 10 / store_postgres.sql migration 4, parents first.
 /// A new table or column in a later migration must be added here (the transfer refuses a
 /// source with one it does not know).
 const std::vector<TableSpec>& table_specs() {
@@ -151,6 +151,14 @@ const std::vector<TableSpec>& table_specs() {
         {"previous_geometry_json", J},
         {"reason_json", J}},
        {"version", "seq"}},
+      {"hdmap_comparisons",
+       {{"version", I},
+        {"name", T},
+        {"hdmap_file", T},
+        {"created_at", T},
+        {"summary_json", J},
+        {"features_json", J}},
+       {"version", "name"}},
       {"tile_blobs", {{"id", I}, {"etag", T}, {"payload", B}, {"byte_size", I}}, {"id"}},
       {"tiles", tile_columns(), {"version", "z", "x", "y"}},
       {"gridmap_tiles", tile_columns(), {"version", "z", "x", "y"}},

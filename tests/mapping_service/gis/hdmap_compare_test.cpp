@@ -277,5 +277,146 @@ TEST(HdMapCompare, GeodeticEntryPointAndJson) {
   EXPECT_GT(j["line_coverage"].get<double>(), 0.99);
 }
 
+TEST(HdMapCompare, RunsSplitLinesByVerdictAndAddUpToTheCounts) {
+  // HD wall 0..20 m along y = 0; the radar saw 0..12 m, 0.3 m off, and a wall at y = 5
+  // from 2 to 6 m that the HD map lacks; a second radar line starts on the HD wall and
+  // leaves it (x = 14 -> 14, 4).
+  const std::vector<std::vector<Vec>> hd{{Vec(0, 0), Vec(10, 0), Vec(20, 0)}};
+  const std::vector<std::vector<Vec>> map{
+      {Vec(0, 0.3), Vec(12, 0.3)}, {Vec(2, 5), Vec(6, 5)}, {Vec(14, 0.2), Vec(14, 4)}};
+  const auto r = compare_hdmap_metric({}, map, {}, hd);
+  // HD runs: covered 0..~12 (and around x = 14), uncovered elsewhere; without gaps.
+  ASSERT_GE(r.hd_line_runs.size(), 2U);
+  double len = 0, covered = 0;
+  for (std::size_t i = 0; i < r.hd_line_runs.size(); ++i) {
+    const auto& run = r.hd_line_runs[i];
+    EXPECT_EQ(run.line, 0U);
+    EXPECT_TRUE(run.in_area);
+    if (i > 0) {
+      const auto& prev = r.hd_line_runs[i - 1];
+      EXPECT_NE(prev.matched, run.matched) << "consecutive runs differ";
+      const bool joined =
+          (prev.end.segment == run.begin.segment && prev.end.t == run.begin.t) ||
+          (prev.end.t == 1.0 && run.begin.segment == prev.end.segment + 1 && run.begin.t == 0.0);
+      EXPECT_TRUE(joined) << "no gap between runs " << i - 1 << " and " << i;
+    }
+    len += run.length_m;
+    if (run.matched) covered += run.length_m;
+  }
+  EXPECT_NEAR(len, r.line_total_length_m, 1e-9);
+  EXPECT_NEAR(covered, r.line_covered_length_m, 1e-9);
+  EXPECT_TRUE(r.hd_line_runs.front().matched);
+  EXPECT_EQ(r.hd_line_runs.front().begin.segment, 0U);
+  EXPECT_EQ(r.hd_line_runs.back().end.segment, 1U);
+  EXPECT_EQ(r.hd_line_runs.back().end.t, 1.0);
+  // Map runs: line 0 all on (one run), line 1 all off, line 2 on then off.
+  std::size_t samples = 0, on = 0;
+  std::vector<int> runs_per_line(3, 0);
+  for (const auto& run : r.map_line_runs) {
+    ++runs_per_line[run.line];
+    samples += run.samples;
+    if (run.matched) {
+      on += run.samples;
+      ASSERT_TRUE(run.median_offset_m.has_value());
+    } else {
+      EXPECT_FALSE(run.median_offset_m.has_value());
+    }
+  }
+  EXPECT_EQ(samples, r.map_line_samples);
+  EXPECT_EQ(on, r.matched_line_samples);
+  EXPECT_EQ(runs_per_line, (std::vector<int>{1, 1, 2}));
+  EXPECT_NEAR(*r.map_line_runs.front().median_offset_m, 0.3, 1e-9);
+  EXPECT_NEAR(r.map_line_runs.front().length_m, 12.0, 1e-9);
+  EXPECT_FALSE(r.map_line_runs[1].matched);
+  EXPECT_NEAR(r.map_line_runs[1].length_m, 4.0, 1e-9);
+}
+
+TEST(HdMapCompare, GeoJsonHasOneFeaturePerPointAndRunWithTheVerdicts) {
+  const tiles::LocalFrame f(GeoPoint{48.0, 9.0, 0.0});
+  HdMap hd;
+  hd.points.push_back({7, "traffic_sign", "de206", f.to_geo(Vec(0, 0))});
+  hd.points.push_back({8, "pole", "", f.to_geo(Vec(30, 0))});
+  hd.lines.push_back({9, "curbstone", "high", {f.to_geo(Vec(0, 3)), f.to_geo(Vec(20, 3))}});
+  LandmarkSet lm;
+  StoredPointLandmark p;
+  p.key = 4611686018427387905;  // > 2^53: kept exact as a string
+  p.position = f.to_geo(Vec(0.4, 0));
+  p.scattering = ScatteringClass::Even;
+  p.support_drives = 3;
+  lm.points.push_back(p);
+  p.key = 5;
+  p.position = f.to_geo(Vec(10, -3));
+  lm.points.push_back(p);
+  StoredLineLandmark l;
+  l.key = 6;
+  l.polyline = {f.to_geo(Vec(0, 3.1)), f.to_geo(Vec(10, 3.1))};
+  lm.lines.push_back(l);
+  const auto c = compare_with_hdmap(lm, hd);
+  ASSERT_EQ(c.matched_points, 1U);
+  const auto g = hdmap_comparison_geojson(lm, hd, c);
+  EXPECT_EQ(g["type"], "FeatureCollection");
+  EXPECT_EQ(g["properties"]["summary"], to_json(c));
+  int hd_points = 0, map_points = 0, hd_runs = 0, map_runs = 0;
+  for (const auto& feat : g["features"]) {
+    const auto& pr = feat["properties"];
+    const auto& geom = feat["geometry"];
+    if (geom["type"] == "Point") {
+      const auto& xy = geom["coordinates"];
+      EXPECT_NEAR(xy[0].get<double>(), 9.0, 0.01);  // lon first
+      EXPECT_NEAR(xy[1].get<double>(), 48.0, 0.01);
+    }
+    if (pr["role"] == "hd" && geom["type"] == "Point") {
+      ++hd_points;
+      if (pr["hd_id"] == 7) {
+        EXPECT_TRUE(pr["matched"].get<bool>());
+        EXPECT_EQ(pr["landmark_key"], "4611686018427387905");
+        EXPECT_NEAR(pr["distance_m"].get<double>(), 0.4, 1e-3);
+        EXPECT_EQ(pr["subtype"], "de206");
+      } else {
+        EXPECT_FALSE(pr["matched"].get<bool>());
+        EXPECT_FALSE(pr.contains("landmark_key"));
+      }
+    } else if (pr["role"] == "map" && geom["type"] == "Point") {
+      ++map_points;
+      EXPECT_EQ(pr["type"], "point_landmark");
+      EXPECT_EQ(pr["class"], "even");
+      EXPECT_EQ(pr["support_drives"], 3);
+      EXPECT_EQ(pr["matched"].get<bool>(), pr["key"] == "4611686018427387905");
+      if (pr["matched"].get<bool>()) {
+        EXPECT_EQ(pr["hd_id"], 7);
+      }
+    } else if (pr["role"] == "hd") {
+      ++hd_runs;
+      EXPECT_EQ(pr["type"], "curbstone");
+      EXPECT_NEAR(pr["line_coverage"].get<double>(), *c.line_coverage, 1e-12);
+      EXPECT_GE(geom["coordinates"].size(), 2U);
+    } else {
+      ++map_runs;
+      EXPECT_EQ(pr["key"], "6");
+      EXPECT_TRUE(pr["matched"].get<bool>());
+      EXPECT_NEAR(pr["median_offset_m"].get<double>(), 0.1, 1e-3);
+      // The run redraws the whole landmark line.
+      const auto& cs = geom["coordinates"];
+      ASSERT_EQ(cs.size(), 2U);
+      EXPECT_NEAR(cs[1][0].get<double>(), l.polyline[1].lon_deg, 1e-12);
+    }
+  }
+  EXPECT_EQ(hd_points, 2);
+  EXPECT_EQ(map_points, 2);
+  EXPECT_EQ(hd_runs, 2);  // covered 0..10, uncovered 10..20
+  EXPECT_EQ(map_runs, 1);
+  EXPECT_NEAR(*c.line_coverage, 0.55, 0.03);  // 0..11 m of 20 (1 m band beyond the end)
+  for (const auto& feat : g["features"]) EXPECT_TRUE(feat["properties"]["judged"].get<bool>());
+
+  // Without HD point features the landmarks' points are not judged (precision undefined);
+  // the lines still are.
+  hd.points.clear();
+  const auto c2 = compare_with_hdmap(lm, hd);
+  for (const auto& feat : hdmap_comparison_geojson(lm, hd, c2)["features"]) {
+    const auto& pr = feat["properties"];
+    EXPECT_EQ(pr["judged"].get<bool>(), feat["geometry"]["type"] != "Point") << pr.dump();
+  }
+}
+
 }  // namespace
 }  // namespace polmap::mapping

@@ -244,6 +244,17 @@ class WriteTriggerStore final : public MapStore {
     return s_.fail_build_job(j, a, e);
   }
   std::vector<BuildJob> build_jobs(std::int64_t v) const override { return s_.build_jobs(v); }
+  void put_hdmap_comparison(const HdMapComparisonRecord& r) override { s_.put_hdmap_comparison(r); }
+  std::vector<HdMapComparisonRecord> list_hdmap_comparisons(std::int64_t v) const override {
+    return s_.list_hdmap_comparisons(v);
+  }
+  std::optional<HdMapComparisonRecord> get_hdmap_comparison(std::int64_t v,
+                                                            std::string_view n) const override {
+    return s_.get_hdmap_comparison(v, n);
+  }
+  std::optional<LandmarkDetail> landmark_detail(std::int64_t v, std::int64_t k) const override {
+    return s_.landmark_detail(v, k);
+  }
   StoreStats stats() const override { return s_.stats(); }
 
  private:

@@ -97,6 +97,7 @@ TEST(SqliteStore, UpgradesAnOlderDatabaseByApplyingOnlyMissingMigrations) {
   }
   // Turn it into a schema-1 database (as written by an older build).
   exec_sql(db,
+           "DROP TABLE hdmap_comparisons; DROP INDEX landmarks_key; "
            "DROP TABLE localization_run_cells; DROP TABLE localization_runs; "
            "DROP TABLE build_jobs; DROP TABLE gridmap_sum_cover; DROP TABLE gridmap_sum_inputs; "
            "DROP TABLE gridmap_sums; "

@@ -131,6 +131,15 @@ void expect_same_store(const MapStore& a, const MapStore& b, const std::string& 
         }
       }
     }
+    const auto ha = a.list_hdmap_comparisons(v), hb = b.list_hdmap_comparisons(v);
+    ASSERT_EQ(ha.size(), hb.size());
+    for (std::size_t k = 0; k < ha.size(); ++k) {
+      EXPECT_EQ(ha[k].name, hb[k].name);
+      EXPECT_EQ(ha[k].created_at, hb[k].created_at);
+      EXPECT_EQ(ha[k].summary, hb[k].summary);
+      EXPECT_EQ(a.get_hdmap_comparison(v, ha[k].name)->features,
+                b.get_hdmap_comparison(v, ha[k].name)->features);
+    }
     const auto ca = a.landmark_changes(v), cb = b.landmark_changes(v);
     ASSERT_EQ(ca.size(), cb.size());
     for (std::size_t k = 0; k < ca.size(); ++k) {
@@ -236,6 +245,18 @@ class PostgresStoreTransfer : public ::testing::Test {
     ASSERT_EQ(v2.status, MapBuildResult::Status::Published);
     ASSERT_GT(s.landmark_changes(v2.version).size(), 0u);
     ASSERT_GT(s.gridmap_sum_inputs().size(), 0u);
+    // An HD-map comparison stored with version 1 (compare-hdmap --store), JSON both ways.
+    s.put_hdmap_comparison(
+        {v1.version,
+         "town",
+         "town.osm",
+         "",
+         {{"point_recall", 0.75}, {"line_coverage", nullptr}},
+         {{"type", "FeatureCollection"},
+          {"features",
+           {{{"type", "Feature"},
+             {"geometry", {{"type", "Point"}, {"coordinates", {9.1, 48.7}}}},
+             {"properties", {{"role", "hd"}, {"matched", false}, {"hd_id", 12}}}}}}}});
   }
 
   std::string session_id_;
@@ -330,10 +351,10 @@ std::int64_t rows_in(const std::string& db, const std::string& table) {
 
 void expect_empty(const std::string& db, const fs::path& packages, const std::string& what) {
   SCOPED_TRACE(what);
-  for (const char* t :
-       {"drives", "candidates", "drive_trajectories", "map_versions", "current_map", "landmarks",
-        "landmark_support", "landmark_changes", "tile_blobs", "tiles", "gridmap_tiles",
-        "upload_sessions", "gridmap_sums", "gridmap_sum_inputs", "gridmap_sum_cover"}) {
+  for (const char* t : {"drives", "candidates", "drive_trajectories", "map_versions", "current_map",
+                        "landmarks", "landmark_support", "landmark_changes", "hdmap_comparisons",
+                        "tile_blobs", "tiles", "gridmap_tiles", "upload_sessions", "gridmap_sums",
+                        "gridmap_sum_inputs", "gridmap_sum_cover"}) {
     EXPECT_EQ(rows_in(db, t), 0) << t;
   }
   std::error_code ec;

@@ -36,6 +36,7 @@ TEST(UploadSessions, MigrationAddsTheTableToASchema2Store) {
   { SqliteMapStore store(db); }
   // What a build before resumable uploads left: schema 2, no upload_sessions.
   exec_sql(db,
+           "DROP TABLE hdmap_comparisons; DROP INDEX landmarks_key; "
            "DROP TABLE localization_run_cells; DROP TABLE localization_runs; "
            "DROP TABLE build_jobs; DROP TABLE gridmap_sum_cover; DROP TABLE gridmap_sum_inputs; "
            "DROP TABLE gridmap_sums; "

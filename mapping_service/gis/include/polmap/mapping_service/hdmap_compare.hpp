@@ -95,6 +95,29 @@ struct HdPointMatch {
   double distance_m = 0.0;
 };
 
+/// A position along a polyline: segment `segment` (vertices segment, segment + 1) at
+/// fraction `t` in [0, 1] of its length.
+struct HdLinePosition {
+  std::size_t segment = 0;
+  double t = 0.0;
+};
+
+/// A stretch of one input line with one verdict, from `begin` to `end` along it: for HD
+/// lines, consecutive pieces that are covered (or not) by a map line; for map lines,
+/// consecutive samples that lie on (or off) an HD line. Runs of a line follow each other
+/// without gaps, so a line's runs drawn together redraw the line.
+struct HdLineRun {
+  std::size_t line = 0;  ///< index into the hd_lines or map_lines input
+  HdLinePosition begin;
+  HdLinePosition end;
+  bool in_area = true;  ///< inside the evaluation area (outside: never matched)
+  bool matched = false;
+  double length_m = 0.0;
+  std::size_t samples = 0;  ///< map lines: samples in the run (HD lines: pieces)
+  /// Map lines: median lateral offset of the run's samples to the HD line (matched runs).
+  std::optional<double> median_offset_m;
+};
+
 struct HdMapComparison {
   // Points (counts inside the evaluation area).
   std::size_t map_points = 0;
@@ -111,6 +134,13 @@ struct HdMapComparison {
   double line_covered_length_m = 0.0;
   double line_total_length_m = 0.0;
   std::optional<double> line_coverage;
+
+  // Per feature, what the counts above are made of (indices as in the inputs), so a
+  // caller can draw where the maps agree.
+  std::vector<bool> map_point_in_area;   ///< one per map point
+  std::vector<bool> hd_point_in_area;    ///< one per HD point
+  std::vector<HdLineRun> map_line_runs;  ///< by line, then along it
+  std::vector<HdLineRun> hd_line_runs;   ///< by line, then along it
 };
 
 /// The metric core: all inputs in one metric frame (metres).
@@ -127,6 +157,23 @@ struct HdMapComparison {
 
 /// Bounding box of an HD map's features (points and line vertices).
 [[nodiscard]] std::optional<GeoBox> hdmap_bounds(const HdMap& hdmap);
+
+/// The comparison as a GeoJSON FeatureCollection (WGS84, longitude first) for display:
+/// one Point feature per HD point and per map point landmark, one LineString per run of
+/// HD lines and map lines (comparison.hd_line_runs / map_line_runs). Properties: `role`
+/// ("hd" | "map"), `type` (the HD type, or "point_landmark" / "line_landmark"),
+/// `matched`, `in_area`, `judged` (false when the other map has no features of that kind in
+/// the area, e.g. radar points against an HD map without signs or poles: neither matched
+/// nor unmatched); HD features `hd_id`, `subtype`; landmarks `key` (decimal string:
+/// keys use 63 bits, more than a JavaScript number holds), `class`, `support_drives`;
+/// matched points `distance_m` and the partner (`landmark_key` or `hd_id`); runs
+/// `length_m`, HD line runs `line_coverage` (the covered share of their whole HD line),
+/// map line runs `median_offset_m`. `landmarks` and `hdmap` must be the inputs the
+/// comparison was computed from (ContractViolation otherwise). `properties.summary` is
+/// to_json(comparison). Pure: no I/O.
+[[nodiscard]] nlohmann::json hdmap_comparison_geojson(const LandmarkSet& landmarks,
+                                                      const HdMap& hdmap,
+                                                      const HdMapComparison& comparison);
 
 /// JSON with keys point_precision, point_recall, point_median_offset_m,
 /// line_median_lateral_offset_m, line_covered_length_m, line_total_length_m,

@@ -1,9 +1,11 @@
 #pragma once
 /// @file landmark_mvt.hpp
 /// The landmark layers of the vector tiles (GET /v1/mvt and static publications): layer
-/// "points" (Point, properties id, class, support_drives, spread_m, map_version) and
-/// "lines" (LineString, id, support_drives, spread_m, map_version); feature ids are the
-/// landmarks' stable keys.
+/// "points" (Point, properties id, key, class, support_drives, spread_m, map_version) and
+/// "lines" (LineString, id, key, support_drives, spread_m, map_version); feature ids are the
+/// landmarks' stable keys. `key` repeats `id` as a decimal string: keys use 63 bits, and a
+/// JavaScript viewer reads integers as doubles (exact to 2^53 only), so the console asks
+/// GET /v1/maps/{v}/landmarks/{key} with the string.
 #include <cstdint>
 #include <nlohmann/json.hpp>
 

@@ -179,6 +179,13 @@ class SqliteMapStore final : public MapStore {
   bool delete_localization_run(std::int64_t id) override;
   [[nodiscard]] std::vector<LocalizationRunCell> localization_run_cells(
       int z, int x0, int y0, int x1, int y1, std::size_t limit) const override;
+  void put_hdmap_comparison(const HdMapComparisonRecord& record) override;
+  [[nodiscard]] std::vector<HdMapComparisonRecord> list_hdmap_comparisons(
+      std::int64_t version) const override;
+  [[nodiscard]] std::optional<HdMapComparisonRecord> get_hdmap_comparison(
+      std::int64_t version, std::string_view name) const override;
+  [[nodiscard]] std::optional<LandmarkDetail> landmark_detail(std::int64_t version,
+                                                              std::int64_t key) const override;
   [[nodiscard]] StoreStats stats() const override;
 
  private:

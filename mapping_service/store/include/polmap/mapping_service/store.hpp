@@ -362,6 +362,60 @@ struct LocalizationRunCell {
   std::int64_t runs = 0;           ///< aggregated: distinct runs in the cell
 };
 
+/// A stored HD-map comparison of a published map version (`polmap compare-hdmap --store`,
+/// hdmap_compare.hpp computes it): keyed by (version, name). The store keeps the JSON as
+/// given and does not interpret it.
+struct HdMapComparisonRecord {
+  std::int64_t version = 0;
+  /// Names the HD map: 1..64 characters of [A-Za-z0-9._-], not starting with '.' (used in
+  /// URLs).
+  std::string name;
+  std::string hdmap_file;   ///< the HD map file as the operator named it (informative)
+  std::string created_at;   ///< ISO 8601 UTC, set by the store on put
+  nlohmann::json summary;   ///< metrics and parameters (hdmap_compare.hpp to_json and more)
+  nlohmann::json features;  ///< the GeoJSON FeatureCollection; null in listings
+};
+
+/// True if `name` is a valid HdMapComparisonRecord::name.
+[[nodiscard]] bool is_valid_hdmap_comparison_name(std::string_view name);
+
+/// A drive that supports a landmark (through its stored candidates).
+struct LandmarkDriveInfo {
+  std::string drive_id;
+  std::string vehicle_id;
+  double start_time_s = 0.0;  ///< recording clock, as in the manifest
+  double end_time_s = 0.0;
+  std::string ingested_at;      ///< ISO 8601 UTC
+  std::int64_t candidates = 0;  ///< of its candidates that support the landmark
+};
+
+/// One step of a landmark's history: a recorded change of a published version.
+struct LandmarkHistoryEntry {
+  std::int64_t version = 0;
+  std::string published_at;  ///< of that version
+  LandmarkChange change;
+  /// True for the version where the chain begins when no change was recorded there (the
+  /// first map version records none): the landmark was there, added by that build.
+  bool inferred = false;
+};
+
+/// A landmark of a published version with its provenance (GET /v1/maps/{v}/landmarks/{key}).
+struct LandmarkDetail {
+  std::int64_t version = 0;
+  std::int64_t key = 0;
+  bool is_line = false;
+  std::vector<GeoPoint> geometry;                         ///< one point, or the polyline
+  ScatteringClass scattering = ScatteringClass::Unknown;  ///< points; Unknown for lines
+  std::uint32_t support_drives = 0;                       ///< as the consensus counted them
+  double spread_m = 0.0;
+  /// The drives still stored whose candidates support it (deleted drives took their
+  /// support links with them), by start time, then drive id.
+  std::vector<LandmarkDriveInfo> drives;
+  /// Newest first: the changes that made it, following moved changes back through their
+  /// previous_key, over published versions <= version.
+  std::vector<LandmarkHistoryEntry> history;
+};
+
 /// Strong ETag of a payload: lower-case SHA-256 hex (64 chars).
 std::string content_etag(std::string_view payload);
 
@@ -554,6 +608,26 @@ class MapStore {
   /// stored runs (`runs` = distinct runs), ordered by (x, y), at most `limit`.
   [[nodiscard]] virtual std::vector<LocalizationRunCell> localization_run_cells(
       int z, int x0, int y0, int x1, int y1, std::size_t limit) const = 0;
+  // ------------------------------------------------------------ HD-map comparisons
+  /// Stores a comparison of a published version, replacing one of the same (version, name);
+  /// created_at is set by the store. NotFoundError if the version is unknown or not
+  /// published; ValidationError for an invalid name. Deleting the version deletes it.
+  virtual void put_hdmap_comparison(const HdMapComparisonRecord& record) = 0;
+  /// The comparisons of a published version, by name, without features. NotFoundError if
+  /// the version is unknown or not published.
+  [[nodiscard]] virtual std::vector<HdMapComparisonRecord> list_hdmap_comparisons(
+      std::int64_t version) const = 0;
+  /// One comparison with its features; nullopt if none of that name. NotFoundError if the
+  /// version is unknown or not published.
+  [[nodiscard]] virtual std::optional<HdMapComparisonRecord> get_hdmap_comparison(
+      std::int64_t version, std::string_view name) const = 0;
+
+  // ------------------------------------------------------------ landmark provenance
+  /// The landmark with stable key `key` in a published version, its supporting drives and
+  /// its history (LandmarkDetail); nullopt if the version has no landmark with that key.
+  /// NotFoundError if the version is unknown or not published.
+  [[nodiscard]] virtual std::optional<LandmarkDetail> landmark_detail(std::int64_t version,
+                                                                      std::int64_t key) const = 0;
 
   [[nodiscard]] virtual StoreStats stats() const = 0;
 };

@@ -1,6 +1,7 @@
 // `polmap simulate --world urban|industrial|rural|FILE.osm|FILE.xodr [--length-m L]
 //  [--drives N] [--seed S] [--max-speed-mps V] [--duration-s T] [--cube]
-//  [--cube-seconds T] --out DIR [--dry-run]`: simulates N passes over one world and
+//  [--cube-seconds T] [--realism ideal|realistic] [--realism-sources LIST] --out DIR
+//  [--dry-run]`: simulates N passes over one world and
 // writes DIR/drive_<k>.pmrec plus the evaluation truth DIR/truth/world.json and
 // DIR/truth/drive_<k>_trajectory.csv (tools/sim/README.md).
 #include <CLI/CLI.hpp>
@@ -15,6 +16,7 @@
 #include "polmap/schema/errors.hpp"
 #include "polmap/schema/recording_io.hpp"
 #include "polmap/sim/drive_simulator.hpp"
+#include "polmap/sim/realism.hpp"
 #include "polmap/sim/truth.hpp"
 #include "polmap/sim/world.hpp"
 #include "progress.hpp"
@@ -33,6 +35,8 @@ struct SimulateOptions {
   double cube_seconds = 0.5;
   std::string out;
   bool dry_run = false;
+  std::string realism = "ideal";
+  std::string realism_sources;
 };
 
 struct DriveSummary {
@@ -59,6 +63,13 @@ void run(const SimulateOptions& o) {
   cfg.duration_s = o.duration_s;
   cfg.cube = o.cube;
   cfg.cube_seconds = o.cube_seconds;
+  cfg.realism = sim::realism_preset(o.realism);
+  if (!o.realism_sources.empty()) {
+    if (o.realism != "realistic") {
+      throw ValidationError("simulate: --realism-sources needs --realism realistic");
+    }
+    cfg.realism = sim::only_sources(cfg.realism, o.realism_sources);
+  }
 
   const std::filesystem::path dir(o.out);
   if (!o.dry_run) {
@@ -119,9 +130,11 @@ void run(const SimulateOptions& o) {
     summaries.push_back(s);
   }
 
-  std::printf("world: %s (%s), route %.0f m, %zu objects, seed %llu%s\n", world->name.c_str(),
-              o.world.c_str(), world->route.length_m(), world->objects.size(),
-              static_cast<unsigned long long>(o.seed),
+  const std::string realism =
+      o.realism + (o.realism_sources.empty() ? "" : " (" + o.realism_sources + ")");
+  std::printf("world: %s (%s), route %.0f m, %zu objects, seed %llu, realism %s%s\n",
+              world->name.c_str(), o.world.c_str(), world->route.length_m(), world->objects.size(),
+              static_cast<unsigned long long>(o.seed), realism.c_str(),
               o.dry_run ? ", dry run (nothing written)" : "");
   std::printf("%-8s %7s %9s %9s %13s %9s %9s %11s %10s %9s\n", "drive", "frames", "duration",
               "distance", "speed m/s", "cells/fr", "dets/fr", "file MB", "MB/min", "sim s/s");
@@ -163,6 +176,14 @@ void setup(CLI::App& app) {
   cmd->add_flag("--cube", opts->cube, "attach full data cubes to the first --cube-seconds");
   cmd->add_option("--cube-seconds", opts->cube_seconds, "length of the cube sequence")
       ->capture_default_str();
+  cmd->add_option("--realism", opts->realism,
+                  "ideal (exact sensors, as before) | realistic (the error sources of "
+                  "tools/sim/README.md \"Realism\" all on)")
+      ->check(CLI::IsMember({"ideal", "realistic"}))
+      ->capture_default_str();
+  cmd->add_option("--realism-sources", opts->realism_sources,
+                  "with --realism realistic: keep only these sources on, comma separated "
+                  "(noise,mounts,timing,slip,multipath,elevation,ins)");
   cmd->add_option("--out", opts->out, "output directory")->required();
   cmd->add_flag("--dry-run", opts->dry_run, "simulate without writing (speed measurement)");
   cmd->callback([opts] { run(*opts); });

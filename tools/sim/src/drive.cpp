@@ -26,7 +26,7 @@ ScatteringVector car_omega(Rng& rng) {
 }  // namespace
 
 DrivePlan::DrivePlan(const World& world, const SimConfig& cfg, int drive_index)
-    : world_(world), drive_(drive_index) {
+    : world_(world), drive_(drive_index), slip_(cfg.realism.slip) {
   POLMAP_EXPECT(!world.route.empty());
   Rng rng(seed_of(cfg.seed, 0x6472697665ULL, static_cast<std::uint64_t>(drive_index)));
   const DriveSimConfig& dc = cfg.drive;
@@ -161,13 +161,42 @@ ExactState DrivePlan::state(double t) const {
     v = std::max(0.0, v);
   }
   const PathPoint p = path_.at(s);
-  return {t, s, p.x_m, p.y_m, p.yaw_rad, v, p.kappa_1pm * v, a};
+  ExactState out{t, s, p.x_m, p.y_m, p.yaw_rad, v, p.kappa_1pm * v, a};
+  if (slip_.enabled) {
+    // The rear axle follows the path (course = path tangent); the body yaws by -beta against
+    // it. beta = -k a_y with a_y = kappa v^2, so d(beta)/dt = -k (kappa' v^3 + 2 kappa v a).
+    constexpr double kHalfStep = 0.25;
+    const double k = -side_slip_rad(slip_, 1.0);
+    const double dkds =
+        (path_.at(s + kHalfStep).kappa_1pm - path_.at(s - kHalfStep).kappa_1pm) / (2.0 * kHalfStep);
+    const double beta = side_slip_rad(slip_, p.kappa_1pm * v * v);
+    const double dbeta = -k * (dkds * v * v * v + 2.0 * p.kappa_1pm * v * a);
+    out.side_slip_rad = beta;
+    out.yaw_rad = wrap_angle_rad(p.yaw_rad - beta);
+    out.yaw_rate_rps = p.kappa_1pm * v - dbeta;
+  }
+  return out;
 }
 
 // ---------------------------------------------------------------------------
 
-GnssErrorModel::GnssErrorModel(const GnssSimConfig& cfg, double duration, std::uint64_t seed)
-    : cfg_(cfg), rng_(seed) {
+GnssErrorModel::GnssErrorModel(const GnssSimConfig& cfg, double duration, std::uint64_t seed,
+                               const InsRealism& ins, const SlipRealism& slip)
+    : cfg_(cfg), rng_(seed), ins_(ins), slip_(slip) {
+  if (ins.enabled) {
+    Rng r(seed_of(seed, 0x696e73ULL));
+    lever_x_m_ = r.normal(0.0, ins.lever_arm_sigma_m);
+    lever_y_m_ = r.normal(0.0, ins.lever_arm_sigma_m);
+    heading_bias_rad_ = r.normal(0.0, ins.heading_bias_sigma_deg * kDeg);
+    yaw_rate_bias_rps_ = r.normal(0.0, ins.yaw_rate_bias_sigma_dps * kDeg);
+    latency_s_ = r.normal(0.0, ins.latency_sigma_s);
+    accel_bias_x_ = r.normal(0.0, ins.outage_accel_bias_mps2);
+    accel_bias_y_ = r.normal(0.0, ins.outage_accel_bias_mps2);
+  }
+  if (slip.enabled) {
+    Rng r(seed_of(seed, 0x776865656cULL));
+    wheel_scale_ = r.normal(0.0, slip.wheel_scale_sigma);
+  }
   // Stretches without fix: total share f of the drive, lengths ~U(min, max), random gaps.
   const double f = rng_.uniform(cfg.no_fix_fraction_min, cfg.no_fix_fraction_max);
   const double total = f * duration;
@@ -212,19 +241,42 @@ TrajectorySample GnssErrorModel::sample(const ExactState& s, const tiles::LocalF
     step(ey_, cfg_.position_tau_s);
     step(eh_, cfg_.heading_tau_s);
   }
+  const double dt_ins = last_t_ >= 0 ? std::max(0.0, s.time_s - last_t_) : 0.0;
   last_t_ = s.time_s;
   const bool fixed = fixed_at(s.time_s);
   const double sigma = fixed ? cfg_.sigma_fixed_m : cfg_.sigma_float_m;
   const double sh = cfg_.heading_sigma_deg * kDeg;
-  const Eigen::Vector2d xy(s.x_m + sigma * ex_, s.y_m + sigma * ey_);
+  Eigen::Vector2d xy(s.x_m + sigma * ex_, s.y_m + sigma * ey_);
+  double yaw_err_rad = sh * eh_;
+  if (ins_.enabled) {
+    if (fixed) {  // the filter pulls the dead-reckoning drift back after an outage
+      const double k = std::exp(-dt_ins / ins_.recovery_tau_s);
+      drift_x_m_ *= k;
+      drift_y_m_ *= k;
+      drift_vx_ *= k;
+      drift_vy_ *= k;
+    } else {  // accelerometer bias integrated twice
+      drift_vx_ += accel_bias_x_ * dt_ins;
+      drift_vy_ += accel_bias_y_ * dt_ins;
+      drift_x_m_ += drift_vx_ * dt_ins;
+      drift_y_m_ += drift_vy_ * dt_ins;
+    }
+    const double c = std::cos(s.yaw_rad), sn = std::sin(s.yaw_rad);
+    xy += Eigen::Vector2d(c * lever_x_m_ - sn * lever_y_m_ + drift_x_m_,
+                          sn * lever_x_m_ + c * lever_y_m_ + drift_y_m_);
+    yaw_err_rad += heading_bias_rad_;
+  }
   const GeoPoint g = frame.to_geo(xy);
   TrajectorySample out;
   out.time_s = s.time_s;
   out.lat_deg = g.lat_deg;
   out.lon_deg = g.lon_deg;
-  out.yaw_enu_rad = wrap_angle_rad(s.yaw_rad - frame.convergence_rad({s.x_m, s.y_m}) + sh * eh_);
-  out.speed_mps = std::max(0.0, s.v_mps + cfg_.speed_sigma_mps * rng_.normal());
+  out.yaw_enu_rad = wrap_angle_rad(s.yaw_rad - frame.convergence_rad({s.x_m, s.y_m}) + yaw_err_rad);
+  // Recorded speed: the wheel-speed reading (slip, scale error) when slip is enabled.
+  const double v_read = wheel_speed_mps(slip_, s.v_mps, s.accel_mps2, wheel_scale_);
+  out.speed_mps = std::max(0.0, v_read + cfg_.speed_sigma_mps * rng_.normal());
   out.yaw_rate_rps = s.yaw_rate_rps + cfg_.yaw_rate_sigma_rps * rng_.normal();
+  if (ins_.enabled) out.yaw_rate_rps += yaw_rate_bias_rps_;
   out.std_east_m = static_cast<float>(sigma);
   out.std_north_m = static_cast<float>(sigma);
   out.std_yaw_rad = static_cast<float>(sh);

@@ -39,10 +39,18 @@ const ScatteringVector& odd_ref() {
 }
 }  // namespace
 
+namespace {
+SimConfig with_realistic_noise(SimConfig cfg) {
+  cfg.radar = apply_radar_noise(cfg.radar, cfg.realism.radar_noise);
+  return cfg;
+}
+}  // namespace
+
 FrameRenderer::FrameRenderer(std::shared_ptr<const World> world, const SimConfig& cfg)
     : world_(std::move(world)),
-      cfg_(cfg),
-      synth_(cfg.radar, cfg.sensors.empty() ? RadarSpec{} : cfg.sensors.front().spec) {
+      cfg_(with_realistic_noise(cfg)),
+      synth_(cfg_.radar, cfg.sensors.empty() ? RadarSpec{} : cfg.sensors.front().spec),
+      overhead_(overhead_structures(*world_, cfg.realism.elevation, cfg.seed)) {
   occ_step_rad_ = cfg.radar.occlusion_bin_deg * kDeg;
   occ_lo_rad_ = -(cfg.radar.fov_half_deg * kDeg + kFovMarginRad + occ_step_rad_);
   const int n = static_cast<int>(std::ceil(-2.0 * occ_lo_rad_ / occ_step_rad_)) + 1;
@@ -115,7 +123,11 @@ SensorFrame FrameRenderer::render(const SensorMount& mount, const ExactState& st
   const Eigen::Vector2d ps(st.x_m + cy * m.x_m - sy * m.y_m, st.y_m + sy * m.x_m + cy * m.y_m);
   const double psi = st.yaw_rad + m.yaw_rad;
   const double cps = std::cos(psi), sps = std::sin(psi);
-  const Eigen::Vector2d v_veh(st.v_mps - st.yaw_rate_rps * m.y_m, st.yaw_rate_rps * m.x_m);
+  Eigen::Vector2d v_veh(st.v_mps - st.yaw_rate_rps * m.y_m, st.yaw_rate_rps * m.x_m);
+  if (st.side_slip_rad != 0.0) {  // rear-axle velocity v (cos beta, sin beta) (realism.hpp)
+    v_veh = Eigen::Vector2d(st.v_mps * std::cos(st.side_slip_rad) - st.yaw_rate_rps * m.y_m,
+                            st.v_mps * std::sin(st.side_slip_rad) + st.yaw_rate_rps * m.x_m);
+  }
   const double cm = std::cos(m.yaw_rad), sm = std::sin(m.yaw_rad);
   const Eigen::Vector2d v_sens(cm * v_veh.x() + sm * v_veh.y(), -sm * v_veh.x() + cm * v_veh.y());
   const Eigen::Vector2d v_world(cy * v_veh.x() - sy * v_veh.y(), sy * v_veh.x() + cy * v_veh.y());
@@ -158,6 +170,7 @@ SensorFrame FrameRenderer::render(const SensorMount& mount, const ExactState& st
   struct MoverNow {
     const Mover* m;
     Eigen::Vector2d centre, ex, ey, vel;
+    std::uint64_t index;
   };
   std::vector<MoverNow> movers;
   std::vector<const Mover*> all_movers;
@@ -169,8 +182,8 @@ SensorFrame FrameRenderer::render(const SensorMount& mount, const ExactState& st
   }
   {
     const double len = w.route.length_m();
-    for (const Mover* mvp : all_movers) {
-      const Mover& mv = *mvp;
+    for (std::size_t mi = 0; mi < all_movers.size(); ++mi) {
+      const Mover& mv = *all_movers[mi];
       const double s = mv.station(st.time_s);
       if (s < 0 || s > len) continue;
       const PathPoint p = w.route.at(s);
@@ -178,7 +191,7 @@ SensorFrame FrameRenderer::render(const SensorMount& mount, const ExactState& st
       if ((c - ps).squaredNorm() > (rmax + 5) * (rmax + 5)) continue;
       const double yaw = p.yaw_rad + (mv.direction < 0 ? kPi : 0.0);
       const Eigen::Vector2d ex(std::cos(yaw), std::sin(yaw)), ey(-ex.y(), ex.x());
-      movers.push_back({&mv, c, ex, ey, mv.speed_mps * ex});
+      movers.push_back({&mv, c, ex, ey, mv.speed_mps * ex, mi});
       const double hl = 0.5 * mv.length_m, hw = 0.5 * mv.width_m;
       const Eigen::Vector2d k[4] = {c + hl * ex + hw * ey, c - hl * ex + hw * ey,
                                     c - hl * ex - hw * ey, c + hl * ex - hw * ey};
@@ -190,6 +203,26 @@ SensorFrame FrameRenderer::render(const SensorMount& mount, const ExactState& st
   const double k4pi = 4.0 * kPi / lambda;
   const double noise = rc.noise_sigma;
   const DistributedModel volume = DistributedModel::volume();
+
+  // Realism (realism.hpp): ground bounce per scattering centre (height drawn per centre),
+  // multipath ghosts of strong isotropic centres and movers.
+  const ElevationRealism& el = cfg_.realism.elevation;
+  const MultipathRealism& mp = cfg_.realism.multipath;
+  const bool bounce = el.enabled && el.ground_bounce;
+  const bool ghosts = mp.enabled && (mp.mirror_ghosts || mp.mixed_paths);
+  auto bounce_gain = [&](double r, std::uint64_t centre) {
+    const double h =
+        el.target_height_min_m + (el.target_height_max_m - el.target_height_min_m) *
+                                     hash_uniform(seed_of(cfg_.seed, 0x68676874ULL, centre));
+    return ground_bounce_gain(r, rc.sensor_height_m, h, el.ground_reflection, lambda);
+  };
+  struct GhostTarget {
+    Eigen::Vector2d pos_w, vel_w;
+    double rcs_dbsm, phase_rad;
+    ScatteringVector omega;
+    std::uint64_t key;
+  };
+  std::vector<GhostTarget> ghost_targets;
 
   // 2. Point scatterers.
   for (std::uint32_t i : q_points_) {
@@ -212,6 +245,11 @@ SensorFrame FrameRenderer::render(const SensorMount& mount, const ExactState& st
       } else {
         gain *= a <= p.lobe_rad ? 1.0 : back;
       }
+    }
+    if (bounce) gain *= bounce_gain(r, i);
+    if (ghosts && p.aspect == Aspect::Isotropic && p.rcs_dbsm >= mp.min_target_rcs_dbsm) {
+      ghost_targets.push_back(
+          {p.pos_m, Eigen::Vector2d::Zero(), p.rcs_dbsm, p.phase_rad, p.omega, i});
     }
     const double amp = noise * std::sqrt(synth_.snr_linear(p.rcs_dbsm, r) * gain);
     const double ph = -k4pi * r + p.phase_rad;
@@ -335,7 +373,14 @@ SensorFrame FrameRenderer::render(const SensorMount& mount, const ExactState& st
       const double gain = occlusion_loss(r, az);
       if (gain <= 0) continue;
       const Eigen::Vector2d u = (pw - ps) / r;  // world frame, sensor -> target
-      const double amp = noise * std::sqrt(synth_.snr_linear(c.rcs_dbsm, r) * gain);
+      const auto centre_key =
+          static_cast<std::uint64_t>(&c - mn.m->centres.data()) + (mn.index << 8) + (1ULL << 40);
+      double g = gain;
+      if (bounce) g *= bounce_gain(r, centre_key);
+      if (ghosts && c.rcs_dbsm >= mp.min_target_rcs_dbsm) {
+        ghost_targets.push_back({pw, mn.vel, c.rcs_dbsm, c.phase_rad, c.omega, centre_key});
+      }
+      const double amp = noise * std::sqrt(synth_.snr_linear(c.rcs_dbsm, r) * g);
       const double ph = -k4pi * r + c.phase_rad;
       const cdouble z = amp * cdouble(std::cos(ph), std::sin(ph));
       Echo e;
@@ -344,6 +389,100 @@ SensorFrame FrameRenderer::render(const SensorMount& mount, const ExactState& st
       e.radial_velocity_mps = (mn.vel - v_world).dot(u);
       for (int ch = 0; ch < 4; ++ch) e.amplitude[ch] = z * c.omega[ch];
       synth_.add_echo(e);
+    }
+  }
+
+  // 5. Multipath (realism.hpp): specular bounces at walls, facades and guardrail beams.
+  if (ghosts && !ghost_targets.empty()) {
+    const double wall_loss = std::pow(10.0, -mp.wall_loss_db / 10.0);
+    const double rail_loss = std::pow(10.0, -mp.guardrail_loss_db / 10.0);
+    const double r2max = mp.max_reflector_range_m * mp.max_reflector_range_m;
+    for (std::uint32_t li : q_lines_) {
+      const LineScatterer& l = w.lines[li];
+      if (l.specular_gain_db <= -50 || !is_present(l.object)) continue;
+      const Eigen::Vector2d e = l.p1_m - l.p0_m;
+      const double t0 =
+          std::clamp((ps - l.p0_m).dot(e) / std::max(1e-12, e.squaredNorm()), 0.0, 1.0);
+      if ((l.p0_m + t0 * e - ps).squaredNorm() > r2max) continue;
+      const bool rail = w.objects[l.object].cls == ObjectClass::GuardrailBeam;
+      const double loss = rail ? rail_loss : wall_loss;
+      // The wall moves with the world: its mirror of the sensor velocity is the ghost's.
+      const Eigen::Vector2d dir = e.normalized();
+      auto mirror_vel = [&](const Eigen::Vector2d& v) {
+        return Eigen::Vector2d(2.0 * dir * v.dot(dir) - v);
+      };
+      for (const GhostTarget& gt : ghost_targets) {
+        const auto sp = specular_point(ps, gt.pos_w, l.p0_m, l.p1_m);
+        if (!sp) continue;
+        const Eigen::Vector2d qs = to_sensor(*sp);
+        const double rs = qs.norm();
+        if (rs < rc.min_range_m || occlusion_loss(rs, std::atan2(qs.y(), qs.x())) <= 0) continue;
+        const Eigen::Vector2d img = mirror_point(gt.pos_w, l.p0_m, l.p1_m);
+        const Eigen::Vector2d qi = to_sensor(img), qd = to_sensor(gt.pos_w);
+        const double ri = qi.norm(), rd = qd.norm();
+        const double azi = std::atan2(qi.y(), qi.x()), azd = std::atan2(qd.y(), qd.x());
+        const Eigen::Vector2d ui = (img - ps) / ri, ud = (gt.pos_w - ps) / rd;
+        const double vr_img = (mirror_vel(gt.vel_w) - v_world).dot(ui);
+        const double vr_dir = (gt.vel_w - v_world).dot(ud);
+        auto add = [&](double r, double az, double vr, double power_gain, std::uint64_t tag) {
+          if (r > rmax || std::abs(az) > fov) return;
+          const double amp = noise * std::sqrt(synth_.snr_linear(gt.rcs_dbsm, r) * power_gain);
+          const double ph = -k4pi * r + gt.phase_rad + 2.0 * kPi * hash_uniform(tag);
+          const cdouble z = amp * cdouble(std::cos(ph), std::sin(ph));
+          Echo ge;
+          ge.range_m = r;
+          ge.azimuth_rad = az;
+          ge.radial_velocity_mps = vr;
+          for (int ch = 0; ch < 4; ++ch) ge.amplitude[ch] = z * gt.omega[ch];
+          synth_.add_echo(ge);
+        };
+        const std::uint64_t key = seed_of(cfg_.seed, 0x6768ULL, li, gt.key);
+        // Mirror ghost: out and back via the wall (two bounces), a virtual target at img.
+        if (mp.mirror_ghosts) add(ri, azi, vr_img, loss * loss, key);
+        // Mixed paths (one bounce each way round): range and Doppler the mean of both paths,
+        // arriving from the mirror direction or directly; the direct leg must be visible.
+        if (mp.mixed_paths && occlusion_loss(rd, azd) > 0) {
+          const double rm = 0.5 * (ri + rd), vm = 0.5 * (vr_img + vr_dir);
+          add(rm, azi, vm, loss, key + 1);
+          add(rm, azd, vm, loss, key + 2);
+        }
+      }
+    }
+  }
+
+  // 6. Overhead structures (realism.hpp): slant range, Doppler of the 3-D direction (cos of
+  //    the elevation angle), two-way elevation pattern of the sensor.
+  if (!overhead_.empty()) {
+    const double th = rc.elevation_beamwidth_deg * kDeg;
+    constexpr double kStepM = 0.25;
+    const double sigma = std::pow(10.0, el.overhead_rcs_per_m_dbsm / 10.0) * kStepM;
+    for (std::size_t oi = 0; oi < overhead_.size(); ++oi) {
+      const OverheadStructure& o = overhead_[oi];
+      const Eigen::Vector2d a = to_sensor(o.p0_m), b = to_sensor(o.p1_m);
+      if (std::min(a.norm(), b.norm()) > rmax + 20.0 || (a.x() < 0 && b.x() < 0)) continue;
+      const double dh = o.height_m - rc.sensor_height_m;
+      const int n = std::max(1, static_cast<int>(std::ceil((b - a).norm() / kStepM)));
+      for (int k = 0; k < n; ++k) {
+        const Eigen::Vector2d q = a + ((k + 0.5) / n) * (b - a);
+        const double rg = q.norm();
+        if (q.x() <= 0) continue;
+        const double az = std::atan2(q.y(), q.x());
+        if (std::abs(az) > fov) continue;
+        const double r = std::hypot(rg, dh);
+        if (r > rmax || r < rc.min_range_m) continue;
+        const double psi = std::atan2(dh, rg);
+        const double gel = std::exp(-8.0 * std::log(2.0) * (psi / th) * (psi / th));
+        const double amp = noise * std::sqrt(synth_.snr_linear_sigma(sigma, r) * gel);
+        const double ph =
+            -k4pi * r + 2.0 * kPi * hash_uniform(seed_of(cfg_.seed, 0x6f76ULL, oi, k));
+        const cdouble z = amp * cdouble(std::cos(ph), std::sin(ph));
+        Echo oe;
+        oe.range_m = r;
+        oe.azimuth_rad = az;
+        oe.radial_velocity_mps = synth_.static_velocity(az) * std::cos(psi);
+        for (int ch = 0; ch < 4; ++ch) oe.amplitude[ch] = z * odd_ref()[ch];
+        synth_.add_echo(oe);
+      }
     }
   }
 
@@ -366,15 +505,19 @@ DriveSimulator::DriveSimulator(std::shared_ptr<const World> world, const SimConf
       drive_(drive_index),
       plan_(*world_, cfg, drive_index),
       gnss_(cfg.gnss, plan_.duration_s(),
-            seed_of(cfg.seed, 0x676e7373ULL, static_cast<std::uint64_t>(drive_index))),
-      renderer_(world_, cfg) {
+            seed_of(cfg.seed, 0x676e7373ULL, static_cast<std::uint64_t>(drive_index)),
+            cfg.realism.ins, cfg.realism.slip),
+      renderer_(world_, cfg),
+      true_mounts_(sim::true_mounts(cfg.sensors, cfg.realism.mounts, cfg.seed, drive_index)),
+      time_offsets_s_(
+          sensor_time_offsets_s(cfg.sensors.size(), cfg.realism.timing, cfg.seed, drive_index)) {
   if (cfg.sensors.empty()) throw ValidationError("simulation needs at least one sensor mount");
   if (!(cfg.gnss.rate_hz >= 1.0)) throw ValidationError("GNSS rate must be >= 1 Hz");
   header_.drive_id = "drive_" + std::to_string(drive_index);
   header_.vehicle_id = "sim";
   header_.world = world_->name;
   header_.origin = world_->origin();
-  header_.sensors = cfg.sensors;
+  header_.sensors = cfg.sensors;  // the stored (nominal) calibration, not true_mounts_
   header_.start_time_s = 0.0;
   header_.has_cube = cfg.cube;
   header_.producer = "polmap simulate 0.1.0 seed=" + std::to_string(cfg.seed) +
@@ -398,8 +541,14 @@ std::optional<RecordingRecord> DriveSimulator::next() {
   if (traj_ok && (!frame_ok || t_traj <= t_frame)) {
     ++next_traj_;
     last_time_ = t_traj;
+    if (gnss_.latency_s() != 0.0) {  // INS stamps late or early (realism.hpp)
+      ExactState st = plan_.state(t_traj - gnss_.latency_s());
+      st.time_s = t_traj;
+      return RecordingRecord{gnss_.sample(st, world_->frame)};
+    }
     return RecordingRecord{gnss_.sample(plan_.state(t_traj), world_->frame)};
   }
+  const std::size_t sensor_index = sensor_order_[next_sensor_];
   const std::uint32_t cycle = next_cycle_;
   if (++next_sensor_ >= sensor_order_.size()) {
     next_sensor_ = 0;
@@ -409,7 +558,19 @@ std::optional<RecordingRecord> DriveSimulator::next() {
   const bool cube = cfg_.cube && t_frame < cfg_.cube_seconds;
   const std::uint64_t seed = seed_of(cfg_.seed, 0x6672616d65ULL, static_cast<std::uint64_t>(drive_),
                                      cycle, mount.sensor_id);
-  return RecordingRecord{renderer_.render(mount, plan_.state(t_frame), &plan_, cycle, cube, seed)};
+  if (!cfg_.realism.mounts.enabled && !cfg_.realism.timing.enabled) {
+    return RecordingRecord{
+        renderer_.render(mount, plan_.state(t_frame), &plan_, cycle, cube, seed)};
+  }
+  // Realism: the sensor measures at its true mount and at stamp + offset + jitter; the frame
+  // keeps the nominal stamp and the header the nominal mount.
+  const double t_true =
+      t_frame + time_offsets_s_[sensor_index] +
+      trigger_jitter_s(cfg_.realism.timing, cfg_.seed, drive_, cycle, mount.sensor_id);
+  SensorFrame f =
+      renderer_.render(true_mounts_[sensor_index], plan_.state(t_true), &plan_, cycle, cube, seed);
+  f.time_s = t_frame;
+  return RecordingRecord{std::move(f)};
 }
 
 std::vector<ExactState> DriveSimulator::exact_trajectory() const {

@@ -444,6 +444,10 @@ void SpectrumSynthesizer::make_detections(Rng& rng, SensorFrame& out) {
   std::unordered_map<int, std::vector<int>> grid;
   std::vector<Detection> dets;
   const auto limit = static_cast<std::size_t>(std::max(0, cfg_.max_detections));
+  // Gross Doppler errors (realism.hpp) come from their own generator: the ideal stream of
+  // `rng` is untouched, so the ideal preset stays bit-identical.
+  const bool doppler_outliers = cfg_.doppler_outlier_share > 0;
+  Rng outlier_rng(seed_of(scene_key_, 0x6f75746cULL, out.cycle_index, out.sensor_id));
   for (const Pick& p : picks) {
     if (dets.size() >= limit) break;
     const DetectionCandidate& c = cands_[p.cand];
@@ -473,9 +477,17 @@ void SpectrumSynthesizer::make_detections(Rng& rng, SensorFrame& out) {
     }
     Detection d;
     d.range_m = static_cast<float>(r + rng.normal(0.0, cfg_.det_sigma_range_m));
-    d.azimuth_rad = static_cast<float>(az + rng.normal(0.0, cfg_.det_sigma_azimuth_deg * kDeg));
-    d.radial_velocity_mps =
-        static_cast<float>(alias(c.radial_velocity_mps + rng.normal(0.0, cfg_.det_sigma_vr_mps)));
+    double sigma_az_rad = cfg_.det_sigma_azimuth_deg * kDeg;
+    if (cfg_.det_sigma_azimuth_grows_off_boresight) {  // aperture shrinks as cos(phi)
+      sigma_az_rad = std::min(cfg_.det_sigma_azimuth_max_deg * kDeg,
+                              sigma_az_rad / std::max(1e-3, std::cos(c.azimuth_rad)));
+    }
+    d.azimuth_rad = static_cast<float>(az + rng.normal(0.0, sigma_az_rad));
+    double vr = c.radial_velocity_mps + rng.normal(0.0, cfg_.det_sigma_vr_mps);
+    if (doppler_outliers && outlier_rng.uniform() < cfg_.doppler_outlier_share) {
+      vr += outlier_rng.normal(0.0, cfg_.doppler_outlier_sigma_mps);
+    }
+    d.radial_velocity_mps = static_cast<float>(alias(vr));
     d.snr_db = static_cast<float>(10.0 * std::log10(p.snr));
     dets.push_back(d);
   }

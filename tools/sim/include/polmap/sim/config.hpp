@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "polmap/schema/radar_spec.hpp"
+#include "polmap/sim/realism.hpp"
 
 namespace polmap::sim {
 
@@ -103,6 +104,14 @@ struct RadarSimConfig {
   double det_sigma_range_m = 0.03;
   double det_sigma_azimuth_deg = 0.5;
   double det_sigma_vr_mps = 0.05;  ///< before aliasing
+  /// Azimuth sigma grows as 1/cos(phi) up to det_sigma_azimuth_max_deg (realistic noise,
+  /// realism.hpp); off = constant det_sigma_azimuth_deg (ideal).
+  bool det_sigma_azimuth_grows_off_boresight = false;
+  double det_sigma_azimuth_max_deg = 1.5;
+  /// Share of detections with a gross Doppler error N(0, doppler_outlier_sigma_mps), drawn
+  /// from a separate generator (0 = ideal: no draw at all).
+  double doppler_outlier_share = 0.0;
+  double doppler_outlier_sigma_mps = 2.0;
   /// Mean false alarms per frame (Poisson), uniform in range/azimuth/Doppler,
   /// SNR = threshold + exponential(mean 2 dB).
   double false_alarms_per_frame = 2.0;
@@ -201,6 +210,8 @@ struct SimConfig {
   /// Attach a full data cube to every sensor frame with time < cube_seconds.
   bool cube = false;
   double cube_seconds = 0.5;
+  /// Error sources of real vehicles (realism.hpp); default = ideal preset (all off).
+  RealismConfig realism;
 };
 
 }  // namespace polmap::sim

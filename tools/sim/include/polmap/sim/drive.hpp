@@ -25,6 +25,9 @@ struct ExactState {
   double v_mps = 0.0;
   double yaw_rate_rps = 0.0;
   double accel_mps2 = 0.0;
+  /// Rear-axle side slip beta = atan(v_y / v_x) (ISO 8855); the velocity in the vehicle frame
+  /// is v_mps * (cos beta, sin beta). Zero unless RealismConfig::slip is enabled.
+  double side_slip_rad = 0.0;
 };
 
 /// A vehicle of the moving traffic, driving along the world route.
@@ -69,15 +72,22 @@ class DrivePlan {
   std::vector<std::pair<double, double>> stops_;
   std::vector<Mover> movers_;
   std::vector<std::uint8_t> present_;
+  SlipRealism slip_;
 };
 
 /// GNSS/IMU errors: first-order Gauss-Markov position (sigma by fix state) and heading
 /// errors, planned stretches without carrier-phase fix, white speed / yaw-rate noise.
 class GnssErrorModel {
  public:
-  GnssErrorModel(const GnssSimConfig& cfg, double duration_s, std::uint64_t seed);
-  /// Next sample (call with strictly increasing times).
+  /// ins and slip (realism.hpp) add INS errors and wheel slip of the recorded speed; their
+  /// draws come from separate generators (disabled: bit-identical to the ideal model).
+  GnssErrorModel(const GnssSimConfig& cfg, double duration_s, std::uint64_t seed,
+                 const InsRealism& ins = {}, const SlipRealism& slip = {});
+  /// Next sample (call with strictly increasing times). truth.time_s is the sample's time
+  /// stamp; with INS latency the caller passes the state of time_s - latency_s().
   TrajectorySample sample(const ExactState& truth, const tiles::LocalFrame& frame);
+  /// Latency error of the INS time stamps (0 unless InsRealism is enabled).
+  [[nodiscard]] double latency_s() const { return latency_s_; }
   [[nodiscard]] bool fixed_at(double t) const;
   [[nodiscard]] const std::vector<std::pair<double, double>>& no_fix_stretches() const {
     return stretches_;
@@ -89,6 +99,12 @@ class GnssErrorModel {
   std::vector<std::pair<double, double>> stretches_;
   double last_t_ = -1.0;
   double ex_ = 0.0, ey_ = 0.0, eh_ = 0.0;  ///< unit-variance GM states
+  // Realism (realism.hpp): per-drive INS constants and the dead-reckoning drift state.
+  InsRealism ins_;
+  SlipRealism slip_;
+  double lever_x_m_ = 0, lever_y_m_ = 0, heading_bias_rad_ = 0, yaw_rate_bias_rps_ = 0;
+  double latency_s_ = 0, accel_bias_x_ = 0, accel_bias_y_ = 0, wheel_scale_ = 0;
+  double drift_x_m_ = 0, drift_y_m_ = 0, drift_vx_ = 0, drift_vy_ = 0;
 };
 
 /// Exact pose converted to geodetic (truth CSV, tests).

@@ -44,6 +44,7 @@ class FrameRenderer {
   std::vector<int> occ_opaque_, occ_veg_;
   std::vector<float> occ_opaque_r_, occ_veg_r_;
   double occ_lo_rad_ = 0, occ_step_rad_ = 0;
+  std::vector<OverheadStructure> overhead_;  ///< realism: elevation (empty when ideal)
 };
 
 class DriveSimulator final : public RecordSource {
@@ -61,6 +62,10 @@ class DriveSimulator final : public RecordSource {
   [[nodiscard]] const GnssErrorModel& gnss() const { return gnss_; }
   /// Exact states at the trajectory sample times (truth CSV).
   [[nodiscard]] std::vector<ExactState> exact_trajectory() const;
+  /// The mounts the sensors really have in this drive (== header().sensors when ideal).
+  [[nodiscard]] const std::vector<SensorMount>& true_mounts() const { return true_mounts_; }
+  /// Per-sensor time offsets (true time = stamp + offset), indexed like header().sensors.
+  [[nodiscard]] const std::vector<double>& time_offsets_s() const { return time_offsets_s_; }
 
  private:
   std::shared_ptr<const World> world_;
@@ -70,6 +75,10 @@ class DriveSimulator final : public RecordSource {
   GnssErrorModel gnss_;
   FrameRenderer renderer_;
   RecordingHeader header_;
+  /// Realism (realism.hpp): mounts the sensors really have (the header keeps the nominal
+  /// ones) and per-sensor time offsets, both indexed like cfg.sensors.
+  std::vector<SensorMount> true_mounts_;
+  std::vector<double> time_offsets_s_;
   std::vector<std::size_t> sensor_order_;  ///< mounts by trigger offset
   double frame_period_s_ = 0.1;
   std::uint64_t next_traj_ = 0;

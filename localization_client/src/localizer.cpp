@@ -87,6 +87,8 @@ struct Localizer::Impl {
     POLMAP_EXPECT(!mounts.empty());
     POLMAP_EXPECT(cfg.gridmap.window_s > 0.0);
     POLMAP_EXPECT(cfg.extract_every_n_cycles >= 1);
+    POLMAP_EXPECT(cfg.reported_covariance_scale > 0.0 && cfg.reported_sigma_floor_xy_m >= 0.0 &&
+                  cfg.reported_sigma_floor_yaw_rad >= 0.0 && cfg.protection_level_k > 0.0);
     // Extraction runs at the frame of the sensor that triggers last in a cycle,
     // so the gridmap holds the complete cycle.
     const auto last = std::max_element(
@@ -164,6 +166,15 @@ struct Localizer::Impl {
   /// Covariance of the predicted vehicle pose: the anchor's, grown with the
   /// distance driven since (odometry noise per metre, and the anchor's yaw
   /// uncertainty acting through the lever arm).
+  /// What is reported of a covariance (LocalizerConfig: scale and floors).
+  [[nodiscard]] Eigen::Matrix3d reported_cov(const Eigen::Matrix3d& c) const {
+    Eigen::Matrix3d r = cfg.reported_covariance_scale * c;
+    r(0, 0) += cfg.reported_sigma_floor_xy_m * cfg.reported_sigma_floor_xy_m;
+    r(1, 1) += cfg.reported_sigma_floor_xy_m * cfg.reported_sigma_floor_xy_m;
+    r(2, 2) += cfg.reported_sigma_floor_yaw_rad * cfg.reported_sigma_floor_yaw_rad;
+    return r;
+  }
+
   [[nodiscard]] Eigen::Matrix3d predicted_cov() const {
     const double d = std::max(0.0, odo.distance_m() - anchor_distance_m);
     Eigen::Matrix3d c = anchor_cov;
@@ -634,7 +645,12 @@ struct Localizer::Impl {
     if (anchored && T_odom_vehicle) {
       out.has_pose = true;
       out.T_map_vehicle = T_map_odom * *T_odom_vehicle;
-      out.covariance = predicted_cov();
+      out.covariance = reported_cov(predicted_cov());
+      const double yaw = out.T_map_vehicle.yaw_rad;
+      const Eigen::Vector2d across(-std::sin(yaw), std::cos(yaw));
+      out.protection_level_lat_m =
+          cfg.protection_level_k *
+          std::sqrt(std::max(0.0, across.dot(out.covariance.topLeftCorner<2, 2>() * across)));
       const Eigen::Vector2d xy = out.T_map_vehicle.translation();
       out.pose.position = frame->to_geo(xy);
       out.pose.yaw_enu_rad = wrap_angle_rad(out.T_map_vehicle.yaw_rad - frame->convergence_rad(xy));

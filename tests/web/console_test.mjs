@@ -281,7 +281,10 @@ await check('a landmark click shows its attributes', async () => {
   const full = await page.textContent('.maplibregl-popup .popup');
   assert.match(full, /first seen\s*\d{4}-\d\d-\d\d/);
   assert.match(full, /last seen\s*\d{4}-\d\d-\d\d/);
-  const d = await page.evaluate(() => window.polmapConsole.landmark);
+  // The details of the first popup's landmark (a point on a line opens two popups).
+  const key = await page.getAttribute('.maplibregl-popup .popup', 'data-key');
+  await waitFor(page, (k) => (window.polmapConsole.landmarks || {})[k] !== undefined, key);
+  const d = await page.evaluate((k) => window.polmapConsole.landmarks[k], key);
   assert.ok(d.history.length > 0, 'a history: ' + JSON.stringify(d));
   const h = d.history[d.history.length - 1];
   assert.ok(full.includes('v' + h.version + ' ' + h.change), 'the oldest entry shown: ' + full);

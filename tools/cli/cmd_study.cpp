@@ -18,6 +18,7 @@
 #include "command.hpp"
 #include "polmap/eval/study.hpp"
 #include "polmap/schema/errors.hpp"
+#include "polmap/sim/realism.hpp"
 #include "progress.hpp"
 
 namespace polmap::cli {
@@ -31,6 +32,8 @@ struct StudyOptions {
   std::string seeds = "1";
   std::string pol = "full";
   std::string out = "study-out";
+  std::string realism = "ideal";
+  std::string realism_sources;
   bool http = false;
   bool json = false;
   bool keep_packages = false;
@@ -61,6 +64,14 @@ void run(const StudyOptions& o) {
   cfg.diagnose = o.diagnose;
   cfg.initial_error_m = o.initial_error_m;
   cfg.initial_error_yaw_deg = o.initial_error_deg;
+  // The simulator's error sources (tools/sim/README.md "Realism"): ideal, or realistic.
+  cfg.sim.realism = sim::realism_preset(o.realism);
+  if (!o.realism_sources.empty()) {
+    if (o.realism != "realistic") {
+      throw ValidationError("study: --realism-sources needs --realism realistic");
+    }
+    cfg.sim.realism = sim::only_sources(cfg.sim.realism, o.realism_sources);
+  }
   cfg.seeds.clear();
   for (const auto& s : split_list(o.seeds)) {
     try {
@@ -92,8 +103,10 @@ void run(const StudyOptions& o) {
   progress.finish();
 
   std::ostringstream text;
+  text << "world " << r.world << ", simulator realism: " << r.realism << "\n\n";
   for (const PolLevel l : cfg.levels) text << eval::format_accuracy_table(r, l) << '\n';
   if (cfg.levels.size() > 1) text << eval::format_level_table(r) << '\n';
+  text << eval::format_uncertainty_table(r) << '\n';
   text << eval::format_speed_table(r) << '\n';
   if (cfg.diagnose) text << eval::format_diagnosis_table(r) << '\n';
   text << "figures: ";
@@ -144,6 +157,12 @@ void setup(CLI::App& app) {
   cmd->add_flag("--http", opts->http,
                 "fetch tiles through a real server on loopback (TileFetcher) instead of the store");
   cmd->add_flag("--json", opts->json, "print the results as JSON");
+  cmd->add_option(
+         "--realism", opts->realism,
+         "simulator error sources: ideal (exact sensors) or realistic (tools/sim/README.md)")
+      ->capture_default_str();
+  cmd->add_option("--realism-sources", opts->realism_sources,
+                  "with --realism realistic: keep only these sources on (comma separated)");
   cmd->add_flag("--keep-packages", opts->keep_packages, "keep the drive package directories");
   cmd->add_flag("--diagnose", opts->diagnose,
                 "per drive: odometry drift, truth-posed candidates vs the map (stage diagnosis)");

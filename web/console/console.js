@@ -189,6 +189,8 @@
         addRows(dl, [['drives', d.drives.map((x) => x.drive_id).join(', ')]]);
       }
       window.polmapConsole.landmark = d;
+      // Several popups may load at once (a point on a line): each by its key too.
+      (window.polmapConsole.landmarks = window.polmapConsole.landmarks || {})[String(p.key)] = d;
     } catch (e) {
       addRows(dl, [['details', String(e.message || e)]]);
     }
@@ -219,7 +221,10 @@
     }
     addRows(dl, rows);
     // Landmarks: support times and version history from the server.
-    if (f.layer.id === 'points' || f.layer.id === 'lines') landmarkDetails(p, dl);
+    if (f.layer.id === 'points' || f.layer.id === 'lines') {
+      if (p.key !== undefined) dl.dataset.key = String(p.key);
+      landmarkDetails(p, dl);
+    }
     return dl;
   }
 

@@ -254,7 +254,15 @@ StudyDriveResult localize_simulated_drive(const std::shared_ptr<const sim::World
     r.abs_long_m.push_back(std::abs(e.long_m));
     r.abs_lat_m.push_back(std::abs(e.lat_m));
     r.rot_deg.push_back(std::abs(e.rot_rad) / kDeg);
+    r.nees.push_back(e.nees);
+    r.pl_lat_m.push_back(e.pl_lat_m);
   }
+  r.errors.nees_samples = m.nees_samples;
+  r.errors.nees_mean = m.nees_mean;
+  r.errors.nees_within_q95_share = m.nees_within_q95_share;
+  r.errors.pl_samples = m.pl_samples;
+  r.errors.pl_bounded_share = m.pl_bounded_share;
+  r.errors.pl_mean_m = m.pl_mean_m;
   r.converged = m.time_to_tracking_s >= 0.0;
   r.converge_time_s = r.converged ? m.time_to_tracking_s : 0.0;
 
@@ -635,12 +643,25 @@ std::string fmt(const char* f, double v) {
 
 ErrorSummary summarize_errors(const std::vector<const StudyDriveResult*>& drives) {
   ErrorSummary s;
-  double sl = 0, sa = 0, sr = 0;
+  double sl = 0, sa = 0, sr = 0, nees = 0, pl = 0;
+  std::int64_t nees_in = 0, pl_in = 0;
   for (const auto* d : drives) {
     for (std::size_t i = 0; i < d->abs_long_m.size(); ++i) {
       sl += d->abs_long_m[i] * d->abs_long_m[i];
       sa += d->abs_lat_m[i] * d->abs_lat_m[i];
       sr += d->rot_deg[i] * d->rot_deg[i];
+    }
+    for (std::size_t i = 0; i < d->nees.size(); ++i) {
+      if (d->nees[i] >= 0.0) {
+        ++s.nees_samples;
+        nees += d->nees[i];
+        nees_in += d->nees[i] <= kChi2Dof3Q95 ? 1 : 0;
+      }
+      if (d->pl_lat_m[i] > 0.0) {
+        ++s.pl_samples;
+        pl += d->pl_lat_m[i];
+        pl_in += d->abs_lat_m[i] <= d->pl_lat_m[i] ? 1 : 0;
+      }
     }
     s.samples += static_cast<std::int64_t>(d->abs_long_m.size());
     s.long_max_m = std::max(s.long_max_m, d->errors.long_max_m);
@@ -652,6 +673,14 @@ ErrorSummary summarize_errors(const std::vector<const StudyDriveResult*>& drives
     s.long_rmse_m = std::sqrt(sl / n);
     s.lat_rmse_m = std::sqrt(sa / n);
     s.rot_rmse_deg = std::sqrt(sr / n);
+  }
+  if (s.nees_samples > 0) {
+    s.nees_mean = nees / static_cast<double>(s.nees_samples);
+    s.nees_within_q95_share = static_cast<double>(nees_in) / static_cast<double>(s.nees_samples);
+  }
+  if (s.pl_samples > 0) {
+    s.pl_mean_m = pl / static_cast<double>(s.pl_samples);
+    s.pl_bounded_share = static_cast<double>(pl_in) / static_cast<double>(s.pl_samples);
   }
   return s;
 }
@@ -675,6 +704,23 @@ StudyResult run_study(const StudyConfig& cfg,
   const auto t_start = Clock::now();
   StudyResult result;
   result.world = cfg.world;
+  {
+    const auto& rc = cfg.sim.realism;
+    const std::vector<std::pair<const char*, bool>> on{{"noise", rc.radar_noise.enabled},
+                                                       {"mounts", rc.mounts.enabled},
+                                                       {"timing", rc.timing.enabled},
+                                                       {"slip", rc.slip.enabled},
+                                                       {"multipath", rc.multipath.enabled},
+                                                       {"elevation", rc.elevation.enabled},
+                                                       {"ins", rc.ins.enabled}};
+    std::string kept;
+    bool all = true;
+    for (const auto& [name, enabled] : on) {
+      all = all && enabled;
+      if (enabled) kept += (kept.empty() ? "" : ",") + std::string(name);
+    }
+    result.realism = kept.empty() ? "ideal" : all ? "realistic" : "realistic (" + kept + ")";
+  }
   result.length_m = cfg.length_m;
   result.drives = cfg.drives;
   result.seeds = cfg.seeds;
@@ -890,6 +936,26 @@ std::string format_level_table(const StudyResult& r) {
   return o.str();
 }
 
+std::string format_uncertainty_table(const StudyResult& r) {
+  std::ostringstream o;
+  o << "Uncertainty (pooled): NEES of (long, lat, yaw) under the reported covariance (3 and "
+       "95 % within chi2_3(0.95) when consistent), lateral protection level bounding the "
+       "lateral error (target >= 99.9 %)\n";
+  char buf[320];
+  std::snprintf(buf, sizeof buf, "%-6s %8s | %9s %10s | %8s %10s %8s\n", "level", "samples",
+                "mean NEES", "<= q95", "PL n", "bounded", "mean PL");
+  o << buf;
+  for (const auto& s : r.levels) {
+    const ErrorSummary& e = s.errors;
+    std::snprintf(buf, sizeof buf, "%-6s %8lld | %9.2f %9.1f%% | %8lld %9.2f%% %7.3fm\n",
+                  std::string(to_string(s.level)).c_str(), static_cast<long long>(e.nees_samples),
+                  e.nees_mean, 100 * e.nees_within_q95_share, static_cast<long long>(e.pl_samples),
+                  100 * e.pl_bounded_share, e.pl_mean_m);
+    o << buf;
+  }
+  return o.str();
+}
+
 std::string format_speed_table(const StudyResult& r) {
   std::ostringstream o;
   o << "Client speed (x real = drive time / localizer thread CPU time; wall in brackets, "
@@ -994,15 +1060,19 @@ std::vector<std::filesystem::path> write_ccdf_figures(const StudyResult& r,
 }
 
 nlohmann::json to_json(const ErrorSummary& s) {
-  return {{"samples", s.samples},        {"long_rmse_m", s.long_rmse_m},
-          {"long_max_m", s.long_max_m},  {"lat_rmse_m", s.lat_rmse_m},
-          {"lat_max_m", s.lat_max_m},    {"rot_rmse_deg", s.rot_rmse_deg},
-          {"rot_max_deg", s.rot_max_deg}};
+  return {{"samples", s.samples},         {"long_rmse_m", s.long_rmse_m},
+          {"long_max_m", s.long_max_m},   {"lat_rmse_m", s.lat_rmse_m},
+          {"lat_max_m", s.lat_max_m},     {"rot_rmse_deg", s.rot_rmse_deg},
+          {"rot_max_deg", s.rot_max_deg}, {"nees_samples", s.nees_samples},
+          {"nees_mean", s.nees_mean},     {"nees_within_q95_share", s.nees_within_q95_share},
+          {"pl_samples", s.pl_samples},   {"pl_bounded_share", s.pl_bounded_share},
+          {"pl_mean_m", s.pl_mean_m}};
 }
 
 nlohmann::json to_json(const StudyResult& r) {
   nlohmann::json j;
   j["world"] = r.world;
+  j["realism"] = r.realism;
   j["length_m"] = r.length_m;
   j["drives"] = r.drives;
   j["seeds"] = r.seeds;

@@ -96,13 +96,14 @@ TrajectoryRow to_trajectory_row(const loc::LocalizationOutput& out) {
   r.matched_lines = out.matched_lines;
   r.map_version = out.map_version;
   r.graph_ms = out.graph_updated ? 1e3 * out.graph_update_time_s : 0.0;
+  r.pl_lat_m = out.protection_level_lat_m;
   return r;
 }
 
 const std::string& trajectory_csv_header() {
   static const std::string h =
       "time_s,status,lat_deg,lon_deg,yaw_enu_rad,cov_xx_m2,cov_xy_m2,cov_yy_m2,cov_yaw_rad2,"
-      "matched_points,matched_lines,map_version,graph_ms";
+      "matched_points,matched_lines,map_version,graph_ms,pl_lat_m";
   return h;
 }
 
@@ -115,10 +116,11 @@ TrajectoryCsvWriter::TrajectoryCsvWriter(const std::filesystem::path& path)
 void TrajectoryCsvWriter::write(const TrajectoryRow& r) {
   char buf[512];
   // 9 decimals of a degree ≈ 0.1 mm; covariances in full precision.
-  std::snprintf(buf, sizeof buf, "%.4f,%s,%.9f,%.9f,%.6f,%.6g,%.6g,%.6g,%.6g,%d,%d,%llu,%.3f\n",
-                r.time_s, r.status.c_str(), r.lat_deg, r.lon_deg, r.yaw_enu_rad, r.cov_xx_m2,
-                r.cov_xy_m2, r.cov_yy_m2, r.cov_yaw_rad2, r.matched_points, r.matched_lines,
-                static_cast<unsigned long long>(r.map_version), r.graph_ms);
+  std::snprintf(buf, sizeof buf,
+                "%.4f,%s,%.9f,%.9f,%.6f,%.6g,%.6g,%.6g,%.6g,%d,%d,%llu,%.3f,%.4f\n", r.time_s,
+                r.status.c_str(), r.lat_deg, r.lon_deg, r.yaw_enu_rad, r.cov_xx_m2, r.cov_xy_m2,
+                r.cov_yy_m2, r.cov_yaw_rad2, r.matched_points, r.matched_lines,
+                static_cast<unsigned long long>(r.map_version), r.graph_ms, r.pl_lat_m);
   out_ << buf;
   if (!out_) throw IoError("cannot write trajectory CSV " + path_.string());
 }
@@ -163,6 +165,7 @@ std::vector<TrajectoryRow> read_trajectory_csv(const std::filesystem::path& path
              r.matched_lines = static_cast<int>(num("matched_lines", 0.0));
              r.map_version = static_cast<std::uint64_t>(num("map_version", 0.0));
              r.graph_ms = num("graph_ms", 0.0);
+             r.pl_lat_m = num("pl_lat_m", 0.0);
              if (!rows.empty() && r.time_s < rows.back().time_s) {
                throw FormatError(path.string() + ": line " + std::to_string(line) +
                                  ": time_s goes backwards");
@@ -241,7 +244,8 @@ TrajectoryMetrics evaluate_trajectory(const std::vector<TrajectoryRow>& rows,
   ref_xy.reserve(reference.size());
   for (const auto& s : reference) ref_xy.push_back(frame.to_local(s.lat_deg, s.lon_deg));
 
-  double se_long = 0, se_lat = 0, se_rot = 0;
+  double se_long = 0, se_lat = 0, se_rot = 0, nees_sum = 0, pl_sum = 0;
+  int nees_within = 0, pl_bounded = 0;
   int moving = 0, moving_reliable = 0;
   std::size_t j = 0;
   for (const auto& r : rows) {
@@ -281,8 +285,29 @@ TrajectoryMetrics evaluate_trajectory(const std::vector<TrajectoryRow>& rows,
     const double yaw_est = r.yaw_enu_rad + frame.convergence_rad(t_est);
     const Eigen::Vector2d e = Pose2{0.0, 0.0, yaw_gt}.rotation().transpose() * (t_est - t_gt);
     // arccos(½ tr(R_gtᵀ R̂)) for planar rotations is |Δyaw| wrapped to [0, π].
-    const double rot = std::abs(wrap_angle_rad(yaw_est - yaw_gt));
-    m.errors.push_back({r.time_s, e.x(), e.y(), rot, speed, r.status});
+    const double dyaw = wrap_angle_rad(yaw_est - yaw_gt);
+    const double rot = std::abs(dyaw);
+    TrajectoryError te{r.time_s, e.x(), e.y(), rot, speed, r.status};
+    // The covariance across and along the reference heading, and the NEES.
+    const Eigen::Matrix2d R = Pose2{0.0, 0.0, yaw_gt}.rotation();
+    Eigen::Matrix2d c_xy;
+    c_xy << r.cov_xx_m2, r.cov_xy_m2, r.cov_xy_m2, r.cov_yy_m2;
+    const Eigen::Matrix2d c_ref = R.transpose() * c_xy * R;
+    te.sigma_lat_m = std::sqrt(std::max(c_ref(1, 1), 0.0));
+    const double det = c_ref.determinant();
+    if (det > 0.0 && c_ref(0, 0) > 0.0 && r.cov_yaw_rad2 > 0.0) {
+      te.nees = e.dot(c_ref.inverse() * e) + dyaw * dyaw / r.cov_yaw_rad2;
+      ++m.nees_samples;
+      nees_sum += te.nees;
+      if (te.nees <= kChi2Dof3Q95) ++nees_within;
+    }
+    te.pl_lat_m = r.pl_lat_m;
+    if (r.pl_lat_m > 0.0) {
+      ++m.pl_samples;
+      pl_sum += r.pl_lat_m;
+      if (std::abs(e.y()) <= r.pl_lat_m) ++pl_bounded;
+    }
+    m.errors.push_back(std::move(te));
     se_long += e.x() * e.x();
     se_lat += e.y() * e.y();
     se_rot += rot * rot;
@@ -291,6 +316,14 @@ TrajectoryMetrics evaluate_trajectory(const std::vector<TrajectoryRow>& rows,
     m.rot_max_deg = std::max(m.rot_max_deg, rot * kRadToDeg);
   }
   m.evaluated = static_cast<int>(m.errors.size());
+  if (m.nees_samples > 0) {
+    m.nees_mean = nees_sum / m.nees_samples;
+    m.nees_within_q95_share = static_cast<double>(nees_within) / m.nees_samples;
+  }
+  if (m.pl_samples > 0) {
+    m.pl_mean_m = pl_sum / m.pl_samples;
+    m.pl_bounded_share = static_cast<double>(pl_bounded) / m.pl_samples;
+  }
   m.reliable_gt_share = moving > 0 ? static_cast<double>(moving_reliable) / moving : 0.0;
   if (m.evaluated > 0) {
     m.long_rmse_m = std::sqrt(se_long / m.evaluated);

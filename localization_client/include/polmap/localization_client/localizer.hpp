@@ -172,6 +172,19 @@ struct LocalizerConfig {
   /// reckoning from radar odometry: ~1 % of distance, ~0.1°/m).
   double prediction_sigma_per_m = 0.01;
   double prediction_sigma_yaw_per_m = 0.002;
+  /// Reported uncertainty (LocalizationOutput::covariance, protection_level_lat_m). The
+  /// graph's covariance treats map landmarks as exact and candidates as independent, so it
+  /// is optimistic; what is reported is
+  ///   reported_covariance_scale · C + diag(floor_xy², floor_xy², floor_yaw²),
+  /// calibrated on studies so that the NEES of the pose is consistent (polmap study's
+  /// uncertainty table). Gates and priors inside the localizer keep the graph's own C.
+  double reported_covariance_scale = 1.0;
+  double reported_sigma_floor_xy_m = 0.0;
+  double reported_sigma_floor_yaw_rad = 0.0;
+  /// Lateral protection level = protection_level_k · the reported lateral σ. 3.29 is the
+  /// two-sided 99.9 % quantile of a Gaussian; the default is set from studies so that the
+  /// level bounds the lateral error on ≥ 99.9 % of samples (heavier tails than Gaussian).
+  double protection_level_k = 3.29;
 };
 
 /// CPU time (thread CPU clock) of each stage of process() calls, seconds. Per call in
@@ -200,9 +213,13 @@ struct LocalizationOutput {
   /// pose fields below are valid (in Initializing they are the odometry-moved
   /// initial pose with its wide covariance).
   bool has_pose = false;
-  Pose2 T_map_vehicle;                                   ///< client map frame (see file comment)
-  GeoPose pose;                                          ///< WGS84, ENU yaw
-  Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();  ///< (x_m, y_m, yaw_rad), map frame
+  Pose2 T_map_vehicle;  ///< client map frame (see file comment)
+  GeoPose pose;         ///< WGS84, ENU yaw
+  /// (x_m, y_m, yaw_rad), map frame: the reported covariance (see LocalizerConfig).
+  Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();
+  /// Lateral protection level (m): bounds the error across the heading with the integrity
+  /// the config's protection_level_k was calibrated for (0 without a pose).
+  double protection_level_lat_m = 0.0;
   bool extracted = false;      ///< candidates were extracted at this frame
   bool graph_updated = false;  ///< the graph was solved at this frame
   bool relocalized = false;    ///< the relocalization check re-anchored at this frame

@@ -123,6 +123,13 @@ struct ErrorSummary {
   double long_rmse_m = 0.0, long_max_m = 0.0;
   double lat_rmse_m = 0.0, lat_max_m = 0.0;
   double rot_rmse_deg = 0.0, rot_max_deg = 0.0;
+  // Uncertainty: NEES of (long, lat, yaw) and the lateral protection level.
+  std::int64_t nees_samples = 0;
+  double nees_mean = 0.0;              ///< 3 for a consistent covariance
+  double nees_within_q95_share = 0.0;  ///< 0.95 for a consistent covariance
+  std::int64_t pl_samples = 0;
+  double pl_bounded_share = 0.0;  ///< |lateral error| ≤ protection level; target ≥ 0.999
+  double pl_mean_m = 0.0;
 };
 
 /// Stage diagnosis of one drive against a map (`polmap study --diagnose`):
@@ -220,6 +227,8 @@ struct StudyDriveResult {
   // --- per included sample (for CCDFs)
   std::vector<double> sample_time_s;
   std::vector<double> abs_long_m, abs_lat_m, rot_deg;
+  std::vector<double> nees;      ///< per included sample, -1 where not available
+  std::vector<double> pl_lat_m;  ///< per included sample, 0 where not reported
 };
 
 /// Pooled over all drives and seeds of one level.
@@ -238,6 +247,8 @@ struct StudyLevelSummary {
 
 struct StudyResult {
   std::string world;
+  /// The simulator's error sources: "ideal", "realistic" or the realistic sources kept on.
+  std::string realism;
   double length_m = 0.0;
   int drives = 0;
   std::vector<std::uint64_t> seeds;
@@ -324,6 +335,8 @@ std::string format_accuracy_table(const StudyResult& r, PolLevel level);
 std::string format_level_table(const StudyResult& r);
 /// Speed and data figures per level.
 std::string format_speed_table(const StudyResult& r);
+/// NEES and protection-level figures per level (issue 15's honest uncertainty).
+std::string format_uncertainty_table(const StudyResult& r);
 /// Stage diagnosis per drive (drives without diagnosis are skipped).
 std::string format_diagnosis_table(const StudyResult& r);
 

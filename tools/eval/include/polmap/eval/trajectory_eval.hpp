@@ -40,6 +40,7 @@ struct TrajectoryRow {
   int matched_lines = 0;
   std::uint64_t map_version = 0;
   double graph_ms = 0.0;  ///< graph solve time of this frame, 0 if no solve
+  double pl_lat_m = 0.0;  ///< lateral protection level (0: not reported)
 };
 
 /// The row of one localizer output (which must have a pose).
@@ -97,10 +98,19 @@ struct TrajectoryError {
   double time_s = 0.0;
   double long_m = 0.0;
   double lat_m = 0.0;
-  double rot_rad = 0.0;
+  double rot_rad = 0.0;  ///< |Δyaw|
   double speed_mps = 0.0;
   std::string status;
+  /// Normalized estimation error squared of (long, lat, yaw) under the row's covariance
+  /// (rotated into the reference frame; the CSV has no position-yaw cross terms); -1 when
+  /// the covariance is not positive definite. χ²(3) if the covariance is consistent.
+  double nees = -1.0;
+  double sigma_lat_m = 0.0;  ///< the row's 1-σ across the reference heading
+  double pl_lat_m = 0.0;     ///< the row's lateral protection level (0: none)
 };
+
+/// χ²(3) quantile 0.95: a consistent covariance has 95 % of NEES values below it.
+inline constexpr double kChi2Dof3Q95 = 7.814727903251178;
 
 struct TrajectoryMetrics {
   int rows = 0;               ///< rows in the trajectory
@@ -120,6 +130,13 @@ struct TrajectoryMetrics {
   /// Share of rows per status.
   double share_tracking = 0.0, share_degraded = 0.0, share_lost = 0.0, share_initializing = 0.0;
   std::vector<TrajectoryError> errors;  ///< the evaluated samples
+  // Uncertainty (issue 15: honest covariance and protection level).
+  int nees_samples = 0;                ///< evaluated samples with a positive-definite covariance
+  double nees_mean = 0.0;              ///< 3 when consistent
+  double nees_within_q95_share = 0.0;  ///< share with NEES ≤ χ²₃(0.95); 0.95 when consistent
+  int pl_samples = 0;                  ///< evaluated samples with a protection level
+  double pl_bounded_share = 0.0;       ///< share with |lateral error| ≤ protection level
+  double pl_mean_m = 0.0;
 };
 
 /// Evaluates rows against a time-ordered reference (linear interpolation

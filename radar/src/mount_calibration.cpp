@@ -224,13 +224,16 @@ Eigen::VectorXd MountCalibrator::solve(Eigen::MatrixXd* covariance) const {
     L(s, s) += 1.0 / (cfg_.prior_yaw_sigma_rad * cfg_.prior_yaw_sigma_rad);
     L(S + s, S + s) += 1.0 / (cfg_.prior_time_offset_sigma_s * cfg_.prior_time_offset_sigma_s);
   }
-  // Gauge: mean time offset = 0 always, mean yaw = 0 when the side slip is a nuisance. Solve
-  // in the null space Q of the constraints: θ = Q z.
-  const Eigen::Index k = cfg_.side_slip_nuisance ? 2 : 1;
+  // Gauge: mean time offset = 0. The common yaw is always a parameter here (observed by the
+  // zero-slip blocks; without it, a common yaw or a constant slip angle in those blocks would
+  // be forced into the yaw-rate nuisance and from there into the left/right time offsets);
+  // result() reports and applies only the relative part unless estimate_common_yaw. Without
+  // any zero-slip block it is held by its prior alone. Solve in the null space Q of the
+  // constraints: θ = Q z.
+  const Eigen::Index k = 1;
   Eigen::MatrixXd C = Eigen::MatrixXd::Zero(k, P);
   for (Eigen::Index s = 0; s < S; ++s) {
     C(0, S + s) = 1.0;
-    if (k == 2) C(1, s) = 1.0;
   }
   const Eigen::JacobiSVD<Eigen::MatrixXd> svd(C, Eigen::ComputeFullV);
   const Eigen::MatrixXd Q = svd.matrixV().rightCols(P - k);
@@ -254,6 +257,19 @@ MountCalibrationResult MountCalibrator::result() const {
   double s2 = 1.0;
   if (dof > 0) s2 = std::max((chi2_const_ - rhs_.dot(theta)) / static_cast<double>(dof), 1e-6);
   cov *= s2;
+  // The common yaw (mean over the sensors) and, unless it is to be estimated, its removal.
+  Eigen::VectorXd theta_out = theta;
+  Eigen::RowVectorXd mean_row = Eigen::RowVectorXd::Zero(2 * S);
+  mean_row.head(S).setConstant(1.0 / static_cast<double>(S));
+  res.common_yaw_rad = mean_row.dot(theta);
+  res.common_yaw_sigma_rad = std::sqrt(std::max((mean_row * cov * mean_row.transpose())(0), 0.0));
+  const bool relative = cfg_.side_slip_nuisance && !cfg_.estimate_common_yaw;
+  if (relative) {
+    Eigen::MatrixXd J = Eigen::MatrixXd::Identity(2 * S, 2 * S);
+    J.topLeftCorner(S, S).array() -= 1.0 / static_cast<double>(S);
+    theta_out = J * theta;
+    cov = J * cov * J.transpose();
+  }
   res.covariance = cov;
   res.residual_sigma_factor = std::sqrt(s2);
   res.observed_s = observed_s_;
@@ -263,7 +279,7 @@ MountCalibrationResult MountCalibrator::result() const {
   for (Eigen::Index s = 0; s < S; ++s) {
     MountCalibrationResult::Sensor e;
     e.sensor_id = mounts_[static_cast<std::size_t>(s)].sensor_id;
-    e.yaw_offset_rad = theta(s);
+    e.yaw_offset_rad = theta_out(s);
     e.yaw_sigma_rad = std::sqrt(std::max(cov(s, s), 0.0));
     e.time_offset_s = theta(S + s);
     e.time_sigma_s = std::sqrt(std::max(cov(S + s, S + s), 0.0));

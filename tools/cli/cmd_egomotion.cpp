@@ -43,6 +43,7 @@ struct EgoMotionOptions {
 struct CalibrationTruth {
   std::string source;
   std::map<int, std::pair<double, double>> relative;  // sensor_id -> (yaw rad, time s)
+  double mean_yaw_rad = 0.0;                          // added back for absolute yaws
 };
 std::optional<CalibrationTruth> sibling_calibration_truth(const std::filesystem::path& recording) {
   const auto p =
@@ -58,6 +59,7 @@ std::optional<CalibrationTruth> sibling_calibration_truth(const std::filesystem:
     my += s.at("yaw_offset_rad").get<double>() / static_cast<double>(sensors.size());
     mt += s.at("time_offset_s").get<double>() / static_cast<double>(sensors.size());
   }
+  t.mean_yaw_rad = my;
   for (const auto& s : sensors) {
     t.relative[s.at("sensor_id").get<int>()] = {s.at("yaw_offset_rad").get<double>() - my,
                                                 s.at("time_offset_s").get<double>() - mt};
@@ -147,10 +149,10 @@ void run(const EgoMotionOptions& o) {
                     {"converged_after_s", runner->converged_at_s()
                                               ? nlohmann::json(*runner->converged_at_s() - t_first)
                                               : nlohmann::json(nullptr)},
-                    {"gauge", o.calib.side_slip_nuisance
+                    {"gauge", o.calib.side_slip_nuisance && !o.calib.estimate_common_yaw
                                   ? "relative: mean yaw offset and mean time offset over the "
                                     "sensors are 0"
-                                  : "mean time offset over the sensors is 0"},
+                                  : "mean time offset over the sensors is 0 (yaws absolute)"},
                     {"truth", calib_truth ? nlohmann::json(calib_truth->source) : nullptr}};
   nlohmann::json js = nlohmann::json::array();
   double yaw_err2 = 0, dt_err2 = 0;
@@ -164,7 +166,8 @@ void run(const EgoMotionOptions& o) {
                      {"time_status", radar::to_string(s.time_status)},
                      {"detections", s.detections}};
     if (calib_truth && calib_truth->relative.contains(s.sensor_id)) {
-      const auto [ty, tt] = calib_truth->relative.at(s.sensor_id);
+      auto [ty, tt] = calib_truth->relative.at(s.sensor_id);
+      if (o.calib.estimate_common_yaw) ty += calib_truth->mean_yaw_rad;
       e["true_yaw_offset_deg"] = ty * kDeg;
       e["true_time_offset_ms"] = tt * 1e3;
       e["yaw_error_deg"] = (s.yaw_offset_rad - ty) * kDeg;
@@ -276,6 +279,9 @@ void setup(CLI::App& app) {
                   "and apply once converged, off = estimate and report only")
       ->check(CLI::IsMember({"on", "off"}))
       ->capture_default_str();
+  cmd->add_flag("--calibrate-common-yaw", opts->calib.estimate_common_yaw,
+                "also estimate the common mount yaw (assumes zero side slip when driving "
+                "straight; see radar/include/polmap/radar/mount_calibration.hpp)");
   cmd->callback([opts] {
     if (opts->recording.empty() && opts->detections.empty()) {
       throw ValidationError("egomotion: give --recording R or --detections CSV --mounts JSON");

@@ -27,9 +27,12 @@
 ///  - A COMMON yaw of all mounts rotates every sensor's velocity by the same angle: a lateral
 ///    velocity −v·δψ̄ at every sensor, identical to a side slip β = −δψ̄ of the rear axle (in
 ///    any manoeuvre, straight driving included). With `side_slip_nuisance` (default) each
-///    block has a free lateral velocity, so side slip in curves cannot leak into the mounts,
-///    and only RELATIVE yaws are estimated: the gauge fixes the mean of δψ over the sensors
-///    to zero (reported yaws are δψ_s − mean). The common part stays in the ego-motion as a
+///    block in a curve (|a_y| ≥ side_slip_min_lateral_accel_mps2) has a free lateral
+///    velocity, so side slip cannot leak into the mounts, and only RELATIVE yaws are reported
+///    and applied: δψ_s − mean over the sensors. (Internally the common yaw is a constant
+///    parameter seen by the straight, zero-slip blocks, where it absorbs a constant slip
+///    angle too; it is reported as common_yaw_rad, and applied only with
+///    estimate_common_yaw.) The common part stays in the ego-motion as a
 ///    yaw-rate bias ≈ v·δψ̄/x_sensor; it needs a reference outside radar (INS heading, map
 ///    matching) or the zero-side-slip assumption (side_slip_nuisance = false: then the
 ///    common yaw is observed through the differential longitudinal velocity of sensors at
@@ -82,6 +85,14 @@ struct MountCalibrationConfig {
   /// braking looks like a yaw rate (longitudinal differential over the track): its σ grows
   /// about 5x. 0 = lateral nuisance in every block.
   double side_slip_min_lateral_accel_mps2 = 0.5;
+  /// Also estimate the COMMON mount yaw (absolute yaws), from the blocks below
+  /// side_slip_min_lateral_accel_mps2 only, under their zero-side-slip assumption: there a
+  /// common yaw shows as a lateral velocity that the yaw rate must explain, and the yaw rate
+  /// is also seen in the longitudinal velocity difference across the sensors' track. Off by
+  /// default: any real side slip in straight driving (road camber, crosswind, a misaligned
+  /// rear axle) becomes a mount error, and the track of corner radars (1.4-1.7 m) makes it
+  /// weakly observed; measured in tools/sim/README.md "Online mount calibration".
+  bool estimate_common_yaw = false;
   /// Noise model of one detection: σ_i² = σ_vr² + σ_φ²·(g·m)² (as EgoMotionConfig).
   double vr_sigma_mps = 0.07;
   double azimuth_sigma_rad = 0.4 * std::numbers::pi / 180.0;
@@ -110,7 +121,8 @@ struct MountCalibrationResult {
   };
   struct Sensor {
     std::uint8_t sensor_id = 0;
-    /// True mount yaw − nominal yaw, minus the mean over the sensors (radians).
+    /// True mount yaw − nominal yaw, minus the mean over the sensors (radians; the mean is
+    /// included when estimate_common_yaw).
     double yaw_offset_rad = 0.0;
     double yaw_sigma_rad = 0.0;
     Status yaw_status = Status::NotObservableYet;
@@ -126,7 +138,12 @@ struct MountCalibrationResult {
   int blocks = 0;
   /// √(residual variance factor): weighted residual RMS, 1 if the noise model is right.
   double residual_sigma_factor = 1.0;
-  /// Covariance of (δψ_1..S, δt_1..S), residual variance factor included.
+  /// Common yaw (mean of the yaw offsets over the sensors) as the zero-slip blocks see it,
+  /// with 1-σ: reported always, in the yaw offsets only with estimate_common_yaw (it is
+  /// indistinguishable from a constant side-slip angle, see the file comment).
+  double common_yaw_rad = 0.0;
+  double common_yaw_sigma_rad = 0.0;
+  /// Covariance of the reported (δψ_1..S, δt_1..S), residual variance factor included.
   Eigen::MatrixXd covariance;
 };
 

@@ -141,19 +141,25 @@ void run(const EgoMotionOptions& o) {
   const radar::MountCalibrationResult cal = runner->calibrator()->result();
   const double t_first =
       runner->records().empty() ? 0.0 : runner->records().front().estimate.time_s;
-  nlohmann::json jc{{"applied", o.calib.calibrate_mounts},
-                    {"status", radar::to_string(cal.status)},
-                    {"observed_s", cal.observed_s},
-                    {"blocks", cal.blocks},
-                    {"residual_sigma_factor", cal.residual_sigma_factor},
-                    {"converged_after_s", runner->converged_at_s()
-                                              ? nlohmann::json(*runner->converged_at_s() - t_first)
-                                              : nlohmann::json(nullptr)},
-                    {"gauge", o.calib.side_slip_nuisance && !o.calib.estimate_common_yaw
-                                  ? "relative: mean yaw offset and mean time offset over the "
-                                    "sensors are 0"
-                                  : "mean time offset over the sensors is 0 (yaws absolute)"},
-                    {"truth", calib_truth ? nlohmann::json(calib_truth->source) : nullptr}};
+  nlohmann::json jc{
+      {"applied", o.calib.calibrate_mounts},
+      {"status", radar::to_string(cal.status)},
+      {"observed_s", cal.observed_s},
+      {"blocks", cal.blocks},
+      {"residual_sigma_factor", cal.residual_sigma_factor},
+      {"converged_after_s", runner->converged_at_s()
+                                ? nlohmann::json(*runner->converged_at_s() - t_first)
+                                : nlohmann::json(nullptr)},
+      {"gauge", o.calib.side_slip_nuisance && !o.calib.estimate_common_yaw
+                    ? "relative: mean yaw offset and mean time offset over the "
+                      "sensors are 0"
+                    : "mean time offset over the sensors is 0 (yaws absolute)"},
+      {"common_yaw_deg", cal.common_yaw_rad * kDeg},
+      {"common_yaw_sigma_deg", cal.common_yaw_sigma_rad * kDeg},
+      {"common_yaw_applied", o.calib.calibrate_mounts && o.calib.estimate_common_yaw},
+      {"true_common_yaw_deg",
+       calib_truth ? nlohmann::json(calib_truth->mean_yaw_rad * kDeg) : nlohmann::json(nullptr)},
+      {"truth", calib_truth ? nlohmann::json(calib_truth->source) : nullptr}};
   nlohmann::json js = nlohmann::json::array();
   double yaw_err2 = 0, dt_err2 = 0;
   for (const auto& s : cal.sensors) {

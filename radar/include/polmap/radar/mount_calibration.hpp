@@ -23,21 +23,20 @@
 /// residual under the current calibration (not on the ego-motion estimator's inlier mask,
 /// which was selected with the wrong mounts and would bias δψ towards zero).
 ///
-/// Observability (radar alone; state of the art for Doppler-only calibration):
+/// Observability (radar alone):
 ///  - A COMMON yaw of all mounts rotates every sensor's velocity by the same angle: a lateral
-///    velocity −v·δψ̄ at every sensor, identical to a side slip β = −δψ̄ of the rear axle (in
-///    any manoeuvre, straight driving included). With `side_slip_nuisance` (default) each
+///    velocity −v·δψ̄ at every sensor, identical to a side-slip angle β = −δψ̄ of the rear axle
+///    (in any manoeuvre, straight driving included). With `side_slip_nuisance` (default) each
 ///    block in a curve (|a_y| ≥ side_slip_min_lateral_accel_mps2) has a free lateral
-///    velocity, so side slip cannot leak into the mounts, and only RELATIVE yaws are reported
-///    and applied: δψ_s − mean over the sensors. (Internally the common yaw is a constant
-///    parameter seen by the straight, zero-slip blocks, where it absorbs a constant slip
-///    angle too; it is reported as common_yaw_rad, and applied only with
-///    estimate_common_yaw.) The common part stays in the ego-motion as a
-///    yaw-rate bias ≈ v·δψ̄/x_sensor; it needs a reference outside radar (INS heading, map
-///    matching) or the zero-side-slip assumption (side_slip_nuisance = false: then the
-///    common yaw is observed through the differential longitudinal velocity of sensors at
-///    different y and the lateral velocity of sensors at different x, and any real side
-///    slip becomes a mount error).
+///    velocity, so slip in curves never leaks into the mounts, and only RELATIVE yaws are
+///    reported and applied: δψ_s − mean over the sensors. Internally the common yaw is a
+///    constant parameter seen by the straight blocks, which assume zero slip (there the yaw
+///    rate also shows in the longitudinal velocity difference across the sensors' track, so
+///    a common lateral velocity is not all yaw rate); it absorbs any constant slip angle too,
+///    is reported as common_yaw_rad, and is applied only with estimate_common_yaw (or with
+///    side_slip_nuisance = false, no lateral nuisance at all). Not applied, it stays in the
+///    ego-motion as a yaw-rate bias ≈ v·δψ̄/x_sensor, which needs a heading reference
+///    outside radar (INS, map matching) or the zero-slip assumption.
 ///  - A COMMON time offset of all sensors shifts the whole motion in time: unobservable from
 ///    radar alone; the gauge fixes the mean of δt to zero (relative offsets).
 ///  - δψ_s needs speed (its column is v·sin θ-like: zero at standstill; blocks slower than
@@ -46,6 +45,9 @@
 ///    accelerating and entering or leaving curves observe it; a drive at constant speed on a
 ///    straight road never does (status stays NotObservableYet).
 /// Convergence is gated on the marginal 1-σ of each parameter from the information matrix.
+/// That σ assumes white detection noise; multipath, slip and the ego-motion's own time
+/// alignment are not white, and measured errors are up to ~3-4x the σ (tools/sim/README.md
+/// "Online mount calibration"), hence convergence limits well above the typical σ.
 #include <Eigen/Core>
 #include <cstdint>
 #include <deque>
@@ -61,9 +63,10 @@ namespace polmap::radar {
 /// Parameters of MountCalibrator. Defaults for 77 GHz corner radars on a passenger car.
 struct MountCalibrationConfig {
   /// Apply converged estimates to the ego-motion estimator (corrected mount yaws and time
-  /// stamps). On by default: with exact mounts the estimates are zero within their σ
-  /// (≈ 0.01°, 0.1 ms after a minute), which moves the ego-motion by far less than its noise,
-  /// while real mounts are off by 0.1-0.3° (SIMULATION.md) and cost heading drift.
+  /// stamps). On by default: with exact mounts the estimates are ≤ 0.003° and a few 0.1 ms
+  /// after a minute, which moves the ego-motion by far less than its noise (measured),
+  /// while real corner radars are off by 0.1-0.3° (residuals of a public
+  /// four-radar recording) and cost heading drift.
   bool calibrate_mounts = true;
   /// Frames whose stamps lie within this window of the block's first frame form one block
   /// (one trigger cycle: one frame per sensor at 10 Hz).

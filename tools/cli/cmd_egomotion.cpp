@@ -184,6 +184,31 @@ void run(const EgoMotionOptions& o) {
     js.push_back(e);
   }
   jc["sensors"] = js;
+  // Convergence: the largest |error| against the truth (or the largest σ) every 5 s.
+  nlohmann::json jh = nlohmann::json::array();
+  for (const auto& [t, c] : runner->calibration_history()) {
+    double yaw_err = 0, dt_err = 0, yaw_sig = 0, dt_sig = 0;
+    for (const auto& s : c.sensors) {
+      yaw_sig = std::max(yaw_sig, s.yaw_sigma_rad * kDeg);
+      dt_sig = std::max(dt_sig, s.time_sigma_s * 1e3);
+      if (calib_truth && calib_truth->relative.contains(s.sensor_id)) {
+        auto [ty, tt] = calib_truth->relative.at(s.sensor_id);
+        if (o.calib.estimate_common_yaw) ty += calib_truth->mean_yaw_rad;
+        yaw_err = std::max(yaw_err, std::abs(s.yaw_offset_rad - ty) * kDeg);
+        dt_err = std::max(dt_err, std::abs(s.time_offset_s - tt) * 1e3);
+      }
+    }
+    nlohmann::json h{{"time_s", t - t_first},
+                     {"status", radar::to_string(c.status)},
+                     {"max_yaw_sigma_deg", yaw_sig},
+                     {"max_time_sigma_ms", dt_sig}};
+    if (calib_truth) {
+      h["max_abs_yaw_error_deg"] = yaw_err;
+      h["max_abs_time_error_ms"] = dt_err;
+    }
+    jh.push_back(h);
+  }
+  jc["history"] = jh;
   if (calib_truth) {
     jc["max_abs_yaw_error_deg"] = yaw_err2;
     jc["max_abs_time_error_ms"] = dt_err2;

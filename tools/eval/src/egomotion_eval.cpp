@@ -200,6 +200,9 @@ const EgoMotionRecord& EgoMotionRunner::process(const SensorFrame& frame) {
         converged_at_s_ = r.estimate.time_s;
       }
       if (calibrator_->config().calibrate_mounts) radar::apply_mount_calibration(estimator_, c);
+      if (history_.empty() || r.estimate.time_s >= history_.back().first + snapshot_interval_s) {
+        history_.emplace_back(r.estimate.time_s, c);
+      }
     }
   }
   r.compute_s = cpu_s() - t0;

@@ -112,7 +112,7 @@ struct MountCalibrationConfig {
   /// entered (the σ of correlated errors — multipath, slip — shrinks more slowly than the
   /// information matrix says; the duration guards against early optimism).
   double converged_yaw_sigma_rad = 0.02 * std::numbers::pi / 180.0;
-  double converged_time_offset_sigma_s = 0.0003;
+  double converged_time_offset_sigma_s = 0.0002;
   double min_observed_s = 10.0;
 };
 

@@ -104,11 +104,18 @@ class EgoMotionRunner {
   }
   /// Driving time at which the calibration first reached Converged (nullopt: never).
   [[nodiscard]] std::optional<double> converged_at_s() const { return converged_at_s_; }
+  /// Calibration snapshots every `snapshot_interval_s` (estimate time, result): how it converges.
+  [[nodiscard]] const std::vector<std::pair<double, radar::MountCalibrationResult>>&
+  calibration_history() const {
+    return history_;
+  }
+  double snapshot_interval_s = 5.0;
 
  private:
   radar::EgoMotionEstimator estimator_;
   std::optional<radar::MountCalibrator> calibrator_;
   std::optional<double> converged_at_s_;
+  std::vector<std::pair<double, radar::MountCalibrationResult>> history_;
   radar::Odometry odometry_;
   std::vector<EgoMotionRecord> records_;
 };

@@ -303,12 +303,21 @@ EgoMotionEstimator::EgoMotionEstimator(std::vector<SensorMount> mounts, EgoMotio
   }
 }
 
+void EgoMotionEstimator::set_mount_corrections(std::vector<double> yaw_offsets_rad,
+                                               std::vector<double> time_offsets_s) {
+  POLMAP_EXPECT(yaw_offsets_rad.empty() || yaw_offsets_rad.size() == mounts_.size());
+  POLMAP_EXPECT(time_offsets_s.empty() || time_offsets_s.size() == mounts_.size());
+  yaw_offsets_rad_ = std::move(yaw_offsets_rad);
+  time_offsets_s_ = std::move(time_offsets_s);
+}
+
 void EgoMotionEstimator::reset() {
   history_.clear();
   accepted_.clear();
   static_mask_.clear();
   calls_ = 0;
   last_time_s_ = -1e300;
+  last_corrected_time_s_ = -1e300;
 }
 
 std::optional<Eigen::Vector2d> EgoMotionEstimator::acceleration(double time_s) const {
@@ -350,11 +359,16 @@ MotionEstimate EgoMotionEstimator::process(const SensorFrame& frame) {
   }
   POLMAP_EXPECT(new_idx < mounts_.size());  // frame of a sensor without mount
   last_time_s_ = frame.time_s;
-  const double t = frame.time_s;
+  // Calibrated measurement time; offsets are milliseconds, frames 33 ms apart, but keep the
+  // history ordered whatever the calibration says.
+  const double t =
+      std::max(frame.time_s + (time_offsets_s_.empty() ? 0.0 : time_offsets_s_[new_idx]),
+               last_corrected_time_s_);
+  last_corrected_time_s_ = t;
   while (!history_.empty() && t - history_.front().time_s > cfg_.combine_window_s) {
     history_.pop_front();
   }
-  history_.push_back(StoredFrame{new_idx, frame.time_s, frame.detections});
+  history_.push_back(StoredFrame{new_idx, t, frame.detections});
   std::mt19937_64 rng(cfg_.seed ^ (0x9E3779B97F4A7C15ULL * ++calls_));
 
   MotionEstimate est;
@@ -406,7 +420,8 @@ MotionEstimate EgoMotionEstimator::process(const SensorFrame& frame) {
     const double vua = mount.spec.v_unambiguous_mps;
     const double age = t - sf.time_s;
     for (const Detection& d : sf.detections) {
-      const double th = static_cast<double>(d.azimuth_rad) + mount.T_vehicle_sensor.yaw_rad;
+      const double th = static_cast<double>(d.azimuth_rad) + mount.T_vehicle_sensor.yaw_rad +
+                        (yaw_offsets_rad_.empty() ? 0.0 : yaw_offsets_rad_[sf.mount_index]);
       const double c = std::cos(th), s = std::sin(th);
       const double h0 = -c, h1 = ym * c - xm * s;
       const double g0 = s, g1 = -ym * s - xm * c;

@@ -1,10 +1,16 @@
 // `polmap egomotion --recording R | --detections CSV --mounts JSON [--truth CSV]
-//  [--json] [--out CSV]`: runs the radar ego-motion estimator and odometry over a
-// drive and reports velocity / yaw-rate errors and odometry drift against truth.
+//  [--calibrate on|off] [--json] [--out CSV]`: runs the radar ego-motion estimator and
+// odometry over a drive and reports velocity / yaw-rate errors and odometry drift against
+// truth, and the online mount calibration (relative mount yaws and time offsets with 1-σ;
+// against the simulator's DIR/truth/<name>_calibration.json when present — evaluation only).
 #include <CLI/CLI.hpp>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
+#include <map>
 #include <nlohmann/json.hpp>
+#include <numbers>
 #include <optional>
 #include <string>
 
@@ -26,8 +32,40 @@ struct EgoMotionOptions {
   std::string truth;
   std::string out;
   bool json = false;
+  std::string calibrate = "on";
   radar::EgoMotionConfig cfg;
+  radar::MountCalibrationConfig calib;
 };
+
+/// The simulator's true calibration DIR/truth/<name>_calibration.json (evaluation only):
+/// per sensor id the true yaw offset and time offset, each relative to the mean over the
+/// sensors (what the calibration can observe).
+struct CalibrationTruth {
+  std::string source;
+  std::map<int, std::pair<double, double>> relative;  // sensor_id -> (yaw rad, time s)
+  double mean_yaw_rad = 0.0;                          // added back for absolute yaws
+};
+std::optional<CalibrationTruth> sibling_calibration_truth(const std::filesystem::path& recording) {
+  const auto p =
+      recording.parent_path() / "truth" / (recording.stem().string() + "_calibration.json");
+  if (!std::filesystem::exists(p)) return std::nullopt;
+  std::ifstream in(p);
+  const nlohmann::json j = nlohmann::json::parse(in);
+  CalibrationTruth t;
+  t.source = p.string();
+  double my = 0, mt = 0;
+  const auto& sensors = j.at("sensors");
+  for (const auto& s : sensors) {
+    my += s.at("yaw_offset_rad").get<double>() / static_cast<double>(sensors.size());
+    mt += s.at("time_offset_s").get<double>() / static_cast<double>(sensors.size());
+  }
+  t.mean_yaw_rad = my;
+  for (const auto& s : sensors) {
+    t.relative[s.at("sensor_id").get<int>()] = {s.at("yaw_offset_rad").get<double>() - my,
+                                                s.at("time_offset_s").get<double>() - mt};
+  }
+  return t;
+}
 
 /// The simulator writes exact truth beside a recording DIR/drive_<k>.pmrec as
 /// DIR/truth/drive_<k>_trajectory.csv; prefer it over the (noisy) GNSS samples.
@@ -51,7 +89,7 @@ void run(const EgoMotionOptions& o) {
       throw ValidationError(o.recording + ": recording header lists no sensors");
     }
     origin = reader.header().origin;
-    runner.emplace(reader.header().sensors, o.cfg);
+    runner.emplace(reader.header().sensors, o.cfg, radar::OdometryConfig{}, o.calib);
     Progress progress("egomotion " + o.recording, static_cast<double>(reader.file_size()));
     while (auto rec = reader.next()) {
       progress.update(static_cast<double>(reader.offset()));
@@ -63,7 +101,7 @@ void run(const EgoMotionOptions& o) {
     }
   } else {
     const auto mounts = eval::read_sensor_mounts_json(o.mounts);
-    runner.emplace(mounts, o.cfg);
+    runner.emplace(mounts, o.cfg, radar::OdometryConfig{}, o.calib);
     eval::DetectionsCsvReader reader{std::filesystem::path(o.detections)};
     Progress progress("egomotion " + o.detections, 0);
     double n = 0;
@@ -97,6 +135,84 @@ void run(const EgoMotionOptions& o) {
   if (!o.out.empty()) eval::write_egomotion_csv(o.out, runner->records(), truth);
 
   const bool have_truth = !truth.empty() && m.compared > 0;
+  const std::optional<CalibrationTruth> calib_truth =
+      o.recording.empty() ? std::nullopt : sibling_calibration_truth(o.recording);
+  constexpr double kDeg = 180.0 / std::numbers::pi;
+  const radar::MountCalibrationResult cal = runner->calibrator()->result();
+  const double t_first =
+      runner->records().empty() ? 0.0 : runner->records().front().estimate.time_s;
+  nlohmann::json jc{
+      {"applied", o.calib.calibrate_mounts},
+      {"status", radar::to_string(cal.status)},
+      {"observed_s", cal.observed_s},
+      {"blocks", cal.blocks},
+      {"residual_sigma_factor", cal.residual_sigma_factor},
+      {"converged_after_s", runner->converged_at_s()
+                                ? nlohmann::json(*runner->converged_at_s() - t_first)
+                                : nlohmann::json(nullptr)},
+      {"gauge", o.calib.side_slip_nuisance && !o.calib.estimate_common_yaw
+                    ? "relative: mean yaw offset and mean time offset over the "
+                      "sensors are 0"
+                    : "mean time offset over the sensors is 0 (yaws absolute)"},
+      {"common_yaw_deg", cal.common_yaw_rad * kDeg},
+      {"common_yaw_sigma_deg", cal.common_yaw_sigma_rad * kDeg},
+      {"common_yaw_applied", o.calib.calibrate_mounts && o.calib.estimate_common_yaw},
+      {"true_common_yaw_deg",
+       calib_truth ? nlohmann::json(calib_truth->mean_yaw_rad * kDeg) : nlohmann::json(nullptr)},
+      {"truth", calib_truth ? nlohmann::json(calib_truth->source) : nullptr}};
+  nlohmann::json js = nlohmann::json::array();
+  double yaw_err2 = 0, dt_err2 = 0;
+  for (const auto& s : cal.sensors) {
+    nlohmann::json e{{"sensor_id", s.sensor_id},
+                     {"yaw_offset_deg", s.yaw_offset_rad * kDeg},
+                     {"yaw_sigma_deg", s.yaw_sigma_rad * kDeg},
+                     {"yaw_status", radar::to_string(s.yaw_status)},
+                     {"time_offset_ms", s.time_offset_s * 1e3},
+                     {"time_sigma_ms", s.time_sigma_s * 1e3},
+                     {"time_status", radar::to_string(s.time_status)},
+                     {"detections", s.detections}};
+    if (calib_truth && calib_truth->relative.contains(s.sensor_id)) {
+      auto [ty, tt] = calib_truth->relative.at(s.sensor_id);
+      if (o.calib.estimate_common_yaw) ty += calib_truth->mean_yaw_rad;
+      e["true_yaw_offset_deg"] = ty * kDeg;
+      e["true_time_offset_ms"] = tt * 1e3;
+      e["yaw_error_deg"] = (s.yaw_offset_rad - ty) * kDeg;
+      e["time_error_ms"] = (s.time_offset_s - tt) * 1e3;
+      yaw_err2 = std::max(yaw_err2, std::abs(s.yaw_offset_rad - ty) * kDeg);
+      dt_err2 = std::max(dt_err2, std::abs(s.time_offset_s - tt) * 1e3);
+    }
+    js.push_back(e);
+  }
+  jc["sensors"] = js;
+  // Convergence: the largest |error| against the truth (or the largest σ) every 5 s.
+  nlohmann::json jh = nlohmann::json::array();
+  for (const auto& [t, c] : runner->calibration_history()) {
+    double yaw_err = 0, dt_err = 0, yaw_sig = 0, dt_sig = 0;
+    for (const auto& s : c.sensors) {
+      yaw_sig = std::max(yaw_sig, s.yaw_sigma_rad * kDeg);
+      dt_sig = std::max(dt_sig, s.time_sigma_s * 1e3);
+      if (calib_truth && calib_truth->relative.contains(s.sensor_id)) {
+        auto [ty, tt] = calib_truth->relative.at(s.sensor_id);
+        if (o.calib.estimate_common_yaw) ty += calib_truth->mean_yaw_rad;
+        yaw_err = std::max(yaw_err, std::abs(s.yaw_offset_rad - ty) * kDeg);
+        dt_err = std::max(dt_err, std::abs(s.time_offset_s - tt) * 1e3);
+      }
+    }
+    nlohmann::json h{{"time_s", t - t_first},
+                     {"status", radar::to_string(c.status)},
+                     {"max_yaw_sigma_deg", yaw_sig},
+                     {"max_time_sigma_ms", dt_sig}};
+    if (calib_truth) {
+      h["max_abs_yaw_error_deg"] = yaw_err;
+      h["max_abs_time_error_ms"] = dt_err;
+    }
+    jh.push_back(h);
+  }
+  jc["history"] = jh;
+  if (calib_truth) {
+    jc["max_abs_yaw_error_deg"] = yaw_err2;
+    jc["max_abs_time_error_ms"] = dt_err2;
+  }
   if (o.json) {
     nlohmann::json j = eval::to_json(m);
     if (!have_truth) {
@@ -108,8 +224,25 @@ void run(const EgoMotionOptions& o) {
     }
     j["input"] = o.recording.empty() ? o.detections : o.recording;
     j["truth"] = truth_source;
+    j["calibration"] = jc;
     std::printf("%s\n", j.dump(2).c_str());
     return;
+  }
+  std::printf("calibration: %s (%s), %.1f s observed, residual sigma factor %.2f%s\n",
+              radar::to_string(cal.status), o.calib.calibrate_mounts ? "applied" : "not applied",
+              cal.observed_s, cal.residual_sigma_factor,
+              calib_truth ? ", truth relative to the sensor mean" : "");
+  for (const auto& e : js) {
+    std::printf("  sensor %d: yaw %+.3f +- %.3f deg (%s), time %+.2f +- %.2f ms (%s)",
+                e["sensor_id"].get<int>(), e["yaw_offset_deg"].get<double>(),
+                e["yaw_sigma_deg"].get<double>(), e["yaw_status"].get<std::string>().c_str(),
+                e["time_offset_ms"].get<double>(), e["time_sigma_ms"].get<double>(),
+                e["time_status"].get<std::string>().c_str());
+    if (e.contains("true_yaw_offset_deg")) {
+      std::printf("; truth %+.3f deg, %+.2f ms", e["true_yaw_offset_deg"].get<double>(),
+                  e["true_time_offset_ms"].get<double>());
+    }
+    std::printf("\n");
   }
   std::printf("input:      %s\n", (o.recording.empty() ? o.detections : o.recording).c_str());
   std::printf("truth:      %s\n", truth_source.c_str());
@@ -172,10 +305,22 @@ void setup(CLI::App& app) {
                   "combine frames of other sensors at most this much older (0 = per frame)")
       ->capture_default_str();
   cmd->add_option("--seed", opts->cfg.seed, "RANSAC seed")->capture_default_str();
+  cmd->add_option("--calibrate", opts->calibrate,
+                  "online mount calibration (relative mount yaws, time offsets): on = estimate "
+                  "and apply once converged, off = estimate and report only")
+      ->check(CLI::IsMember({"on", "off"}))
+      ->capture_default_str();
+  cmd->add_flag("--calibrate-common-yaw", opts->calib.estimate_common_yaw,
+                "also estimate the common mount yaw (assumes zero side slip when driving "
+                "straight; see radar/include/polmap/radar/mount_calibration.hpp)");
   cmd->callback([opts] {
     if (opts->recording.empty() && opts->detections.empty()) {
       throw ValidationError("egomotion: give --recording R or --detections CSV --mounts JSON");
     }
+    opts->calib.calibrate_mounts = opts->calibrate == "on";
+    // The calibrator's noise model follows the estimator's.
+    opts->calib.vr_sigma_mps = opts->cfg.vr_sigma_mps;
+    opts->calib.azimuth_sigma_rad = opts->cfg.azimuth_sigma_rad;
     run(*opts);
   });
 }

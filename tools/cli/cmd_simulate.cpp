@@ -3,7 +3,8 @@
 //  [--cube-seconds T] [--realism ideal|realistic] [--realism-sources LIST] --out DIR
 //  [--dry-run]`: simulates N passes over one world and
 // writes DIR/drive_<k>.pmrec plus the evaluation truth DIR/truth/world.json and
-// DIR/truth/drive_<k>_trajectory.csv (tools/sim/README.md).
+// DIR/truth/drive_<k>_trajectory.csv and drive_<k>_calibration.json (true mounts and
+// sensor time offsets; tools/sim/README.md).
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <chrono>
@@ -126,6 +127,9 @@ void run(const SimulateOptions& o) {
     if (exact.empty()) s.v_min = 0;
     if (!o.dry_run) {
       sim::write_trajectory_csv(dir / "truth" / (name + "_trajectory.csv"), exact, world->frame);
+      sim::write_calibration_truth(dir / "truth" / (name + "_calibration.json"),
+                                   simulator.header().sensors, simulator.true_mounts(),
+                                   simulator.time_offsets_s());
     }
     summaries.push_back(s);
   }
@@ -149,7 +153,8 @@ void run(const SimulateOptions& o) {
   }
   if (!o.dry_run) {
     std::printf(
-        "written: %s/drive_<k>.pmrec, %s/truth/world.json, %s/truth/drive_<k>_trajectory.csv\n",
+        "written: %s/drive_<k>.pmrec, %s/truth/world.json, "
+        "%s/truth/drive_<k>_{trajectory.csv,calibration.json}\n",
         o.out.c_str(), o.out.c_str(), o.out.c_str());
   }
 }

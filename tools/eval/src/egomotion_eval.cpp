@@ -174,8 +174,11 @@ MotionTruth read_truth_csv(const std::filesystem::path& path, std::optional<GeoP
 // ------------------------------------------------------------------ runner
 
 EgoMotionRunner::EgoMotionRunner(std::vector<SensorMount> mounts, radar::EgoMotionConfig cfg,
-                                 radar::OdometryConfig odo_cfg)
-    : estimator_(std::move(mounts), cfg), odometry_(odo_cfg) {}
+                                 radar::OdometryConfig odo_cfg,
+                                 std::optional<radar::MountCalibrationConfig> calib_cfg)
+    : estimator_(mounts, cfg), odometry_(odo_cfg) {
+  if (calib_cfg) calibrator_.emplace(std::move(mounts), *calib_cfg);
+}
 
 const EgoMotionRecord& EgoMotionRunner::process(const SensorFrame& frame) {
   EgoMotionRecord r;
@@ -189,6 +192,19 @@ const EgoMotionRecord& EgoMotionRunner::process(const SensorFrame& frame) {
   };
   const double t0 = cpu_s();
   r.estimate = estimator_.process(frame);
+  if (calibrator_) {
+    calibrator_->add_frame(frame);
+    if (calibrator_->add_estimate(r.estimate)) {
+      const radar::MountCalibrationResult c = calibrator_->result();
+      if (!converged_at_s_ && c.status == radar::MountCalibrationResult::Status::Converged) {
+        converged_at_s_ = r.estimate.time_s;
+      }
+      if (calibrator_->config().calibrate_mounts) radar::apply_mount_calibration(estimator_, c);
+      if (history_.empty() || r.estimate.time_s >= history_.back().first + snapshot_interval_s) {
+        history_.emplace_back(r.estimate.time_s, c);
+      }
+    }
+  }
   r.compute_s = cpu_s() - t0;
   odometry_.add(r.estimate);
   r.T_odom_vehicle = odometry_.try_T_odom_vehicle(r.estimate.time_s);

@@ -94,4 +94,33 @@ void write_trajectory_csv(const std::filesystem::path& file, const std::vector<E
   if (!out) throw IoError("write failed: " + file.string());
 }
 
+void write_calibration_truth(const std::filesystem::path& file,
+                             const std::vector<SensorMount>& nominal,
+                             const std::vector<SensorMount>& true_mounts,
+                             const std::vector<double>& time_offsets_s) {
+  if (nominal.size() != true_mounts.size() || nominal.size() != time_offsets_s.size()) {
+    throw ContractViolation("write_calibration_truth: sizes differ");
+  }
+  nlohmann::json j{{"format", "polmap-sim-calibration-truth"}, {"version", 1}};
+  auto pose = [](const Pose2& T) {
+    return nlohmann::json{{"x_m", T.x_m}, {"y_m", T.y_m}, {"yaw_rad", T.yaw_rad}};
+  };
+  nlohmann::json sensors = nlohmann::json::array();
+  for (std::size_t i = 0; i < nominal.size(); ++i) {
+    sensors.push_back({{"sensor_id", nominal[i].sensor_id},
+                       {"nominal", pose(nominal[i].T_vehicle_sensor)},
+                       {"true", pose(true_mounts[i].T_vehicle_sensor)},
+                       {"yaw_offset_rad", true_mounts[i].T_vehicle_sensor.yaw_rad -
+                                              nominal[i].T_vehicle_sensor.yaw_rad},
+                       {"time_offset_s", time_offsets_s[i]}});
+  }
+  j["sensors"] = sensors;
+  std::error_code ec;
+  if (file.has_parent_path()) std::filesystem::create_directories(file.parent_path(), ec);
+  std::ofstream out(file, std::ios::binary);
+  if (!out) throw IoError("cannot write " + file.string());
+  out << j.dump(2) << '\n';
+  if (!out) throw IoError("write failed: " + file.string());
+}
+
 }  // namespace polmap::sim

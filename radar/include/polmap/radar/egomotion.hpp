@@ -222,6 +222,14 @@ class EgoMotionEstimator {
 
   [[nodiscard]] const EgoMotionConfig& config() const { return cfg_; }
   [[nodiscard]] const std::vector<SensorMount>& mounts() const { return mounts_; }
+  /// Mount calibration (MountCalibrator): per mount (same order as mounts()), a yaw added to
+  /// the nominal mount yaw and a time offset added to the frame stamps (true measurement
+  /// time = stamp + offset). Empty vectors = no correction. Takes effect with the next
+  /// frame; estimate times are then corrected times (kept non-decreasing).
+  void set_mount_corrections(std::vector<double> yaw_offsets_rad,
+                             std::vector<double> time_offsets_s);
+  [[nodiscard]] const std::vector<double>& yaw_offsets_rad() const { return yaw_offsets_rad_; }
+  [[nodiscard]] const std::vector<double>& time_offsets_s() const { return time_offsets_s_; }
   /// Forgets all history (stored frames, prior, acceleration).
   void reset();
 
@@ -247,6 +255,9 @@ class EgoMotionEstimator {
   std::vector<bool> static_mask_;
   std::uint64_t calls_ = 0;
   double last_time_s_ = -1e300;
+  double last_corrected_time_s_ = -1e300;
+  std::vector<double> yaw_offsets_rad_;  // empty or one per mount
+  std::vector<double> time_offsets_s_;
 };
 
 }  // namespace polmap::radar

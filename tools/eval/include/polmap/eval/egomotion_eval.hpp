@@ -25,6 +25,7 @@
 #include <vector>
 
 #include "polmap/radar/egomotion.hpp"
+#include "polmap/radar/mount_calibration.hpp"
 #include "polmap/radar/odometry.hpp"
 #include "polmap/schema/pose2.hpp"
 #include "polmap/schema/recording.hpp"
@@ -86,17 +87,35 @@ struct EgoMotionRecord {
   double compute_s = 0.0;  ///< CPU time (calling thread) of EgoMotionEstimator::process
 };
 
-/// Runs the estimator and the odometry frame by frame and keeps every result.
+/// Runs the estimator and the odometry frame by frame and keeps every result. With a
+/// MountCalibrationConfig the mount calibrator runs beside it (it always estimates; it
+/// corrects the estimator only if calibrate_mounts), see mount_calibration.hpp.
 class EgoMotionRunner {
  public:
   EgoMotionRunner(std::vector<SensorMount> mounts, radar::EgoMotionConfig cfg = {},
-                  radar::OdometryConfig odo_cfg = {});
+                  radar::OdometryConfig odo_cfg = {},
+                  std::optional<radar::MountCalibrationConfig> calib_cfg = std::nullopt);
   const EgoMotionRecord& process(const SensorFrame& frame);
   [[nodiscard]] const std::vector<EgoMotionRecord>& records() const { return records_; }
   [[nodiscard]] const radar::Odometry& odometry() const { return odometry_; }
+  /// The calibrator (nullptr without a MountCalibrationConfig).
+  [[nodiscard]] const radar::MountCalibrator* calibrator() const {
+    return calibrator_ ? &*calibrator_ : nullptr;
+  }
+  /// Driving time at which the calibration first reached Converged (nullopt: never).
+  [[nodiscard]] std::optional<double> converged_at_s() const { return converged_at_s_; }
+  /// Calibration snapshots every `snapshot_interval_s` (estimate time, result): how it converges.
+  [[nodiscard]] const std::vector<std::pair<double, radar::MountCalibrationResult>>&
+  calibration_history() const {
+    return history_;
+  }
+  double snapshot_interval_s = 5.0;
 
  private:
   radar::EgoMotionEstimator estimator_;
+  std::optional<radar::MountCalibrator> calibrator_;
+  std::optional<double> converged_at_s_;
+  std::vector<std::pair<double, radar::MountCalibrationResult>> history_;
   radar::Odometry odometry_;
   std::vector<EgoMotionRecord> records_;
 };

@@ -28,4 +28,13 @@ void write_world_truth(const std::filesystem::path& dir, const World& world, int
 void write_trajectory_csv(const std::filesystem::path& file, const std::vector<ExactState>& states,
                           const tiles::LocalFrame& frame);
 
+/// Writes the true sensor calibration of a drive (DIR/truth/drive_<k>_calibration.json, for
+/// evaluating the online mount calibration only): {format: "polmap-sim-calibration-truth",
+/// version: 1, sensors: [{sensor_id, nominal {x_m, y_m, yaw_rad}, true {x_m, y_m, yaw_rad},
+/// yaw_offset_rad (true − nominal), time_offset_s (true measurement time − stamp)}]}.
+void write_calibration_truth(const std::filesystem::path& file,
+                             const std::vector<SensorMount>& nominal,
+                             const std::vector<SensorMount>& true_mounts,
+                             const std::vector<double>& time_offsets_s);
+
 }  // namespace polmap::sim

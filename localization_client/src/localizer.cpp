@@ -96,12 +96,16 @@ struct Localizer::Impl {
         [](const auto& a, const auto& b) { return a.trigger_offset_s < b.trigger_offset_s; });
     last_sensor_id = last->sensor_id;
     for (const auto& mt : mounts) mount_by_id[mt.sensor_id] = mt;
+    if (cfg.online_mount_calibration) calibrator.emplace(mounts, cfg.mount_calibration);
   }
 
   LocalizerConfig cfg;
   std::vector<SensorMount> mounts;
   TileSource& tiles;
   radar::EgoMotionEstimator ego;
+  std::optional<radar::MountCalibrator> calibrator;
+  /// Time offset (true − stamp) per sensor from the calibration, for the gridmap's poses.
+  std::map<std::uint8_t, double> time_offset_s;
   radar::Odometry odo;
   radar::CovarianceGridmap gridmap;
   LocalMap local_map;
@@ -166,6 +170,25 @@ struct Localizer::Impl {
   /// Covariance of the predicted vehicle pose: the anchor's, grown with the
   /// distance driven since (odometry noise per metre, and the anchor's yaw
   /// uncertainty acting through the lever arm).
+  /// Converged mount calibration: the ego-motion's corrections, and the gridmap's mounts
+  /// (nominal yaw + offset) and measurement times.
+  void apply_calibration(const radar::MountCalibrationResult& c) {
+    radar::apply_mount_calibration(ego, c);
+    for (const auto& s : c.sensors) {
+      const auto nominal = std::find_if(mounts.begin(), mounts.end(), [&](const SensorMount& x) {
+        return x.sensor_id == s.sensor_id;
+      });
+      if (nominal == mounts.end()) continue;
+      SensorMount corrected = *nominal;
+      if (s.yaw_status == radar::MountCalibrationResult::Status::Converged) {
+        corrected.T_vehicle_sensor.yaw_rad += s.yaw_offset_rad;
+      }
+      mount_by_id[s.sensor_id] = corrected;
+      time_offset_s[s.sensor_id] =
+          s.time_status == radar::MountCalibrationResult::Status::Converged ? s.time_offset_s : 0.0;
+    }
+  }
+
   /// What is reported of a covariance (LocalizerConfig: scale and floors).
   [[nodiscard]] Eigen::Matrix3d reported_cov(const Eigen::Matrix3d& c) const {
     Eigen::Matrix3d r = cfg.reported_covariance_scale * c;
@@ -526,6 +549,12 @@ struct Localizer::Impl {
     POLMAP_EXPECT(mit != mount_by_id.end());
 
     const radar::MotionEstimate m = ego.process(f);
+    if (calibrator) {
+      calibrator->add_frame(f);
+      if (calibrator->add_estimate(m) && cfg.mount_calibration.calibrate_mounts) {
+        apply_calibration(calibrator->result());
+      }
+    }
     out.motion_status = m.status;
     if (m.status == radar::MotionEstimate::Status::Ok) {
       // An outage of the ego-motion longer than the odometry's hold time is
@@ -560,7 +589,13 @@ struct Localizer::Impl {
     }
     const std::optional<Pose2> T_odom_vehicle = odo.try_T_odom_vehicle(f.time_s);
     if (T_odom_vehicle && f.spectrum.azimuth_bins_rad.size() >= 2) {
-      gridmap.add(f.spectrum, *T_odom_vehicle * mit->second.T_vehicle_sensor, f.time_s);
+      // The calibrated measurement time (stamp + offset) places the frame.
+      const auto dt = time_offset_s.find(f.sensor_id);
+      std::optional<Pose2> T_at = T_odom_vehicle;
+      if (dt != time_offset_s.end() && dt->second != 0.0) {
+        if (auto t = odo.try_T_odom_vehicle(f.time_s + dt->second)) T_at = t;
+      }
+      gridmap.add(f.spectrum, *T_at * mit->second.T_vehicle_sensor, f.time_s);
     }
     out.cpu.gridmap_s = lap.lap();
 
@@ -690,5 +725,10 @@ const LocalizerConfig& Localizer::config() const { return impl_->cfg; }
 const std::optional<tiles::LocalFrame>& Localizer::map_frame() const { return impl_->frame; }
 const LocalMap& Localizer::local_map() const { return impl_->local_map; }
 const MapIndex& Localizer::map_index() const { return impl_->map; }
+
+std::optional<radar::MountCalibrationResult> Localizer::mount_calibration() const {
+  if (!impl_->calibrator) return std::nullopt;
+  return impl_->calibrator->result();
+}
 
 }  // namespace polmap::loc

@@ -298,6 +298,22 @@ void run(const LocalizeOptions& o) {
                 {"transport_errors", fs_stats.transport_errors},
                 {"bytes_downloaded", fs_stats.bytes_downloaded},
                 {"cache_dir", fcfg.cache_dir.string()}};
+  if (const auto cal = localizer.mount_calibration()) {
+    // The online mount calibration the front end applied (relative yaws and time offsets).
+    nlohmann::json sensors = nlohmann::json::array();
+    for (const auto& s : cal->sensors) {
+      sensors.push_back({{"sensor_id", s.sensor_id},
+                         {"yaw_offset_deg", s.yaw_offset_rad / kDeg},
+                         {"yaw_sigma_deg", s.yaw_sigma_rad / kDeg},
+                         {"yaw_status", radar::to_string(s.yaw_status)},
+                         {"time_offset_ms", 1e3 * s.time_offset_s},
+                         {"time_sigma_ms", 1e3 * s.time_sigma_s},
+                         {"time_status", radar::to_string(s.time_status)}});
+    }
+    j["mount_calibration"] = {{"status", radar::to_string(cal->status)},
+                              {"observed_s", cal->observed_s},
+                              {"sensors", sensors}};
+  }
   if (!o.report.empty()) {
     std::string label = o.label.empty() ? fs::path(o.recording).stem().string() : o.label;
     if (label.size() > LocalizationRunLimits::kMaxLabelBytes) {
@@ -334,6 +350,16 @@ void run(const LocalizeOptions& o) {
       static_cast<unsigned long long>(fs_stats.bytes_downloaded), fcfg.cache_dir.string().c_str());
   if (drive_s > 0) {
     std::printf("%s", eval::format_stage_budget(stage_cpu, drive_s, fs_stats.worker_cpu_s).c_str());
+  }
+  if (j.contains("mount_calibration")) {
+    std::printf("mounts:      online calibration %s",
+                j["mount_calibration"]["status"].get<std::string>().c_str());
+    for (const auto& s : j["mount_calibration"]["sensors"]) {
+      std::printf("; sensor %d yaw %+.3f° ± %.3f, time %+.2f ms ± %.2f", s["sensor_id"].get<int>(),
+                  s["yaw_offset_deg"].get<double>(), s["yaw_sigma_deg"].get<double>(),
+                  s["time_offset_ms"].get<double>(), s["time_sigma_ms"].get<double>());
+    }
+    std::printf("\n");
   }
   if (j.contains("report")) {
     std::printf("report:      run %lld (%zu samples) at %s\n",

@@ -53,6 +53,7 @@
 #include "polmap/radar/covariance_gridmap.hpp"
 #include "polmap/radar/egomotion.hpp"
 #include "polmap/radar/line_extractor.hpp"
+#include "polmap/radar/mount_calibration.hpp"
 #include "polmap/radar/odometry.hpp"
 #include "polmap/radar/point_extractor.hpp"
 #include "polmap/schema/geo.hpp"
@@ -75,6 +76,13 @@ ExtractorConfig with_chunk_tiles(ExtractorConfig cfg, int chunk_tiles) {
 struct LocalizerConfig {
   radar::EgoMotionConfig egomotion;
   radar::OdometryConfig odometry;
+  /// Online calibration of the mounts (radar/mount_calibration.hpp): each sensor's mount
+  /// yaw and time offset relative to the others, estimated from the Doppler residuals while
+  /// driving; once converged, the ego-motion and the sliding-window gridmap use them.
+  /// Radar alone observes relative yaws and time offsets, not a yaw common to all mounts
+  /// (it looks like side slip): mount_calibration.estimate_common_yaw stays off.
+  bool online_mount_calibration = true;
+  radar::MountCalibrationConfig mount_calibration;
   /// Sliding-window gridmap (window_s > 0 = localization mode). 2 s: ~20 m of
   /// driving at 10 m/s and 60 sensor frames per cell, long enough for stable
   /// pCFAR statistics, short enough that odometry drift stays below a cell.
@@ -269,6 +277,8 @@ class Localizer {
   /// Read-only views for diagnostics and tests.
   [[nodiscard]] const LocalMap& local_map() const;
   [[nodiscard]] const MapIndex& map_index() const;
+  /// The online mount calibration so far (nullopt when LocalizerConfig turns it off).
+  [[nodiscard]] std::optional<radar::MountCalibrationResult> mount_calibration() const;
 
  private:
   struct Impl;

@@ -92,6 +92,7 @@ const idle = () => page.evaluate(() => new Promise((r) => {
 }));
 
 await check('the map renders point and line landmarks of the current version', async () => {
+  assert.ok((await page.evaluate(() => document.documentElement.scrollHeight)) <= 800, 'the page itself does not scroll');
   const label = await page.textContent('#version-label');
   const list = await (await fetch(URL + '/v1/maps')).json();
   assert.equal(label, 'map version ' + list.current);
@@ -314,6 +315,8 @@ await check('works on a phone-sized viewport', async () => {
   });
   assert.ok(box.w >= 380 && box.h > 200, JSON.stringify(box));
   assert.ok(box.scroll <= 390, 'no horizontal scrolling: ' + box.scroll);
+  const tall = await phone.evaluate(() => document.documentElement.scrollHeight);
+  assert.ok(tall <= 844, 'the page itself does not scroll (the panel does): ' + tall);
   await phone.screenshot({ path: path.join(ART, 'console-phone.png') });
   await phone.close();
 });

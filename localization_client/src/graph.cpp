@@ -28,9 +28,10 @@ struct AngleManifold {
   }
 };
 
-Eigen::Matrix3d odometry_sqrt_information(const GraphConfig& cfg) {
-  return Eigen::Vector3d(1.0 / cfg.odometry_sigma_translation_m,
-                         1.0 / cfg.odometry_sigma_translation_m, 1.0 / cfg.odometry_sigma_yaw_rad)
+Eigen::Matrix3d odometry_sqrt_information(const GraphConfig& cfg, const Eigen::Vector3d& extra) {
+  const double t = cfg.odometry_sigma_translation_m, y = cfg.odometry_sigma_yaw_rad;
+  return Eigen::Vector3d(1.0 / std::hypot(t, extra.x()), 1.0 / std::hypot(t, extra.y()),
+                         1.0 / std::hypot(y, extra.z()))
       .asDiagonal();
 }
 
@@ -43,9 +44,10 @@ Eigen::Vector2d to_bearing_range(const Eigen::Vector2d& p_vehicle) {
 SlidingWindowGraph::SlidingWindowGraph(GraphConfig cfg) : cfg_(cfg) {}
 SlidingWindowGraph::~SlidingWindowGraph() = default;
 
-SlidingWindowGraph::PoseKey SlidingWindowGraph::add_pose(double time_s,
-                                                         const Pose2& T_map_vehicle_guess,
-                                                         const std::optional<Pose2>& T_prev_this) {
+SlidingWindowGraph::PoseKey SlidingWindowGraph::add_pose(
+    double time_s, const Pose2& T_map_vehicle_guess, const std::optional<Pose2>& T_prev_this,
+    const Eigen::Vector3d& extra_odometry_sigma) {
+  POLMAP_EXPECT(extra_odometry_sigma.minCoeff() >= 0.0);
   POLMAP_EXPECT(poses_.empty() || time_s > poses_.rbegin()->second.time_s);
   const PoseKey key = next_key_++;
   PoseNode& n = poses_[key];
@@ -54,6 +56,7 @@ SlidingWindowGraph::PoseKey SlidingWindowGraph::add_pose(double time_s,
   n.position[1] = T_map_vehicle_guess.y_m;
   n.yaw[0] = wrap_angle_rad(T_map_vehicle_guess.yaw_rad);
   if (poses_.size() > 1) n.T_prev_this = T_prev_this;
+  n.extra_odometry_sigma = extra_odometry_sigma;
   return key;
 }
 
@@ -151,15 +154,14 @@ GraphSolution SlidingWindowGraph::solve() {
                                             : nullptr;
   };
 
-  const Eigen::Matrix3d odo_sqrt_info = odometry_sqrt_information(cfg_);
   PoseNode* prev = nullptr;
   for (auto& [key, n] : poses_) {
     problem.AddParameterBlock(n.position, 2);
     problem.AddParameterBlock(n.yaw, 1, &angle_manifold);
     if (prev != nullptr && n.T_prev_this) {
-      auto* cost =
-          new ceres::AutoDiffCostFunction<OdometryResidual, 3, 2, 1, 2, 1>(new OdometryResidual(
-              n.T_prev_this->x_m, n.T_prev_this->y_m, n.T_prev_this->yaw_rad, odo_sqrt_info));
+      auto* cost = new ceres::AutoDiffCostFunction<OdometryResidual, 3, 2, 1, 2, 1>(
+          new OdometryResidual(n.T_prev_this->x_m, n.T_prev_this->y_m, n.T_prev_this->yaw_rad,
+                               odometry_sqrt_information(cfg_, n.extra_odometry_sigma)));
       problem.AddResidualBlock(cost, nullptr, prev->position, prev->yaw, n.position, n.yaw);
     }
     for (const auto& pr : n.priors) {

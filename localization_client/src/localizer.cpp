@@ -104,6 +104,8 @@ struct Localizer::Impl {
   TileSource& tiles;
   radar::EgoMotionEstimator ego;
   std::optional<radar::MountCalibrator> calibrator;
+  /// Lateral acceleration at the last graph pose (odometry), for the slip-aware factor.
+  double last_lateral_accel_mps2 = 0.0;
   /// Time offset (true − stamp) per sensor from the calibration, for the gridmap's poses.
   std::map<std::uint8_t, double> time_offset_s;
   radar::Odometry odo;
@@ -461,7 +463,16 @@ struct Localizer::Impl {
     }
     if (!delta) graph.clear();  // odometry cannot link: restart the window
     odometry_gap = false;
-    const auto key = graph.add_pose(graph_time_s(time_s), guess, delta);
+    Eigen::Vector3d slip_sigma = Eigen::Vector3d::Zero();
+    if (delta && last_key) {
+      const double dt = std::max(time_s - last_key_time_s, 1e-3);
+      const double dist_m = delta->translation().norm();
+      const double a_y = (dist_m / dt) * (delta->yaw_rad / dt);  // v · ω
+      const double k = cfg.odometry_slip_gradient_rad_per_mps2;
+      slip_sigma = {0.0, k * std::abs(a_y) * dist_m, k * std::abs(a_y - last_lateral_accel_mps2)};
+      last_lateral_accel_mps2 = a_y;
+    }
+    const auto key = graph.add_pose(graph_time_s(time_s), guess, delta, slip_sigma);
     last_key = key;
     last_key_time_s = time_s;
 

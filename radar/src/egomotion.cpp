@@ -413,6 +413,10 @@ MotionEstimate EgoMotionEstimator::process(const SensorFrame& frame) {
   const double sa2 = cfg_.accel_uncertainty_mps2 * cfg_.accel_uncertainty_mps2;
   const double salpha2 = cfg_.yaw_accel_uncertainty_rps2 * cfg_.yaw_accel_uncertainty_rps2;
   const double thr_margin = 3.0 * cfg_.inlier_threshold_mps;
+  // Side slip (config): v_y = −k v̂² ω shortens every sensor's lever arm for ω by k v̂², with
+  // v̂ the last accepted speed (the model stays linear in (v, ω)).
+  const double v_hat = prior_box ? accepted_.back().v_mps : 0.0;
+  const double slip_lever_m = cfg_.side_slip_gradient_rad_per_mps2 * v_hat * v_hat;
   for (std::size_t fi = 0; fi < order.size(); ++fi) {
     const StoredFrame& sf = *order[fi];
     const SensorMount& mount = mounts_[sf.mount_index];
@@ -423,8 +427,9 @@ MotionEstimate EgoMotionEstimator::process(const SensorFrame& frame) {
       const double th = static_cast<double>(d.azimuth_rad) + mount.T_vehicle_sensor.yaw_rad +
                         (yaw_offsets_rad_.empty() ? 0.0 : yaw_offsets_rad_[sf.mount_index]);
       const double c = std::cos(th), s = std::sin(th);
-      const double h0 = -c, h1 = ym * c - xm * s;
-      const double g0 = s, g1 = -ym * s - xm * c;
+      const double xw = xm - slip_lever_m;  // lever arm of ω in the lateral velocity
+      const double h0 = -c, h1 = ym * c - xw * s;
+      const double g0 = s, g1 = -ym * s - xw * c;
       double vr = d.radial_velocity_mps;
       if (accel && age > 0) vr += (h0 * (*accel)(0) + h1 * (*accel)(1)) * age;
       // Variance (relative to σ_vr²) of the shift's error, unknown acceleration error.

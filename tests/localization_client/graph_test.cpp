@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Dense>
+#include <cmath>
 #include <random>
 #include <set>
 
@@ -180,6 +181,30 @@ TEST(SlidingWindowGraph, TruncationDropsOldPosesAndOrphanLandmarks) {
   EXPECT_FALSE(graph.pose(k0).has_value());
   EXPECT_EQ(graph.num_point_landmarks(), 1);
   EXPECT_EQ(graph.num_point_landmarks_since(0.0), 1);
+}
+
+}  // namespace
+}  // namespace polmap::loc
+
+namespace polmap::loc {
+namespace {
+
+// An odometry factor's extra sigma (side slip) adds in quadrature to the configured one:
+// a pose linked only by odometry to a pinned pose has exactly that lateral variance.
+TEST(SlidingWindowGraph, ExtraOdometrySigmaAddsInQuadrature) {
+  GraphConfig cfg;
+  for (const double extra_m : {0.0, 0.05}) {
+    SlidingWindowGraph graph(cfg);
+    const auto k0 = graph.add_pose(0.0, {0.0, 0.0, 0.0}, std::nullopt);
+    graph.add_pose_prior(k0, {0.0, 0.0, 0.0}, Eigen::Vector3d(1e-8, 1e-8, 1e-10).asDiagonal());
+    (void)graph.add_pose(0.3, {3.0, 0.0, 0.0}, Pose2{3.0, 0.0, 0.0},
+                         Eigen::Vector3d(0.0, extra_m, 0.0));
+    const GraphSolution sol = graph.solve();
+    ASSERT_TRUE(sol.covariance_valid);
+    const double want = std::pow(std::hypot(cfg.odometry_sigma_translation_m, extra_m), 2);
+    EXPECT_NEAR(sol.covariance(1, 1), want, 0.01 * want) << "extra " << extra_m;
+    EXPECT_NEAR(sol.covariance(0, 0), std::pow(cfg.odometry_sigma_translation_m, 2), 1e-6);
+  }
 }
 
 }  // namespace

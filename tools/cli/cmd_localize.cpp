@@ -77,6 +77,7 @@ struct LocalizeOptions {
   std::string api_key;
   std::string truth;
   bool report_errors_from_recording = false;
+  double slip_gradient_deg = 0.0;
   std::string label;
 };
 
@@ -211,6 +212,7 @@ void run(const LocalizeOptions& o) {
 
   loc::LocalizerConfig cfg;
   cfg.gridmap.level = *level;
+  cfg.egomotion.side_slip_gradient_rad_per_mps2 = o.slip_gradient_deg * kDeg;
   loc::Localizer localizer(cfg, header.sensors, fetcher);
   localizer.set_initial_pose(initial, sigma_xy_m, sigma_yaw_rad);
 
@@ -401,6 +403,10 @@ void setup(CLI::App& app) {
       ->check(CLI::ExistingFile);
   cmd->add_option("--map-version", o->map_version, "pin a map version (default: current)");
   cmd->add_flag("--json", o->json, "print a JSON summary");
+  cmd->add_option("--slip-gradient-deg", o->slip_gradient_deg,
+                  "the vehicle's rear-axle side-slip gradient, deg per m/s^2 (0: kinematic "
+                  "model; a passenger car: about 0.2-0.3)")
+      ->capture_default_str();
   auto* rep = cmd->add_option("--report", o->report,
                               "after the run, send a run report to this mapping service "
                               "(POST /v1/runs; schema/localization_run.md)");

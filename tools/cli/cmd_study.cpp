@@ -11,6 +11,7 @@
 #include <cstdio>
 #include <fstream>
 #include <memory>
+#include <numbers>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -33,6 +34,7 @@ struct StudyOptions {
   std::string pol = "full";
   std::string out = "study-out";
   std::string realism = "ideal";
+  double slip_gradient_deg = -1.0;
   std::string realism_sources;
   bool http = false;
   bool json = false;
@@ -72,6 +74,13 @@ void run(const StudyOptions& o) {
     }
     cfg.sim.realism = sim::only_sources(cfg.sim.realism, o.realism_sources);
   }
+  // The simulated vehicle's side-slip gradient is a vehicle parameter the localizer is
+  // given, like its mounts (the nominal value of the vehicle, not the drive's truth).
+  cfg.localizer.egomotion.side_slip_gradient_rad_per_mps2 =
+      o.slip_gradient_deg >= 0.0 ? o.slip_gradient_deg * std::numbers::pi / 180.0
+      : cfg.sim.realism.slip.enabled
+          ? cfg.sim.realism.slip.side_slip_gradient_deg_per_mps2 * std::numbers::pi / 180.0
+          : 0.0;
   cfg.seeds.clear();
   for (const auto& s : split_list(o.seeds)) {
     try {
@@ -163,6 +172,9 @@ void setup(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--realism-sources", opts->realism_sources,
                   "with --realism realistic: keep only these sources on (comma separated)");
+  cmd->add_option("--slip-gradient-deg", opts->slip_gradient_deg,
+                  "the localizer's vehicle side-slip gradient, deg per m/s^2 (default: the "
+                  "simulated vehicle's, 0 without slip)");
   cmd->add_flag("--keep-packages", opts->keep_packages, "keep the drive package directories");
   cmd->add_flag("--diagnose", opts->diagnose,
                 "per drive: odometry drift, truth-posed candidates vs the map (stage diagnosis)");

@@ -98,9 +98,11 @@ class SlidingWindowGraph {
   /// Adds a pose at time_s (strictly after the previous one) initialized at
   /// T_map_vehicle_guess. With T_prev_this (relative motion from the previous
   /// pose, vehicle frames, integrated odometry) an odometry factor links it to
-  /// the previous pose.
+  /// the previous pose, with GraphConfig's sigmas plus `extra_odometry_sigma` (along, across,
+  /// yaw; added in quadrature: e.g. side slip the odometry does not model).
   PoseKey add_pose(double time_s, const Pose2& T_map_vehicle_guess,
-                   const std::optional<Pose2>& T_prev_this);
+                   const std::optional<Pose2>& T_prev_this,
+                   const Eigen::Vector3d& extra_odometry_sigma = Eigen::Vector3d::Zero());
 
   /// Observation of point landmark landmark_id (map position landmark_map_m,
   /// used for the prior when the landmark is new to the window) at
@@ -146,6 +148,7 @@ class SlidingWindowGraph {
     double position[2] = {0.0, 0.0};
     double yaw[1] = {0.0};
     std::optional<Pose2> T_prev_this;  ///< odometry from the previous pose
+    Eigen::Vector3d extra_odometry_sigma = Eigen::Vector3d::Zero();  ///< along, across, yaw
     struct Prior {
       Pose2 mean;
       Eigen::Matrix3d sqrt_information;

@@ -82,6 +82,13 @@ struct LocalizerConfig {
   /// Radar alone observes relative yaws and time offsets, not a yaw common to all mounts
   /// (it looks like side slip): mount_calibration.estimate_common_yaw stays off.
   bool online_mount_calibration = true;
+  /// Side slip the radar odometry does not model (it assumes no lateral velocity at the
+  /// rear axle): in a curve the rear axle drifts out at β ≈ gradient · a_y. The odometry
+  /// factor between two graph poses gets σ_across = gradient · |a_y| · distance and
+  /// σ_yaw = gradient · |Δa_y| (a_y = v · ω from the odometry) on top of the graph's
+  /// sigmas, so landmarks, not the odometry, decide the pose in curves. 0.5°/(m/s²): a
+  /// conservative passenger-car value (typical rear-axle slip gradients 0.2–0.4°/(m/s²)).
+  double odometry_slip_gradient_rad_per_mps2 = 0.5 * 3.14159265358979323846 / 180.0;
   radar::MountCalibrationConfig mount_calibration;
   /// Sliding-window gridmap (window_s > 0 = localization mode). 2 s: ~20 m of
   /// driving at 10 m/s and 60 sensor frames per cell, long enough for stable

@@ -85,6 +85,14 @@ namespace polmap::radar {
 /// Parameters of EgoMotionEstimator. Defaults suit the paper's sensors (Table III,
 /// σ_vr = 0.05 m/s, σ_φ = 0.5°) on passenger cars.
 struct EgoMotionConfig {
+  /// The vehicle's rear-axle side-slip gradient (linear single-track model, ISO 8855 sign):
+  /// β = −gradient · a_y, so the rear axle moves sideways at v_y = −gradient · v² · ω. A
+  /// vehicle parameter, like the mounts (Rajamani's passenger car: 0.0040 rad per m/s²).
+  /// 0 = the kinematic model (no lateral velocity at the rear axle). Unmodelled, slip
+  /// reads as yaw rate: the front sensors see v_y + ω·x as if it were all ω, a yaw-rate
+  /// error of v_y / x (1.6°/s at 10 m/s and 3 m/s² with the sensors 3.6 m ahead). The
+  /// estimator predicts v_y from the previous speed, which keeps the model linear in (v, ω).
+  double side_slip_gradient_rad_per_mps2 = 0.0;
   // --- plausible motion range (bounds the Nyquist zones and RANSAC hypotheses) ---
   /// Highest forward speed considered. Determines how many Nyquist zones are
   /// augmented (25 m/s with v_ua = 5 m/s: up to 4 copies per detection).

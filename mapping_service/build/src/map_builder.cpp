@@ -90,7 +90,10 @@ nlohmann::json request_json(const MapBuildRequest& r, const MapBuilderConfig& c)
                    {"min_phi", f.co_presence.min_phi},
                    {"min_passes_for_test", f.co_presence.min_passes_for_test},
                    {"min_shared_misses", f.co_presence.min_shared_misses},
-                   {"max_detection_share", f.co_presence.max_detection_share}}}};
+                   {"max_detection_share", f.co_presence.max_detection_share}}},
+                 {"out_of_view",
+                  {{"enabled", f.out_of_view.enabled},
+                   {"min_view_fraction", f.out_of_view.min_view_fraction}}}};
   j["lines"] = {{"max_hull_distance_m", r.lines.max_hull_distance_m},
                 {"max_projection_distance_m", r.lines.max_projection_distance_m},
                 {"support", support_json(r.lines.support)},
@@ -176,6 +179,7 @@ nlohmann::json to_json(const MapBuildStats& s) {
   j["line_landmarks"] = s.line_landmarks;
   j["point_line_peaks"] = s.point_line_peaks;
   j["point_temporary"] = s.point_temporary;
+  j["point_out_of_view"] = s.point_out_of_view;
   j["tiles_total"] = s.tiles_total;
   j["tiles_written"] = s.tiles_written;
   j["tiles_reused"] = s.tiles_reused;
@@ -779,6 +783,7 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version, const MapB
     const PointFilterResult pf = filter_point_landmarks(pc, lc, tp, &view, req.points.filter);
     st.point_line_peaks = static_cast<std::int64_t>(pf.line_peaks);
     st.point_temporary = static_cast<std::int64_t>(pf.temporary);
+    st.point_out_of_view = static_cast<std::int64_t>(pf.out_of_view);
     st.point_consensus = pc.stats;
     st.line_consensus = lc.stats;
     st.seconds_consensus = clock.lap();

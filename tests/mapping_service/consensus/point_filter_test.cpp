@@ -302,5 +302,58 @@ TEST(PointFilter, DisabledByDefaultLinePeakRuleKeepsEverything) {
   EXPECT_GT(f.evidence[0].along_spread_m, 3.0 * f.evidence[0].across_spread_m);
 }
 
+TEST(PointFilter, SupportBeyondTheModelledViewIsJudgedAgainstPassesAsClose) {
+  // 40 drives along the x axis with a modelled view range of 10 m. Clutter 14 m off the
+  // path seen by 2 of them: outside every pass's modelled view, so the support rule's
+  // denominator is its own two supporters and it is accepted; every pass came as close,
+  // so the filter needs 20. A far object seen by 30 of the 40 stays.
+  const int n = 40;
+  std::vector<DrivePass> passes;
+  for (int d = 0; d < n; ++d) {
+    DrivePass p;
+    p.drive = d + 1;
+    p.view_range_m = 10.0;
+    p.start_time_s = 1000.0 * (d + 1);
+    p.vehicle = d % 5;
+    p.path_m = {{-100.0, 0.0}, {100.0, 0.0}};
+    passes.push_back(p);
+  }
+  const VisibilityIndex view(std::move(passes));
+  std::vector<TaggedPointCandidate> in;
+  std::int64_t id = 0;
+  auto add = [&](std::int64_t d, Eigen::Vector2d p) {
+    TaggedPointCandidate c;
+    c.candidate_id = id++;
+    c.drive = d;
+    c.candidate.position_m = p;
+    in.push_back(c);
+  };
+  add(3, {5.0, 14.0});
+  add(17, {5.05, 14.0});
+  for (int d = 1; d <= 30; ++d) add(d, {-30.0, -14.0});
+  PointConsensusResult pc = consensus_points(in, {}, &view);
+  ASSERT_EQ(pc.landmarks.size(), 2U);  // the support rule accepts both
+  const PointFilterResult f = filter_point_landmarks(pc, LineConsensusResult{}, in, &view);
+  EXPECT_EQ(f.out_of_view, 1U);
+  ASSERT_EQ(pc.landmarks.size(), 1U);
+  EXPECT_LT((pc.landmarks[0].position_m - Eigen::Vector2d(-30.0, -14.0)).norm(), 0.01);
+  for (const auto& e : f.evidence) EXPECT_EQ(e.passes_as_close, static_cast<std::uint32_t>(n));
+  // A fleet of two (the leave-one-out studies) is unchanged.
+  const VisibilityIndex two([] {
+    std::vector<DrivePass> p(2);
+    for (int d = 0; d < 2; ++d) {
+      p[d].drive = d == 0 ? 3 : 17;
+      p[d].view_range_m = 10.0;
+      p[d].path_m = {{-100.0, 0.0}, {100.0, 0.0}};
+    }
+    return p;
+  }());
+  std::vector<TaggedPointCandidate> pair(in.begin(), in.begin() + 2);
+  PointConsensusResult pc2 = consensus_points(pair, {}, &two);
+  ASSERT_EQ(pc2.landmarks.size(), 1U);
+  EXPECT_EQ(filter_point_landmarks(pc2, LineConsensusResult{}, pair, &two).out_of_view, 0U);
+  EXPECT_EQ(pc2.landmarks.size(), 1U);
+}
+
 }  // namespace
 }  // namespace polmap::mapping

@@ -81,15 +81,29 @@ struct CoPresenceRule {
   double max_detection_share = 0.9;
 };
 
+/// Landmarks outside the view model of most passes. The support rule counts supporting
+/// drives whose modelled view (VisibilityIndex) does not reach a place as having had it
+/// in view, but nobody else: a rare return from beyond the usual range (the simulator:
+/// clutter 12–16 m beside the route's start, seen by 2–5 of 256 drives) then has a
+/// denominator of its own supporters. Such a landmark (fewer of its supporting drives
+/// in modelled view than not) is judged again against every pass that came at least as
+/// close to it as the farthest supporting drive's path did: it needs
+/// max(2, ceil(min_view_fraction × those passes)) supporting drives.
+struct OutOfViewRule {
+  bool enabled = true;
+  double min_view_fraction = 0.5;
+};
+
 /// Settings of filter_point_landmarks.
 struct PointFilterConfig {
   LinePeakRule line_peaks;
   CoPresenceRule co_presence;
+  OutOfViewRule out_of_view;
 };
 
 /// What the filter measured for one point landmark (index = input landmark index).
 struct PointEvidence {
-  enum class Verdict { Kept, LinePeak, Temporary };
+  enum class Verdict { Kept, LinePeak, Temporary, OutOfView };
   Verdict verdict = Verdict::Kept;
   double line_distance_m = -1.0;  ///< to the nearest line landmark (-1: none)
   double along_spread_m = 0.0;    ///< RMS of candidates along that line
@@ -98,12 +112,15 @@ struct PointEvidence {
   std::uint32_t support = 0;
   double co_presence_p = 1.0;         ///< smallest Fisher p-value against a neighbour
   std::int64_t co_present_with = -1;  ///< that neighbour's input index
+  /// OutOfViewRule: passes at least as close as the farthest supporting drive (0: not judged).
+  std::uint32_t passes_as_close = 0;
 };
 
 struct PointFilterResult {
   std::vector<PointEvidence> evidence;  ///< per input landmark
   std::size_t line_peaks = 0;           ///< removed as line peaks
   std::size_t temporary = 0;            ///< removed as temporary
+  std::size_t out_of_view = 0;          ///< removed by OutOfViewRule
 };
 
 /// Removes line peaks and temporary objects from `points` (landmarks, support, verdicts;

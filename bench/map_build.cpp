@@ -608,6 +608,17 @@ int main(int argc, char** argv) {
   app.add_option("--merged-thresholds", merged_thresholds,
                  "pCFAR thresholds (d_ex) for the merged gridmap, one row each")
       ->delimiter(',');
+  int line_peaks = 0, co_presence = 1;
+  app.add_option("--line-peaks", line_peaks,
+                 "remove point landmarks that are peaks of line landmarks (1) or not (0, default)");
+  app.add_option("--co-presence", co_presence,
+                 "remove neighbouring point landmarks present and absent together (temporary "
+                 "objects: 1, default) or not (0)");
+  PointFilterConfig filter;
+  app.add_option("--co-presence-p", filter.co_presence.max_p_value, "co-presence: max Fisher p");
+  app.add_option("--co-presence-phi", filter.co_presence.min_phi, "co-presence: min phi");
+  app.add_option("--co-presence-share", filter.co_presence.max_detection_share,
+                 "co-presence: landmarks detected by more than this share are kept");
   CLI11_PARSE(app, argc, argv);
   if (merged && world.empty()) {
     std::fprintf(stderr, "--merged needs --world (the synthetic route has no gridmaps)\n");
@@ -647,6 +658,9 @@ int main(int argc, char** argv) {
     req.build_gridmap = merged;
     if (view_fraction)
       req.points.support.min_view_fraction = req.lines.support.min_view_fraction = *view_fraction;
+    req.points.filter.co_presence = filter.co_presence;
+    req.points.filter.line_peaks.enabled = line_peaks != 0;
+    req.points.filter.co_presence.enabled = co_presence != 0;
     const MapBuilder builder;
     const auto r = builder.build(store, req);
     if (r.status != MapBuildResult::Status::Published) {

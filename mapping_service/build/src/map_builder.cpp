@@ -75,8 +75,25 @@ nlohmann::json request_json(const MapBuildRequest& r, const MapBuilderConfig& c)
   j["make_current"] = r.make_current;
   j["incremental"] = r.incremental;
   j["build_gridmap"] = r.build_gridmap;
+  const PointFilterConfig& f = r.points.filter;
   j["points"] = {{"max_pair_distance_m", r.points.max_pair_distance_m},
-                 {"support", support_json(r.points.support)}};
+                 {"support", support_json(r.points.support)},
+                 {"line_peaks",
+                  {{"enabled", f.line_peaks.enabled},
+                   {"max_line_distance_m", f.line_peaks.max_line_distance_m},
+                   {"min_along_across_ratio", f.line_peaks.min_along_across_ratio},
+                   {"min_along_spread_m", f.line_peaks.min_along_spread_m}}},
+                 {"co_presence",
+                  {{"enabled", f.co_presence.enabled},
+                   {"neighbour_radius_m", f.co_presence.neighbour_radius_m},
+                   {"max_p_value", f.co_presence.max_p_value},
+                   {"min_phi", f.co_presence.min_phi},
+                   {"min_passes_for_test", f.co_presence.min_passes_for_test},
+                   {"min_shared_misses", f.co_presence.min_shared_misses},
+                   {"max_detection_share", f.co_presence.max_detection_share}}},
+                 {"out_of_view",
+                  {{"enabled", f.out_of_view.enabled},
+                   {"min_view_fraction", f.out_of_view.min_view_fraction}}}};
   j["lines"] = {{"max_hull_distance_m", r.lines.max_hull_distance_m},
                 {"max_projection_distance_m", r.lines.max_projection_distance_m},
                 {"support", support_json(r.lines.support)},
@@ -160,6 +177,9 @@ nlohmann::json to_json(const MapBuildStats& s) {
   j["line_candidates"] = s.line_candidates;
   j["point_landmarks"] = s.point_landmarks;
   j["line_landmarks"] = s.line_landmarks;
+  j["point_line_peaks"] = s.point_line_peaks;
+  j["point_temporary"] = s.point_temporary;
+  j["point_out_of_view"] = s.point_out_of_view;
   j["tiles_total"] = s.tiles_total;
   j["tiles_written"] = s.tiles_written;
   j["tiles_reused"] = s.tiles_reused;
@@ -758,8 +778,12 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version, const MapB
 
     // ---------------------------------------------------------------- consensus
     stage("consensus", 0.1);
-    const PointConsensusResult pc = consensus_points(tp, req.points, &view);
+    PointConsensusResult pc = consensus_points(tp, req.points, &view);
     const LineConsensusResult lc = consensus_lines(tl, req.lines, &view);
+    const PointFilterResult pf = filter_point_landmarks(pc, lc, tp, &view, req.points.filter);
+    st.point_line_peaks = static_cast<std::int64_t>(pf.line_peaks);
+    st.point_temporary = static_cast<std::int64_t>(pf.temporary);
+    st.point_out_of_view = static_cast<std::int64_t>(pf.out_of_view);
     st.point_consensus = pc.stats;
     st.line_consensus = lc.stats;
     st.seconds_consensus = clock.lap();

@@ -228,8 +228,9 @@ BuildJobOutput region_job(const MapStore& store, std::int64_t version, const Map
       drive_passes(store, query, req.excluded_drive_ids, tp, tl, frame, req.visibility);
   std::erase_if(passes, [&](const DrivePass& p) { return p.drive > max_row; });
   const VisibilityIndex view(std::move(passes), req.visibility);
-  const PointConsensusResult pc = consensus_points(tp, req.points, &view);
+  PointConsensusResult pc = consensus_points(tp, req.points, &view);
   const LineConsensusResult lc = consensus_lines(tl, req.lines, &view);
+  (void)filter_point_landmarks(pc, lc, tp, &view, req.points.filter);
 
   std::unordered_map<std::int64_t, SupportVerdict> verdicts;
   BuildJobOutput out;

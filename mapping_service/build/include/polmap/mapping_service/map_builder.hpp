@@ -148,6 +148,10 @@ struct MapBuildStats {
   std::int64_t line_candidates = 0;
   std::int64_t point_landmarks = 0;
   std::int64_t line_landmarks = 0;
+  /// Point landmarks removed by filter_point_landmarks (point_filter.hpp).
+  std::int64_t point_line_peaks = 0;
+  std::int64_t point_temporary = 0;
+  std::int64_t point_out_of_view = 0;
   std::int64_t tiles_total = 0;     ///< localization tiles of the new version
   std::int64_t tiles_written = 0;   ///< newly encoded (content changed or new)
   std::int64_t tiles_reused = 0;    ///< byte-identical to the previous version's tile

@@ -28,6 +28,7 @@
 #include <span>
 #include <vector>
 
+#include "polmap/mapping_service/point_filter.hpp"
 #include "polmap/mapping_service/visibility.hpp"
 #include "polmap/schema/landmark.hpp"
 
@@ -115,6 +116,9 @@ struct PointConsensusConfig {
   int split_min_drives = 8;
   /// Larger groups (a pathological clutter chain) are not split (bounded work).
   std::size_t split_max_members = 20000;
+  /// Line peaks and temporary objects removed after line consensus (point_filter.hpp;
+  /// applied by the map builder through filter_point_landmarks, not by consensus_points).
+  PointFilterConfig filter;
 };
 
 /// Line consensus parameters. The first three are the paper's (§IV-B); the

@@ -1,0 +1,304 @@
+// Precision of fleet point consensus: line peaks and temporary objects (point_filter.hpp).
+#include "polmap/mapping_service/point_filter.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <unordered_map>
+
+#include "polmap/mapping_service/consensus.hpp"
+#include "polmap/mapping_service/polyline_distance.hpp"
+#include "polmap/schema/errors.hpp"
+
+namespace polmap::mapping {
+namespace {
+
+double log_choose(int n, int k) {
+  return std::lgamma(n + 1.0) - std::lgamma(k + 1.0) - std::lgamma(n - k + 1.0);
+}
+
+/// Nearest line landmark piece: distance and unit direction of the nearest segment.
+struct NearestLine {
+  double distance_m = std::numeric_limits<double>::infinity();
+  Eigen::Vector2d direction = Eigen::Vector2d::UnitX();
+};
+
+/// Line segments in a uniform grid for nearest-segment queries within a radius.
+class SegmentGrid {
+ public:
+  SegmentGrid(const LineConsensusResult& lines, double cell) : cell_(cell) {
+    for (const auto& l : lines.landmarks) {
+      for (std::size_t i = 0; i + 1 < l.polyline_m.size(); ++i) {
+        const Eigen::Vector2d a = l.polyline_m[i], b = l.polyline_m[i + 1];
+        const std::size_t s = segs_.size();
+        segs_.push_back({a, b});
+        const auto [x0, y0] = key(a.cwiseMin(b));
+        const auto [x1, y1] = key(a.cwiseMax(b));
+        for (auto x = x0; x <= x1; ++x) {
+          for (auto y = y0; y <= y1; ++y) cells_[pack(x, y)].push_back(s);
+        }
+      }
+    }
+  }
+  /// Nearest segment within one cell of p (cell >= the query radius).
+  [[nodiscard]] NearestLine nearest(const Eigen::Vector2d& p) const {
+    NearestLine out;
+    const auto [cx, cy] = key(p);
+    for (std::int64_t dx = -1; dx <= 1; ++dx) {
+      for (std::int64_t dy = -1; dy <= 1; ++dy) {
+        const auto it = cells_.find(pack(cx + dx, cy + dy));
+        if (it == cells_.end()) continue;
+        for (std::size_t s : it->second) {
+          const auto& [a, b] = segs_[s];
+          const double d = point_segment_distance(p, a, b);
+          if (d < out.distance_m && (b - a).norm() > 0.0) {
+            out.distance_m = d;
+            out.direction = (b - a).normalized();
+          }
+        }
+      }
+    }
+    return out;
+  }
+
+ private:
+  [[nodiscard]] std::pair<std::int64_t, std::int64_t> key(const Eigen::Vector2d& p) const {
+    return {static_cast<std::int64_t>(std::floor(p.x() / cell_)),
+            static_cast<std::int64_t>(std::floor(p.y() / cell_))};
+  }
+  static std::uint64_t pack(std::int64_t x, std::int64_t y) {
+    return (static_cast<std::uint64_t>(x) << 32U) ^ (static_cast<std::uint64_t>(y) & 0xffffffffU);
+  }
+  double cell_;
+  std::vector<std::pair<Eigen::Vector2d, Eigen::Vector2d>> segs_;
+  std::unordered_map<std::uint64_t, std::vector<std::size_t>> cells_;
+};
+
+}  // namespace
+
+double fisher_positive_p(int both, int first_only, int second_only, int neither) {
+  POLMAP_EXPECT(both >= 0 && first_only >= 0 && second_only >= 0 && neither >= 0);
+  const int n = both + first_only + second_only + neither;
+  const int row = both + first_only;   // first detected
+  const int col = both + second_only;  // second detected
+  const int hi = std::min(row, col);
+  const double denom = log_choose(n, col);
+  double p = 0.0;
+  for (int x = both; x <= hi; ++x) {
+    if (col - x > n - row) continue;
+    p += std::exp(log_choose(row, x) + log_choose(n - row, col - x) - denom);
+  }
+  return std::min(1.0, p);
+}
+
+PointFilterResult filter_point_landmarks(PointConsensusResult& points,
+                                         const LineConsensusResult& lines,
+                                         std::span<const TaggedPointCandidate> candidates,
+                                         const VisibilityIndex* view,
+                                         const PointFilterConfig& cfg) {
+  POLMAP_EXPECT(cfg.line_peaks.max_line_distance_m >= 0.0 &&
+                cfg.co_presence.neighbour_radius_m > 0.0);
+  const std::size_t n = points.landmarks.size();
+  PointFilterResult out;
+  out.evidence.resize(n);
+  std::unordered_map<std::int64_t, const TaggedPointCandidate*> by_id;
+  by_id.reserve(candidates.size());
+  for (const auto& c : candidates) by_id[c.candidate_id] = &c;
+
+  // Supporting drives (ascending) and passes in view (drives, ascending) per landmark.
+  std::vector<std::vector<std::int64_t>> support(n), in_view(n);
+  std::vector<std::int64_t> all_drives;
+  for (std::size_t i = 0; i < n; ++i) {
+    for (std::int64_t id : points.support[i]) {
+      if (const auto it = by_id.find(id); it != by_id.end())
+        support[i].push_back(it->second->drive);
+    }
+    std::sort(support[i].begin(), support[i].end());
+    support[i].erase(std::unique(support[i].begin(), support[i].end()), support[i].end());
+    all_drives.insert(all_drives.end(), support[i].begin(), support[i].end());
+  }
+  std::sort(all_drives.begin(), all_drives.end());
+  all_drives.erase(std::unique(all_drives.begin(), all_drives.end()), all_drives.end());
+  for (std::size_t i = 0; i < n; ++i) {
+    std::vector<std::int64_t> v =
+        view != nullptr ? view->drives_in_view(points.landmarks[i].position_m) : all_drives;
+    v.insert(v.end(), support[i].begin(), support[i].end());  // supporters had it in view
+    std::sort(v.begin(), v.end());
+    v.erase(std::unique(v.begin(), v.end()), v.end());
+    in_view[i] = std::move(v);
+    out.evidence[i].passes_in_view = static_cast<std::uint32_t>(in_view[i].size());
+    out.evidence[i].support = static_cast<std::uint32_t>(support[i].size());
+  }
+
+  // ---------------------------------------------------------------- line peaks
+  if (!lines.landmarks.empty()) {  // measured always, applied when enabled
+    const SegmentGrid grid(lines, std::max(4.0, 2.0 * cfg.line_peaks.max_line_distance_m));
+    for (std::size_t i = 0; i < n; ++i) {
+      const Eigen::Vector2d p = points.landmarks[i].position_m;
+      const NearestLine nl = grid.nearest(p);
+      PointEvidence& ev = out.evidence[i];
+      if (!std::isfinite(nl.distance_m)) continue;
+      ev.line_distance_m = nl.distance_m;
+      const Eigen::Vector2d u = nl.direction;
+      const Eigen::Vector2d w(-u.y(), u.x());
+      double sa = 0.0, sc = 0.0;
+      std::size_t m = 0;
+      for (std::int64_t id : points.support[i]) {
+        const auto it = by_id.find(id);
+        if (it == by_id.end()) continue;
+        const Eigen::Vector2d d = it->second->candidate.position_m - p;
+        sa += d.dot(u) * d.dot(u);
+        sc += d.dot(w) * d.dot(w);
+        ++m;
+      }
+      if (m == 0) continue;
+      ev.along_spread_m = std::sqrt(sa / static_cast<double>(m));
+      ev.across_spread_m = std::sqrt(sc / static_cast<double>(m));
+      if (cfg.line_peaks.enabled && nl.distance_m <= cfg.line_peaks.max_line_distance_m &&
+          ev.along_spread_m >= cfg.line_peaks.min_along_spread_m &&
+          ev.along_spread_m >= cfg.line_peaks.min_along_across_ratio * ev.across_spread_m) {
+        ev.verdict = PointEvidence::Verdict::LinePeak;
+      }
+    }
+  }
+
+  // ---------------------------------------------------------------- co-presence
+  if (n > 1) {  // measured always, applied when enabled
+    const CoPresenceRule& rule = cfg.co_presence;
+    const double r2 = rule.neighbour_radius_m * rule.neighbour_radius_m;
+    // Grid of landmarks (cell = radius): neighbours are in the 3 × 3 cells around.
+    std::unordered_map<std::uint64_t, std::vector<std::size_t>> cells;
+    auto cell_of = [&](const Eigen::Vector2d& p) {
+      return std::pair{static_cast<std::int64_t>(std::floor(p.x() / rule.neighbour_radius_m)),
+                       static_cast<std::int64_t>(std::floor(p.y() / rule.neighbour_radius_m))};
+    };
+    auto pack = [](std::int64_t x, std::int64_t y) {
+      return (static_cast<std::uint64_t>(x) << 32U) ^ (static_cast<std::uint64_t>(y) & 0xffffffffU);
+    };
+    for (std::size_t i = 0; i < n; ++i) {
+      const auto [x, y] = cell_of(points.landmarks[i].position_m);
+      cells[pack(x, y)].push_back(i);
+    }
+    auto share = [&](std::size_t i) {
+      return in_view[i].empty()
+                 ? 1.0
+                 : static_cast<double>(support[i].size()) / static_cast<double>(in_view[i].size());
+    };
+    for (std::size_t i = 0; i < n; ++i) {
+      const bool low_i = share(i) <= rule.max_detection_share;
+      const Eigen::Vector2d p = points.landmarks[i].position_m;
+      const auto [cx, cy] = cell_of(p);
+      PointEvidence& ev = out.evidence[i];
+      bool temporary = false;
+      for (std::int64_t dx = -1; dx <= 1; ++dx) {
+        for (std::int64_t dy = -1; dy <= 1; ++dy) {
+          const auto it = cells.find(pack(cx + dx, cy + dy));
+          if (it == cells.end()) continue;
+          for (std::size_t j : it->second) {
+            if (j == i || (points.landmarks[j].position_m - p).squaredNorm() >= r2) continue;
+            // The 2×2 table over the passes that had both in view.
+            int a = 0, b = 0, c = 0, d = 0;
+            for (std::int64_t drive : in_view[i]) {
+              if (!std::binary_search(in_view[j].begin(), in_view[j].end(), drive)) continue;
+              const bool si = std::binary_search(support[i].begin(), support[i].end(), drive);
+              const bool sj = std::binary_search(support[j].begin(), support[j].end(), drive);
+              (si ? (sj ? a : b) : (sj ? c : d)) += 1;
+            }
+            if (a == 0 || d == 0) continue;  // never together, or never both absent
+            const int common = a + b + c + d;
+            const double pv = fisher_positive_p(a, b, c, d);
+            if (pv < ev.co_presence_p) {
+              ev.co_presence_p = pv;
+              ev.co_present_with = static_cast<std::int64_t>(j);
+            }
+            // Effect size: the phi coefficient of the table (a permanent pair sharing a
+            // few misses by chance, e.g. behind the same occluder, stays below it).
+            const double den = std::sqrt(static_cast<double>(a + b) * (c + d) * (a + c) * (b + d));
+            const double phi =
+                den > 0.0 ? (static_cast<double>(a) * d - static_cast<double>(b) * c) / den : 0.0;
+            const bool hit = common < rule.min_passes_for_test
+                                 ? (b == 0 && c == 0 && d >= rule.min_shared_misses)
+                                 : pv <= rule.max_p_value && phi >= rule.min_phi;
+            temporary = temporary || (hit && low_i && share(j) <= rule.max_detection_share);
+          }
+        }
+      }
+      if (rule.enabled && temporary && ev.verdict == PointEvidence::Verdict::Kept) {
+        ev.verdict = PointEvidence::Verdict::Temporary;
+      }
+    }
+  }
+
+  // ---------------------------------------------------------------- out of view
+  if (cfg.out_of_view.enabled && view != nullptr && !view->empty()) {
+    const auto& passes = view->passes();
+    for (std::size_t i = 0; i < n; ++i) {
+      PointEvidence& ev = out.evidence[i];
+      if (ev.verdict != PointEvidence::Verdict::Kept) continue;
+      const Eigen::Vector2d p = points.landmarks[i].position_m;
+      const std::vector<std::int64_t> modelled = view->drives_in_view(p);
+      std::size_t supported_in_view = 0;
+      for (std::int64_t d : support[i]) {
+        supported_in_view += std::binary_search(modelled.begin(), modelled.end(), d) ? 1U : 0U;
+      }
+      if (2 * supported_in_view >= support[i].size()) continue;
+      // Distance of p from each pass's path; the farthest supporting drive's sets the bar.
+      std::vector<double> dist(passes.size(), std::numeric_limits<double>::infinity());
+      double bar = 0.0;
+      bool unknown_supporter = false;
+      for (std::size_t k = 0; k < passes.size(); ++k) {
+        dist[k] = passes[k].path_m.size() == 1 ? (passes[k].path_m[0] - p).norm()
+                                               : point_polyline_distance(p, passes[k].path_m);
+      }
+      for (std::int64_t d : support[i]) {
+        const auto it = std::find_if(passes.begin(), passes.end(),
+                                     [&](const DrivePass& q) { return q.drive == d; });
+        if (it == passes.end()) {
+          unknown_supporter = true;  // no trajectory: cannot say how close it came
+          continue;
+        }
+        bar = std::max(bar, dist[static_cast<std::size_t>(it - passes.begin())]);
+      }
+      if (unknown_supporter) continue;
+      std::size_t close = 0;
+      for (double d : dist) close += d <= bar + 1e-9 ? 1U : 0U;
+      ev.passes_as_close = static_cast<std::uint32_t>(close);
+      const double need = std::max(
+          2.0, std::ceil(cfg.out_of_view.min_view_fraction * static_cast<double>(close) - 1e-9));
+      if (static_cast<double>(support[i].size()) < need) {
+        ev.verdict = PointEvidence::Verdict::OutOfView;
+      }
+    }
+  }
+
+  // ---------------------------------------------------------------- remove
+  PointConsensusResult kept_result;
+  kept_result.stats = points.stats;
+  kept_result.retired = std::move(points.retired);
+  kept_result.retired_verdicts = std::move(points.retired_verdicts);
+  for (std::size_t i = 0; i < n; ++i) {
+    switch (out.evidence[i].verdict) {
+      case PointEvidence::Verdict::LinePeak:
+        ++out.line_peaks;
+        continue;
+      case PointEvidence::Verdict::Temporary:
+        ++out.temporary;
+        continue;
+      case PointEvidence::Verdict::OutOfView:
+        ++out.out_of_view;
+        continue;
+      case PointEvidence::Verdict::Kept:
+        break;
+    }
+    PointLandmark lm = points.landmarks[i];
+    lm.id = static_cast<std::int64_t>(kept_result.landmarks.size());
+    kept_result.landmarks.push_back(lm);
+    kept_result.support.push_back(std::move(points.support[i]));
+    if (i < points.verdicts.size()) kept_result.verdicts.push_back(points.verdicts[i]);
+  }
+  kept_result.stats.rejected_groups += out.line_peaks + out.temporary + out.out_of_view;
+  points = std::move(kept_result);
+  return out;
+}
+
+}  // namespace polmap::mapping

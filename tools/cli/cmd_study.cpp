@@ -35,6 +35,7 @@ struct StudyOptions {
   std::string out = "study-out";
   std::string realism = "ideal";
   double slip_gradient_deg = -1.0;
+  bool no_common_yaw = false;
   std::string realism_sources;
   bool http = false;
   bool json = false;
@@ -74,6 +75,7 @@ void run(const StudyOptions& o) {
     }
     cfg.sim.realism = sim::only_sources(cfg.sim.realism, o.realism_sources);
   }
+  if (o.no_common_yaw) cfg.localizer.mount_calibration.estimate_common_yaw = false;
   // The simulated vehicle's side-slip gradient is a vehicle parameter the localizer is
   // given, like its mounts (the nominal value of the vehicle, not the drive's truth).
   cfg.localizer.egomotion.side_slip_gradient_rad_per_mps2 =
@@ -172,6 +174,9 @@ void setup(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--realism-sources", opts->realism_sources,
                   "with --realism realistic: keep only these sources on (comma separated)");
+  cmd->add_flag("--no-calibrate-common-yaw", opts->no_common_yaw,
+                "the localizer calibrates relative mount yaws only, not the yaw common to "
+                "all mounts (radar/mount_calibration.hpp)");
   cmd->add_option("--slip-gradient-deg", opts->slip_gradient_deg,
                   "the localizer's vehicle side-slip gradient, deg per m/s^2 (default: the "
                   "simulated vehicle's, 0 without slip)");

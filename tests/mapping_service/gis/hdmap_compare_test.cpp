@@ -412,7 +412,8 @@ TEST(HdMapCompare, GeoJsonHasOneFeaturePerPointAndRunWithTheVerdicts) {
   // the lines still are.
   hd.points.clear();
   const auto c2 = compare_with_hdmap(lm, hd);
-  for (const auto& feat : hdmap_comparison_geojson(lm, hd, c2)["features"]) {
+  const auto g2 = hdmap_comparison_geojson(lm, hd, c2);  // kept: the loop reads into it
+  for (const auto& feat : g2["features"]) {
     const auto& pr = feat["properties"];
     EXPECT_EQ(pr["judged"].get<bool>(), feat["geometry"]["type"] != "Point") << pr.dump();
   }

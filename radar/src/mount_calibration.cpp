@@ -235,8 +235,12 @@ Eigen::VectorXd MountCalibrator::solve(Eigen::MatrixXd* covariance) const {
   for (Eigen::Index s = 0; s < S; ++s) {
     C(0, S + s) = 1.0;
   }
-  const Eigen::JacobiSVD<Eigen::MatrixXd> svd(C, Eigen::ComputeFullV);
-  const Eigen::MatrixXd Q = svd.matrixV().rightCols(P - k);
+  // Null space of C: the last P − k columns of the full Q of Cᵀ's QR decomposition. (A
+  // JacobiSVD of the wide 1 × P matrix with ComputeFullV wrote past its buffer under ASan
+  // with one or two sensors, Eigen 3.4.0.)
+  const Eigen::HouseholderQR<Eigen::MatrixXd> qr(C.transpose());
+  const Eigen::MatrixXd Q_full = qr.householderQ() * Eigen::MatrixXd::Identity(P, P);
+  const Eigen::MatrixXd Q = Q_full.rightCols(P - k);
   const Eigen::MatrixXd Lz = Q.transpose() * L * Q;
   const Eigen::LDLT<Eigen::MatrixXd> ldlt(Lz);
   const Eigen::VectorXd theta = Q * ldlt.solve(Q.transpose() * rhs_);

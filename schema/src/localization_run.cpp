@@ -125,19 +125,40 @@ LocalizationRun parse_document(std::string_view bytes, const LocalizationRunLimi
   if (bytes.size() > limits.max_bytes) {
     refuse("body", "exceeds " + std::to_string(limits.max_bytes) + " bytes", 413);
   }
-  bool too_deep = false;
-  const json::parser_callback_t depth_guard = [&](int depth, json::parse_event_t, json&) {
-    if (depth > LocalizationRunLimits::kMaxDepth) too_deep = true;
-    return !too_deep;  // discards what lies deeper: bounded memory for hostile nesting
-  };
+  // Nesting first, by a linear scan (strings skipped): what nests deeper is refused before
+  // a DOM is built. (nlohmann's parser callback could discard it too, but costs ~25 µs per
+  // value: 150,000 empty samples took 3.8 s.)
+  {
+    int depth = 0;
+    bool in_string = false, escaped = false;
+    for (const char c : bytes) {
+      if (in_string) {
+        if (escaped) {
+          escaped = false;
+        } else if (c == '\\') {
+          escaped = true;
+        } else if (c == '"') {
+          in_string = false;
+        }
+        continue;
+      }
+      if (c == '"') {
+        in_string = true;
+      } else if (c == '[' || c == '{') {
+        if (++depth > LocalizationRunLimits::kMaxDepth) {
+          refuse("body", "nested deeper than " + std::to_string(LocalizationRunLimits::kMaxDepth),
+                 400);
+        }
+      } else if (c == ']' || c == '}') {
+        --depth;
+      }
+    }
+  }
   json j;
   try {
-    j = json::parse(bytes.begin(), bytes.end(), depth_guard);
+    j = json::parse(bytes.begin(), bytes.end());
   } catch (const json::exception& e) {  // parse_error, or out_of_range (1e400)
     refuse("body", std::string("not JSON: ") + e.what(), 400);
-  }
-  if (too_deep) {
-    refuse("body", "nested deeper than " + std::to_string(LocalizationRunLimits::kMaxDepth), 400);
   }
   if (!j.is_object()) refuse("body", "must be a JSON object", 400);
   known_keys(j,

@@ -88,6 +88,29 @@ inline std::string with_manifest_field(const std::string& tar, const std::string
   return write_ustar(members);
 }
 
+/// A landmarks-only drive without candidates yet: one pass along the drive frame's x axis
+/// from -20 to +20 m at 10 m/s, starting at start_time_s (the world-change tests add
+/// what the pass sees).
+inline SyntheticDrive pass_along_x(const std::string& drive_id, const std::string& vehicle_id,
+                                   double start_time_s, unsigned seed) {
+  SyntheticDrive d = make_synthetic_drive(drive_id, PolLevel::Full, 2, 2, seed, 0, 0, 2);
+  d.pkg.manifest.vehicle_id = vehicle_id;
+  d.pkg.manifest.start_time_s = start_time_s;
+  d.pkg.manifest.end_time_s = start_time_s + 4.0;
+  const tiles::LocalFrame frame(d.pkg.manifest.origin);
+  d.pkg.trajectory.clear();
+  for (int k = 0; k <= 40; ++k) {
+    const GeoPoint g = frame.to_geo(Eigen::Vector2d(-20.0 + k, 0.0));
+    TrajectorySample t;
+    t.time_s = start_time_s + 0.1 * k;
+    t.lat_deg = g.lat_deg;
+    t.lon_deg = g.lon_deg;
+    t.speed_mps = 10.0;
+    d.pkg.trajectory.push_back(t);
+  }
+  return d;
+}
+
 /// The drive frame shared by all scene packages.
 inline tiles::LocalFrame scene_frame() {
   return tiles::LocalFrame(

@@ -28,21 +28,7 @@ std::vector<Eigen::Vector2d> poles(bool moved) {
 /// A landmarks-only package of one pass along the x axis seeing the poles and the wall
 /// (-15, 9) -> (-3, 9), ±2 cm noise.
 std::string package(const std::string& id, double start_time_s, bool moved, unsigned seed) {
-  SyntheticDrive d = make_synthetic_drive(id, PolLevel::Full, 2, 2, seed, 0, 0, 2);
-  d.pkg.manifest.vehicle_id = "veh_" + std::to_string(seed % 3);
-  d.pkg.manifest.start_time_s = start_time_s;
-  d.pkg.manifest.end_time_s = start_time_s + 4.0;
-  const tiles::LocalFrame frame(d.pkg.manifest.origin);
-  d.pkg.trajectory.clear();
-  for (int k = 0; k <= 40; ++k) {
-    const GeoPoint g = frame.to_geo(Eigen::Vector2d(-20.0 + k, 0.0));
-    TrajectorySample t;
-    t.time_s = start_time_s + 0.1 * k;
-    t.lat_deg = g.lat_deg;
-    t.lon_deg = g.lon_deg;
-    t.speed_mps = 10.0;
-    d.pkg.trajectory.push_back(t);
-  }
+  SyntheticDrive d = pass_along_x(id, "veh_" + std::to_string(seed % 3), start_time_s, seed);
   std::mt19937 rng(seed);
   std::uniform_real_distribution<double> j(-0.02, 0.02);
   for (const auto& p : poles(moved)) {

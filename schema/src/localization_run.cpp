@@ -46,12 +46,22 @@ std::optional<double> optional_number(const json& j, const char* key, const std:
   return number(j, key, where);
 }
 
+// A received key as it appears in an error: the empty key as "" (an error must name a field),
+// control bytes as '?', and at most 64 bytes, since the key is hostile and echoed to the client.
+std::string key_for_error(std::string_view k) {
+  if (k.empty()) return "\"\"";
+  std::string out;
+  for (const char c : k.substr(0, 64)) out += (static_cast<unsigned char>(c) < 0x20) ? '?' : c;
+  if (k.size() > 64) out += "...";
+  return out;
+}
+
 void known_keys(const json& j, std::initializer_list<std::string_view> keys,
                 const std::string& where) {
   for (const auto& [k, v] : j.items()) {
     bool known = false;
     for (const std::string_view n : keys) known = known || k == n;
-    if (!known) refuse(where + k, "unknown field");
+    if (!known) refuse(where + key_for_error(k), "unknown field");
   }
 }
 

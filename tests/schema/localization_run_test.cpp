@@ -102,6 +102,9 @@ TEST(LocalizationRun, RefusesBadFieldsNamingThem) {
       {[](json& j) { j["format"] = "gpx"; }, "format"},
       {[](json& j) { j["version"] = 2; }, "version"},
       {[](json& j) { j["colour"] = "red"; }, "colour"},
+      {[](json& j) { j[""] = 0.001; }, "\"\""},  // found by the fuzzer: a field is never unnamed
+      {[](json& j) { j["samples"][2]["a\tb"] = 1; }, "samples[2].a?b"},
+      {[](json& j) { j[std::string(300, 'k')] = 1; }, std::string(64, 'k') + "..."},
       {[](json& j) { j["label"] = std::string(129, 'x'); }, "label"},
       {[](json& j) { j["label"] = "a\nb"; }, "label"},
       {[](json& j) { j["map_version"] = -1; }, "map_version"},

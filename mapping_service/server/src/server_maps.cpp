@@ -221,7 +221,9 @@ void Server::Impl::register_map_routes() {
     try {
       for (const auto& [k, v] : body.items()) {
         if (k != "region" && k != "exclude_drives" && k != "notes") {
-          throw JsonRequestError{k, "unknown field (known: region, exclude_drives, notes)"};
+          // The key is hostile and echoed back: never empty, at most 64 bytes.
+          throw JsonRequestError{k.empty() ? std::string("\"\"") : k.substr(0, 64),
+                                 "unknown field (known: region, exclude_drives, notes)"};
         }
       }
       if (auto region = parse_region(body.value("region", nlohmann::json(nullptr)))) {

@@ -1,6 +1,7 @@
 // `polmap simulate --world urban|industrial|rural|FILE.osm|FILE.xodr [--length-m L]
 //  [--drives N] [--seed S] [--max-speed-mps V] [--duration-s T] [--cube]
-//  [--cube-seconds T] [--realism ideal|realistic] [--realism-sources LIST] --out DIR
+//  [--cube-seconds T] [--realism ideal|realistic] [--realism-sources LIST]
+//  [--gnss rtk|consumer [--rtk-drives N]] --out DIR
 //  [--dry-run]`: simulates N passes over one world and
 // writes DIR/drive_<k>.pmrec plus the evaluation truth DIR/truth/world.json and
 // DIR/truth/drive_<k>_trajectory.csv and drive_<k>_calibration.json (true mounts and
@@ -38,6 +39,8 @@ struct SimulateOptions {
   bool dry_run = false;
   std::string realism = "ideal";
   std::string realism_sources;
+  std::string gnss = "rtk";
+  int rtk_drives = 0;
 };
 
 struct DriveSummary {
@@ -72,6 +75,11 @@ void run(const SimulateOptions& o) {
     cfg.realism = sim::only_sources(cfg.realism, o.realism_sources);
   }
 
+  cfg.gnss.grade = o.gnss == "consumer" ? sim::GnssGrade::Consumer : sim::GnssGrade::Rtk;
+  if (o.rtk_drives < 0 || (o.rtk_drives > 0 && o.gnss != "consumer")) {
+    throw ValidationError("simulate: --rtk-drives N (N >= 0) needs --gnss consumer");
+  }
+
   const std::filesystem::path dir(o.out);
   if (!o.dry_run) {
     std::error_code ec;
@@ -88,7 +96,9 @@ void run(const SimulateOptions& o) {
 
   std::vector<DriveSummary> summaries;
   for (int k = 0; k < o.drives; ++k) {
-    sim::DriveSimulator simulator(world, cfg, k);
+    sim::SimConfig drive_cfg = cfg;
+    if (k < o.rtk_drives) drive_cfg.gnss.grade = sim::GnssGrade::Rtk;  // survey-grade anchors
+    sim::DriveSimulator simulator(world, drive_cfg, k);
     DriveSummary s;
     s.drive = k;
     s.duration_s = simulator.duration_s();
@@ -136,9 +146,11 @@ void run(const SimulateOptions& o) {
 
   const std::string realism =
       o.realism + (o.realism_sources.empty() ? "" : " (" + o.realism_sources + ")");
-  std::printf("world: %s (%s), route %.0f m, %zu objects, seed %llu, realism %s%s\n",
+  const std::string gnss =
+      o.gnss + (o.rtk_drives > 0 ? " (first " + std::to_string(o.rtk_drives) + " rtk)" : "");
+  std::printf("world: %s (%s), route %.0f m, %zu objects, seed %llu, realism %s, gnss %s%s\n",
               world->name.c_str(), o.world.c_str(), world->route.length_m(), world->objects.size(),
-              static_cast<unsigned long long>(o.seed), realism.c_str(),
+              static_cast<unsigned long long>(o.seed), realism.c_str(), gnss.c_str(),
               o.dry_run ? ", dry run (nothing written)" : "");
   std::printf("%-8s %7s %9s %9s %13s %9s %9s %11s %10s %9s\n", "drive", "frames", "duration",
               "distance", "speed m/s", "cells/fr", "dets/fr", "file MB", "MB/min", "sim s/s");
@@ -189,6 +201,15 @@ void setup(CLI::App& app) {
   cmd->add_option("--realism-sources", opts->realism_sources,
                   "with --realism realistic: keep only these sources on, comma separated "
                   "(noise,mounts,timing,slip,multipath,elevation,ins)");
+  cmd->add_option("--gnss", opts->gnss,
+                  "positioning of the recorded trajectory: rtk (survey-grade GNSS/IMU, cm) | "
+                  "consumer (a series car: metre-level slowly varying bias, outages, canyon "
+                  "multipath that repeats at the same places)")
+      ->check(CLI::IsMember({"rtk", "consumer"}))
+      ->capture_default_str();
+  cmd->add_option("--rtk-drives", opts->rtk_drives,
+                  "with --gnss consumer: the first N drives are survey-grade (map anchors)")
+      ->capture_default_str();
   cmd->add_option("--out", opts->out, "output directory")->required();
   cmd->add_flag("--dry-run", opts->dry_run, "simulate without writing (speed measurement)");
   cmd->callback([opts] { run(*opts); });

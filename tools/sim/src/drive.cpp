@@ -182,7 +182,11 @@ ExactState DrivePlan::state(double t) const {
 
 GnssErrorModel::GnssErrorModel(const GnssSimConfig& cfg, double duration, std::uint64_t seed,
                                const InsRealism& ins, const SlipRealism& slip)
-    : cfg_(cfg), rng_(seed), ins_(ins), slip_(slip) {
+    : cfg_(cfg),
+      rng_(seed),
+      ins_(ins),
+      slip_(slip),
+      consumer_rng_(seed_of(seed, 0x636f6e73756dULL)) {
   if (ins.enabled) {
     Rng r(seed_of(seed, 0x696e73ULL));
     lever_x_m_ = r.normal(0.0, ins.lever_arm_sigma_m);
@@ -221,6 +225,9 @@ GnssErrorModel::GnssErrorModel(const GnssSimConfig& cfg, double duration, std::u
   ex_ = rng_.normal();
   ey_ = rng_.normal();
   eh_ = rng_.normal();
+  cbx_ = consumer_rng_.normal();
+  cby_ = consumer_rng_.normal();
+  ch_ = consumer_rng_.normal();
 }
 
 bool GnssErrorModel::fixed_at(double t) const {
@@ -243,6 +250,7 @@ TrajectorySample GnssErrorModel::sample(const ExactState& s, const tiles::LocalF
   }
   const double dt_ins = last_t_ >= 0 ? std::max(0.0, s.time_s - last_t_) : 0.0;
   last_t_ = s.time_s;
+  if (cfg_.grade == GnssGrade::Consumer) return sample_consumer(s, frame, dt_ins);
   const bool fixed = fixed_at(s.time_s);
   const double sigma = fixed ? cfg_.sigma_fixed_m : cfg_.sigma_float_m;
   const double sh = cfg_.heading_sigma_deg * kDeg;
@@ -281,6 +289,53 @@ TrajectorySample GnssErrorModel::sample(const ExactState& s, const tiles::LocalF
   out.std_north_m = static_cast<float>(sigma);
   out.std_yaw_rad = static_cast<float>(sh);
   out.solution = fixed ? GnssSolution::CarrierPhaseFixed : GnssSolution::CarrierPhaseFloat;
+  return out;
+}
+
+TrajectorySample GnssErrorModel::sample_consumer(const ExactState& s,
+                                                 const tiles::LocalFrame& frame, double dt_s) {
+  const ConsumerGnssConfig& c = cfg_.consumer;
+  auto step = [&](double& e, double tau) {
+    const double phi = std::exp(-dt_s / std::max(tau, 1e-6));
+    e = phi * e + std::sqrt(1.0 - phi * phi) * consumer_rng_.normal();
+  };
+  step(cbx_, c.bias_tau_s);
+  step(cby_, c.bias_tau_s);
+  step(ch_, c.heading_tau_s);
+  // Outages start as a Poisson process in distance; during one the solution dead-reckons
+  // and drifts along a direction of its own, afterwards the filter pulls the drift back.
+  const double ds_m = std::abs(s.v_mps) * dt_s;
+  if (outage_left_s_ <= 0.0 && consumer_rng_.uniform() < c.outages_per_km * ds_m / 1000.0) {
+    outage_left_s_ = consumer_rng_.uniform(c.outage_min_s, c.outage_max_s);
+    const double a = consumer_rng_.uniform(0.0, 2.0 * std::numbers::pi);
+    outage_dir_ = {std::cos(a), std::sin(a)};
+  }
+  if (outage_left_s_ > 0.0) {
+    outage_drift_m_ += c.outage_drift_fraction * ds_m * outage_dir_;
+    outage_left_s_ -= dt_s;
+    consumer_outage_total_s_ += dt_s;
+  } else {
+    outage_drift_m_ *= std::exp(-dt_s / std::max(c.recovery_tau_s, 1e-6));
+  }
+  const Eigen::Vector2d p_true(s.x_m, s.y_m);
+  Eigen::Vector2d xy = p_true + c.bias_sigma_m * Eigen::Vector2d(cbx_, cby_) + outage_drift_m_;
+  if (multipath_) xy += multipath_->error_m(p_true, s.yaw_rad);
+  double yaw_err_rad = c.heading_sigma_deg * kDeg * ch_;
+  if (ins_.enabled) yaw_err_rad += heading_bias_rad_;
+  const GeoPoint g = frame.to_geo(xy);
+  TrajectorySample out;
+  out.time_s = s.time_s;
+  out.lat_deg = g.lat_deg;
+  out.lon_deg = g.lon_deg;
+  out.yaw_enu_rad = wrap_angle_rad(s.yaw_rad - frame.convergence_rad(p_true) + yaw_err_rad);
+  const double v_read = wheel_speed_mps(slip_, s.v_mps, s.accel_mps2, wheel_scale_);
+  out.speed_mps = std::max(0.0, v_read + cfg_.speed_sigma_mps * rng_.normal());
+  out.yaw_rate_rps = s.yaw_rate_rps + cfg_.yaw_rate_sigma_rps * rng_.normal();
+  if (ins_.enabled) out.yaw_rate_rps += yaw_rate_bias_rps_;
+  out.std_east_m = static_cast<float>(c.reported_sigma_m);
+  out.std_north_m = static_cast<float>(c.reported_sigma_m);
+  out.std_yaw_rad = static_cast<float>(c.heading_sigma_deg * kDeg);
+  out.solution = GnssSolution::Standalone;
   return out;
 }
 

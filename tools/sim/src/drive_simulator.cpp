@@ -513,6 +513,11 @@ DriveSimulator::DriveSimulator(std::shared_ptr<const World> world, const SimConf
           sensor_time_offsets_s(cfg.sensors.size(), cfg.realism.timing, cfg.seed, drive_index)) {
   if (cfg.sensors.empty()) throw ValidationError("simulation needs at least one sensor mount");
   if (!(cfg.gnss.rate_hz >= 1.0)) throw ValidationError("GNSS rate must be >= 1 Hz");
+  if (cfg.gnss.grade == GnssGrade::Consumer) {
+    // One field per world and seed, so every drive meets the same multipath in a canyon.
+    gnss_.set_multipath(
+        std::make_shared<CanyonMultipathField>(*world_, cfg.gnss.consumer, cfg.seed));
+  }
   header_.drive_id = "drive_" + std::to_string(drive_index);
   header_.vehicle_id = "sim";
   header_.world = world_->name;

@@ -131,8 +131,51 @@ struct RadarSimConfig {
   double cube_max_range_m = 12.0;
 };
 
+/// Receiver grade of the simulated vehicle's positioning (`polmap simulate --gnss`).
+/// Rtk: the survey-grade GNSS/IMU of a mapping vehicle (paper §IV-A); Consumer: the
+/// navigation solution of a series car (ConsumerGnssConfig).
+enum class GnssGrade : std::uint8_t { Rtk, Consumer };
+
+/// A series car's navigation solution: a consumer single-frequency GNSS receiver fused with
+/// the car's IMU and wheel odometry. Its errors are metre-level and slowly varying, and in
+/// street canyons multipath adds an error that depends on the place, so it repeats on every
+/// drive there (errors of different drives are not independent). Defaults from published
+/// specifications (tools/sim/README.md, "Consumer GNSS").
+struct ConsumerGnssConfig {
+  /// Per axis: u-blox NEO-M8 / ZED-F9P (single band SPS) give 2.0-2.5 m CEP horizontal,
+  /// i.e. sigma ~ 1.5 m per axis in open sky.
+  double bias_sigma_m = 1.5;
+  /// Correlation time of that error (ionosphere, troposphere and orbit residuals change over
+  /// minutes; a fused solution does not jump): first-order Gauss-Markov.
+  double bias_tau_s = 300.0;
+  /// Heading of the fused solution (GNSS course + gyro), first-order Gauss-Markov.
+  double heading_sigma_deg = 0.3;
+  double heading_tau_s = 60.0;
+  /// Extra error where facades block the sky on both sides (street canyon): amplitude per
+  /// axis at full blockage (urban canyon studies report 2-10 m for SPS; a fused solution
+  /// with wheel odometry keeps the lower end).
+  double canyon_multipath_m = 2.0;
+  /// Spatial correlation length of the multipath error (it follows the place, not time).
+  double multipath_correlation_m = 40.0;
+  /// Facades within this distance left and right count as a canyon.
+  double canyon_radius_m = 30.0;
+  /// Outages (tunnels, underpasses, receiver resets) per km; during one the solution dead-
+  /// reckons with wheel odometry and gyro and drifts by this share of the distance driven.
+  double outages_per_km = 0.5;
+  double outage_min_s = 5.0;
+  double outage_max_s = 20.0;
+  double outage_drift_fraction = 0.01;
+  /// After an outage the filter pulls the drift back with this time constant.
+  double recovery_tau_s = 10.0;
+  /// The per-axis standard deviation the receiver reports (std_east_m, std_north_m).
+  double reported_sigma_m = 2.0;
+};
+
 /// GNSS/IMU trajectory error model (paper §IV-A).
 struct GnssSimConfig {
+  /// Rtk (default): the fields below; Consumer: `consumer` instead.
+  GnssGrade grade = GnssGrade::Rtk;
+  ConsumerGnssConfig consumer;
   double rate_hz = 100.0;             ///< trajectory samples per second (>= 50 Hz)
   double sigma_fixed_m = 0.014;       ///< per axis (east, north), carrier-phase fixed
   double sigma_float_m = 0.086;       ///< per axis, no fix

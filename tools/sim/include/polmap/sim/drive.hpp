@@ -5,10 +5,12 @@
 /// drive's moving traffic and temporary objects, and the GNSS/IMU error model.
 #include <Eigen/Core>
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 #include "polmap/schema/recording.hpp"
 #include "polmap/sim/config.hpp"
+#include "polmap/sim/consumer_gnss.hpp"
 #include "polmap/sim/path.hpp"
 #include "polmap/sim/random.hpp"
 #include "polmap/sim/world.hpp"
@@ -86,6 +88,13 @@ class GnssErrorModel {
   /// Next sample (call with strictly increasing times). truth.time_s is the sample's time
   /// stamp; with INS latency the caller passes the state of time_s - latency_s().
   TrajectorySample sample(const ExactState& truth, const tiles::LocalFrame& frame);
+  /// Consumer grade (GnssSimConfig::grade): the place-dependent multipath error to add
+  /// (none by default). Must outlive this model's samples.
+  void set_multipath(std::shared_ptr<const CanyonMultipathField> field) {
+    multipath_ = std::move(field);
+  }
+  /// Consumer grade: seconds of the drive spent in outages so far (dead reckoning).
+  [[nodiscard]] double consumer_outage_s() const { return consumer_outage_total_s_; }
   /// Latency error of the INS time stamps (0 unless InsRealism is enabled).
   [[nodiscard]] double latency_s() const { return latency_s_; }
   [[nodiscard]] bool fixed_at(double t) const;
@@ -105,6 +114,16 @@ class GnssErrorModel {
   double lever_x_m_ = 0, lever_y_m_ = 0, heading_bias_rad_ = 0, yaw_rate_bias_rps_ = 0;
   double latency_s_ = 0, accel_bias_x_ = 0, accel_bias_y_ = 0, wheel_scale_ = 0;
   double drift_x_m_ = 0, drift_y_m_ = 0, drift_vx_ = 0, drift_vy_ = 0;
+  // Consumer grade: own generator (the RTK stream stays as it is), unit-variance GM bias and
+  // heading states, the outage in progress and its drift.
+  TrajectorySample sample_consumer(const ExactState& truth, const tiles::LocalFrame& frame,
+                                   double dt_s);
+  Rng consumer_rng_;
+  std::shared_ptr<const CanyonMultipathField> multipath_;
+  double cbx_ = 0, cby_ = 0, ch_ = 0;
+  double outage_left_s_ = 0, consumer_outage_total_s_ = 0;
+  Eigen::Vector2d outage_dir_ = Eigen::Vector2d::UnitX();
+  Eigen::Vector2d outage_drift_m_ = Eigen::Vector2d::Zero();
 };
 
 /// Exact pose converted to geodetic (truth CSV, tests).

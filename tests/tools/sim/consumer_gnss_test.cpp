@@ -1,11 +1,12 @@
 // Consumer-grade GNSS (--gnss consumer): metre-level, slowly varying errors with the
 // configured sigma, outages that drift with distance, and canyon multipath that follows
 // the place, so two drives through the same canyon share their error there.
+#include "polmap/sim/consumer_gnss.hpp"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
 
-#include "polmap/sim/consumer_gnss.hpp"
 #include "polmap/sim/drive.hpp"
 #include "sim_test_util.hpp"
 
@@ -69,7 +70,8 @@ TEST(ConsumerGnss, OutagesDriftWithDistanceAndRecover) {
   for (; t < 1000.0; t += 0.1) {
     const double x = 10.0 * t;  // 10 m/s along +x
     const TrajectorySample g = m.sample(test::state_at(x, 0.0, 0.0, 10.0, 0.0, t), frame);
-    max_err = std::max(max_err, (frame.to_local(g.lat_deg, g.lon_deg) - Eigen::Vector2d(x, 0)).norm());
+    max_err =
+        std::max(max_err, (frame.to_local(g.lat_deg, g.lon_deg) - Eigen::Vector2d(x, 0)).norm());
   }
   // 10 km at 2 outages per km: some outage time, and each drifts by <= 1 % of its distance
   // (at most 20 s * 10 m/s = 200 m -> 2 m; stacked outages during recovery add a little).

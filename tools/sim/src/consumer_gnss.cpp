@@ -14,7 +14,8 @@ namespace {
 
 // A standard normal pair from a lattice node's hash (Box-Muller on two hashed uniforms).
 Eigen::Vector2d node_normal(std::uint64_t seed, std::int64_t ix, std::int64_t iy) {
-  const std::uint64_t h = seed_of(seed, static_cast<std::uint64_t>(ix), static_cast<std::uint64_t>(iy));
+  const std::uint64_t h =
+      seed_of(seed, static_cast<std::uint64_t>(ix), static_cast<std::uint64_t>(iy));
   const double u1 = std::max(hash_uniform(h), 1e-300);
   const double u2 = hash_uniform(h ^ 0x5bd1e995ULL);
   const double r = std::sqrt(-2.0 * std::log(u1));
@@ -42,8 +43,7 @@ Eigen::Vector2d CanyonMultipathField::unit_field(const Eigen::Vector2d& p_m) con
   const double wx = smooth(gx - fx), wy = smooth(gy - fy);
   const double w[4] = {(1 - wx) * (1 - wy), wx * (1 - wy), (1 - wx) * wy, wx * wy};
   const Eigen::Vector2d n[4] = {node_normal(seed_, ix, iy), node_normal(seed_, ix + 1, iy),
-                                node_normal(seed_, ix, iy + 1),
-                                node_normal(seed_, ix + 1, iy + 1)};
+                                node_normal(seed_, ix, iy + 1), node_normal(seed_, ix + 1, iy + 1)};
   Eigen::Vector2d v = Eigen::Vector2d::Zero();
   double w2 = 0.0;
   for (int k = 0; k < 4; ++k) {

@@ -1,0 +1,117 @@
+#pragma once
+/// @file drive_alignment.hpp
+/// Aligning drives whose trajectories come from consumer-grade GNSS (metre-level, slowly
+/// drifting errors) to each other before consensus: a multi-drive pose graph over smooth
+/// per-drive corrections of the trajectory, with GNSS priors (the reported accuracy, so
+/// survey-grade drives anchor the map absolutely), smoothness between neighbouring nodes
+/// (the vehicle's own odometry is locally accurate) and inter-drive landmark associations
+/// (point candidates of different drives that are one landmark). Solved with Ceres from a
+/// coarse start found by displacement voting, with association gates shrinking from metres
+/// to decimetres. Pure computation in one local metric frame (the build frame).
+#include <Eigen/Core>
+#include <cstdint>
+#include <span>
+#include <string_view>
+#include <vector>
+
+namespace polmap::mapping {
+
+/// One trajectory sample of a drive as the alignment uses it (build frame).
+struct AlignmentSample {
+  double time_s = 0.0;
+  Eigen::Vector2d position_m = Eigen::Vector2d::Zero();
+  /// Reported 1-sigma horizontal position accuracy (max of east and north), metres.
+  double std_m = 0.0;
+  /// Reported 1-sigma heading accuracy, radians.
+  double std_yaw_rad = 0.0;
+};
+
+/// A drive as the alignment sees it: its trajectory (time order) and point candidates.
+struct AlignmentDrive {
+  std::int64_t drive = 0;
+  std::vector<AlignmentSample> trajectory;
+  std::vector<Eigen::Vector2d> points_m;
+};
+
+/// Parameters with documented defaults (docs/mapping.md, "Consumer-grade GNSS").
+struct DriveAlignmentConfig {
+  /// Drives whose median reported accuracy is at most this are survey-grade: their
+  /// corrections are held to their (centimetre) priors and they anchor the map.
+  double survey_grade_std_m = 0.1;
+  /// Drives whose median reported accuracy is below this are not aligned at all when no
+  /// drive exceeds it (align_drives reports NotNeeded): RTK fleets keep today's maps.
+  double consumer_grade_std_m = 0.3;
+  /// Spacing of the correction nodes along a drive (arc length).
+  double node_spacing_m = 25.0;
+  /// Change of the correction between neighbouring nodes (1 sigma per node step): the
+  /// consumer error's bias drifts ~0.2 m per 25 m (sigma 1.5 m, tau 300 s at 10 m/s) and
+  /// canyon multipath changes faster, so the graph lets the landmarks decide.
+  double smoothness_sigma_m = 0.3;
+  double smoothness_yaw_sigma_rad = 0.002;
+  /// Length over which the GNSS error of one drive is correlated: the reported sigma is
+  /// applied once per this length, not once per node (the priors are not independent).
+  double gnss_correlation_length_m = 300.0;
+  /// Position noise of a point candidate (pCFAR centroid), 1 sigma.
+  double candidate_sigma_m = 0.08;
+  /// Coarse start: displacements to other drives' candidates within this radius are voted
+  /// into an image of vote_cell_m cells per window of +-vote_window_nodes nodes.
+  double vote_radius_m = 6.0;
+  double vote_cell_m = 0.2;
+  int vote_window_nodes = 3;
+  int vote_rounds = 2;
+  /// Association gates of the refinement rounds (metres, coarse to fine).
+  std::vector<double> gates_m = {2.0, 1.0, 0.5, 0.3};
+  /// A cluster (one landmark) needs candidates of at least this many drives.
+  int min_cluster_drives = 3;
+  /// Ceres iterations per round.
+  int max_iterations = 50;
+};
+
+/// The correction of one drive: nodes along its trajectory with (dx, dy, dyaw), linearly
+/// interpolated by arc length; a point is corrected by the correction at the trajectory
+/// sample nearest to it, rotating about that sample.
+struct DriveCorrection {
+  std::int64_t drive = 0;
+  bool survey_grade = false;
+  /// Arc length of each node along the trajectory and the trajectory position there.
+  std::vector<double> node_s_m;
+  std::vector<Eigen::Vector2d> node_position_m;
+  /// (dx_m, dy_m, dyaw_rad) per node.
+  std::vector<Eigen::Vector3d> node_correction;
+  /// The drive's trajectory resampled every ~1 m (position, arc length) for lookups.
+  std::vector<Eigen::Vector2d> path_m;
+  std::vector<double> path_s_m;
+
+  /// p corrected (p in the build frame as the drive reported it). Identity without nodes.
+  [[nodiscard]] Eigen::Vector2d apply(const Eigen::Vector2d& p_m) const;
+  /// Interpolated (dx, dy, dyaw) at arc length s.
+  [[nodiscard]] Eigen::Vector3d at(double s_m) const;
+  /// Arc length of the trajectory point nearest to p (brute force over path_m: the caller
+  /// corrects a few thousand points per drive).
+  [[nodiscard]] double nearest_s_m(const Eigen::Vector2d& p_m) const;
+};
+
+/// Outcome of align_drives.
+struct DriveAlignmentResult {
+  enum class Status {
+    Aligned,    ///< consumer-grade drives were aligned
+    NotNeeded,  ///< every drive is better than consumer_grade_std_m: nothing changed
+    NoOverlap,  ///< consumer-grade drives but no landmark shared by enough drives
+  };
+  Status status = Status::NotNeeded;
+  std::vector<DriveCorrection> corrections;  ///< one per input drive, same order
+  int survey_grade_drives = 0;
+  int consumer_grade_drives = 0;
+  int clusters = 0;              ///< landmarks associated in the final round
+  int associations = 0;          ///< candidate-landmark residuals in the final round
+  double residual_rms_m = 0.0;   ///< RMS candidate-landmark distance after the final round
+  double mean_correction_m = 0.0;  ///< mean |(dx, dy)| over the consumer-grade nodes
+  double seconds = 0.0;
+};
+std::string_view to_string(DriveAlignmentResult::Status s);
+
+/// Aligns the drives (see the file comment). Drives without trajectory keep the identity.
+DriveAlignmentResult align_drives(std::span<const AlignmentDrive> drives,
+                                  const DriveAlignmentConfig& cfg = {});
+
+}  // namespace polmap::mapping

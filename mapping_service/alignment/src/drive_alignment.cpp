@@ -1,0 +1,494 @@
+#include "polmap/mapping_service/drive_alignment.hpp"
+
+#include <ceres/ceres.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <nanoflann.hpp>
+#include <numeric>
+#include <opencv2/imgproc.hpp>
+
+#include "polmap/schema/errors.hpp"
+
+namespace polmap::mapping {
+
+std::string_view to_string(DriveAlignmentResult::Status s) {
+  switch (s) {
+    case DriveAlignmentResult::Status::Aligned:
+      return "aligned";
+    case DriveAlignmentResult::Status::NotNeeded:
+      return "not_needed";
+    case DriveAlignmentResult::Status::NoOverlap:
+      return "no_overlap";
+  }
+  return "unknown";
+}
+
+Eigen::Vector3d DriveCorrection::at(double s_m) const {
+  if (node_s_m.empty()) return Eigen::Vector3d::Zero();
+  if (node_s_m.size() == 1 || s_m <= node_s_m.front()) return node_correction.front();
+  if (s_m >= node_s_m.back()) return node_correction.back();
+  const auto it = std::upper_bound(node_s_m.begin(), node_s_m.end(), s_m);
+  const std::size_t k = static_cast<std::size_t>(it - node_s_m.begin()) - 1;
+  const double w = (s_m - node_s_m[k]) / (node_s_m[k + 1] - node_s_m[k]);
+  return (1.0 - w) * node_correction[k] + w * node_correction[k + 1];
+}
+
+double DriveCorrection::nearest_s_m(const Eigen::Vector2d& p_m) const {
+  double best = std::numeric_limits<double>::infinity(), s = 0.0;
+  for (std::size_t i = 0; i < path_m.size(); ++i) {
+    const double d2 = (path_m[i] - p_m).squaredNorm();
+    if (d2 < best) {
+      best = d2;
+      s = path_s_m[i];
+    }
+  }
+  return s;
+}
+
+namespace {
+
+// The trajectory position at arc length s (linear between the resampled points).
+Eigen::Vector2d path_at(const DriveCorrection& c, double s_m) {
+  if (c.path_m.empty()) return Eigen::Vector2d::Zero();
+  if (s_m <= c.path_s_m.front()) return c.path_m.front();
+  if (s_m >= c.path_s_m.back()) return c.path_m.back();
+  const auto it = std::upper_bound(c.path_s_m.begin(), c.path_s_m.end(), s_m);
+  const std::size_t k = static_cast<std::size_t>(it - c.path_s_m.begin()) - 1;
+  const double span = c.path_s_m[k + 1] - c.path_s_m[k];
+  const double w = span > 0 ? (s_m - c.path_s_m[k]) / span : 0.0;
+  return (1.0 - w) * c.path_m[k] + w * c.path_m[k + 1];
+}
+
+// q = pivot + R(dyaw) (p - pivot) + (dx, dy), with (dx, dy, dyaw) interpolated between two
+// nodes with weight w. Shared by apply() and the Ceres residual.
+template <typename T>
+void corrected(const T* n0, const T* n1, double w, const Eigen::Vector2d& pivot,
+               const Eigen::Vector2d& p, T* q) {
+  const T dx = (1.0 - w) * n0[0] + w * n1[0];
+  const T dy = (1.0 - w) * n0[1] + w * n1[1];
+  const T th = (1.0 - w) * n0[2] + w * n1[2];
+  const T c = cos(th), s = sin(th);
+  const double rx = p.x() - pivot.x(), ry = p.y() - pivot.y();
+  q[0] = pivot.x() + c * rx - s * ry + dx;
+  q[1] = pivot.y() + s * rx + c * ry + dy;
+}
+
+}  // namespace
+
+Eigen::Vector2d DriveCorrection::apply(const Eigen::Vector2d& p_m) const {
+  if (node_s_m.empty()) return p_m;
+  const double s = nearest_s_m(p_m);
+  const Eigen::Vector3d n = at(s);
+  double q[2];
+  corrected(n.data(), n.data(), 0.0, path_at(*this, s), p_m, q);
+  return {q[0], q[1]};
+}
+
+namespace {
+
+// A point candidate tied to its drive's correction nodes (fixed during the solve).
+struct Attached {
+  std::size_t drive = 0;  // index into the input
+  std::size_t k0 = 0, k1 = 0;
+  double w = 0.0;
+  Eigen::Vector2d pivot = Eigen::Vector2d::Zero();
+  Eigen::Vector2d p = Eigen::Vector2d::Zero();
+};
+
+struct Cloud {
+  const std::vector<Eigen::Vector2d>* pts;
+  [[nodiscard]] std::size_t kdtree_get_point_count() const { return pts->size(); }
+  [[nodiscard]] double kdtree_get_pt(std::size_t i, std::size_t d) const {
+    return (*pts)[i][static_cast<int>(d)];
+  }
+  template <class B>
+  bool kdtree_get_bbox(B&) const {
+    return false;
+  }
+};
+using Tree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<double, Cloud>,
+                                                 Cloud, 2, std::size_t>;
+
+struct MemberResidual {
+  MemberResidual(const Attached& a, double sigma) : a_(a), inv_sigma_(1.0 / sigma) {}
+  template <typename T>
+  bool operator()(const T* n0, const T* n1, const T* lm, T* r) const {
+    T q[2];
+    corrected(n0, n1, a_.w, a_.pivot, a_.p, q);
+    r[0] = (q[0] - lm[0]) * inv_sigma_;
+    r[1] = (q[1] - lm[1]) * inv_sigma_;
+    return true;
+  }
+  Attached a_;
+  double inv_sigma_;
+};
+
+// The same when both interpolation nodes are one parameter block (Ceres forbids a block
+// twice in one residual).
+struct MemberResidualOneNode {
+  MemberResidualOneNode(const Attached& a, double sigma) : a_(a), inv_sigma_(1.0 / sigma) {}
+  template <typename T>
+  bool operator()(const T* n, const T* lm, T* r) const {
+    T q[2];
+    corrected(n, n, 0.0, a_.pivot, a_.p, q);
+    r[0] = (q[0] - lm[0]) * inv_sigma_;
+    r[1] = (q[1] - lm[1]) * inv_sigma_;
+    return true;
+  }
+  Attached a_;
+  double inv_sigma_;
+};
+
+struct Smoothness {
+  double inv_m, inv_rad;
+  template <typename T>
+  bool operator()(const T* a, const T* b, T* r) const {
+    r[0] = (b[0] - a[0]) * inv_m;
+    r[1] = (b[1] - a[1]) * inv_m;
+    r[2] = (b[2] - a[2]) * inv_rad;
+    return true;
+  }
+};
+
+struct Prior {
+  double inv_m, inv_rad;
+  template <typename T>
+  bool operator()(const T* a, T* r) const {
+    r[0] = a[0] * inv_m;
+    r[1] = a[1] * inv_m;
+    r[2] = a[2] * inv_rad;
+    return true;
+  }
+};
+
+double median(std::vector<double> v) {
+  if (v.empty()) return 0.0;
+  const auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
+  std::nth_element(v.begin(), mid, v.end());
+  return *mid;
+}
+
+// Current positions of all attached candidates.
+std::vector<Eigen::Vector2d> positions(const std::vector<Attached>& att,
+                                       const std::vector<DriveCorrection>& corr) {
+  std::vector<Eigen::Vector2d> q(att.size());
+  for (std::size_t i = 0; i < att.size(); ++i) {
+    const auto& a = att[i];
+    const auto& n = corr[a.drive].node_correction;
+    double out[2];
+    corrected(n[a.k0].data(), n[a.k1].data(), a.w, a.pivot, a.p, out);
+    q[i] = {out[0], out[1]};
+  }
+  return q;
+}
+
+// Coarse start: per node of every consumer-grade drive, the displacement to the other
+// drives' candidates nearby that most of its candidates agree on (the peak of a blurred
+// vote image), applied to all drives at once.
+void vote_round(const std::vector<Attached>& att, std::vector<DriveCorrection>& corr,
+                const DriveAlignmentConfig& cfg) {
+  const std::vector<Eigen::Vector2d> q = positions(att, corr);
+  Cloud cloud{&q};
+  Tree tree(2, cloud, nanoflann::KDTreeSingleIndexAdaptorParams(16));
+  tree.buildIndex();
+  const int half = static_cast<int>(std::ceil(cfg.vote_radius_m / cfg.vote_cell_m));
+  const int size = 2 * half + 1;
+  // Per drive and node: the candidates attached to it.
+  std::vector<std::vector<std::vector<std::size_t>>> of_node(corr.size());
+  for (std::size_t d = 0; d < corr.size(); ++d) of_node[d].resize(corr[d].node_s_m.size());
+  for (std::size_t i = 0; i < att.size(); ++i) {
+    of_node[att[i].drive][att[i].w < 0.5 ? att[i].k0 : att[i].k1].push_back(i);
+  }
+  const double r2 = cfg.vote_radius_m * cfg.vote_radius_m;
+  std::vector<std::pair<std::size_t, double>> hits;
+  nanoflann::SearchParams sp;
+  sp.sorted = false;
+  // Displacement votes of each candidate, computed once per round.
+  std::vector<std::vector<std::pair<int, int>>> votes(att.size());
+  for (std::size_t i = 0; i < att.size(); ++i) {
+    if (corr[att[i].drive].survey_grade) continue;
+    hits.clear();
+    const double qq[2] = {q[i].x(), q[i].y()};
+    tree.radiusSearch(qq, r2, hits, sp);
+    for (const auto& [j, d2] : hits) {
+      if (att[j].drive == att[i].drive) continue;
+      const Eigen::Vector2d d = q[j] - q[i];
+      votes[i].emplace_back(static_cast<int>(std::lround(d.x() / cfg.vote_cell_m)) + half,
+                            static_cast<int>(std::lround(d.y() / cfg.vote_cell_m)) + half);
+    }
+  }
+  std::vector<std::vector<Eigen::Vector2d>> update(corr.size());
+  for (std::size_t d = 0; d < corr.size(); ++d) {
+    update[d].assign(corr[d].node_s_m.size(), Eigen::Vector2d::Zero());
+    if (corr[d].survey_grade) continue;
+    const int nn = static_cast<int>(corr[d].node_s_m.size());
+    for (int k = 0; k < nn; ++k) {
+      cv::Mat img(size, size, CV_32F, cv::Scalar(0));
+      int count = 0;
+      for (int m = std::max(0, k - cfg.vote_window_nodes);
+           m <= std::min(nn - 1, k + cfg.vote_window_nodes); ++m) {
+        for (const std::size_t i : of_node[d][static_cast<std::size_t>(m)]) {
+          for (const auto& [x, y] : votes[i]) {
+            if (x >= 0 && y >= 0 && x < size && y < size) {
+              img.at<float>(y, x) += 1.0F;
+              ++count;
+            }
+          }
+        }
+      }
+      if (count < 20) continue;  // too little evidence here: keep the GNSS position
+      cv::GaussianBlur(img, img, cv::Size(0, 0), 1.5);
+      cv::Point peak;
+      cv::minMaxLoc(img, nullptr, nullptr, nullptr, &peak);
+      update[d][static_cast<std::size_t>(k)] = {(peak.x - half) * cfg.vote_cell_m,
+                                                (peak.y - half) * cfg.vote_cell_m};
+    }
+  }
+  for (std::size_t d = 0; d < corr.size(); ++d) {
+    for (std::size_t k = 0; k < update[d].size(); ++k) {
+      corr[d].node_correction[k].head<2>() += update[d][k];
+    }
+  }
+}
+
+struct Clusters {
+  std::vector<std::vector<std::size_t>> members;
+  std::vector<Eigen::Vector2d> centre;
+};
+
+// Greedy clustering of the current positions: seeds in order of neighbourhood density, at
+// most one candidate per drive (the nearest to the centre), at least min_drives drives.
+Clusters cluster(const std::vector<Attached>& att, const std::vector<Eigen::Vector2d>& q,
+                 double gate_m, int min_drives) {
+  Clusters out;
+  if (q.empty()) return out;
+  Cloud cloud{&q};
+  Tree tree(2, cloud, nanoflann::KDTreeSingleIndexAdaptorParams(16));
+  tree.buildIndex();
+  const double r2 = gate_m * gate_m;
+  nanoflann::SearchParams sp;
+  sp.sorted = false;
+  std::vector<std::pair<std::size_t, double>> hits;
+  std::vector<std::size_t> density(q.size());
+  for (std::size_t i = 0; i < q.size(); ++i) {
+    hits.clear();
+    const double qq[2] = {q[i].x(), q[i].y()};
+    density[i] = tree.radiusSearch(qq, r2, hits, sp);
+  }
+  std::vector<std::size_t> order(q.size());
+  std::iota(order.begin(), order.end(), 0);
+  std::stable_sort(order.begin(), order.end(),
+                   [&](std::size_t a, std::size_t b) { return density[a] > density[b]; });
+  std::vector<char> used(q.size(), 0);
+  auto gather = [&](const Eigen::Vector2d& c) {
+    hits.clear();
+    const double qq[2] = {c.x(), c.y()};
+    tree.radiusSearch(qq, r2, hits, sp);
+    std::vector<std::pair<std::size_t, double>> best;  // (index, d2) per drive
+    std::vector<std::size_t> drive_of;
+    for (const auto& [j, d2] : hits) {
+      if (used[j]) continue;
+      const auto it = std::find(drive_of.begin(), drive_of.end(), att[j].drive);
+      if (it == drive_of.end()) {
+        drive_of.push_back(att[j].drive);
+        best.emplace_back(j, d2);
+      } else {
+        auto& b = best[static_cast<std::size_t>(it - drive_of.begin())];
+        if (d2 < b.second || (d2 == b.second && j < b.first)) b = {j, d2};
+      }
+    }
+    std::vector<std::size_t> m;
+    for (const auto& b : best) m.push_back(b.first);
+    std::sort(m.begin(), m.end());
+    return m;
+  };
+  for (const std::size_t i : order) {
+    if (used[i]) continue;
+    std::vector<std::size_t> m = gather(q[i]);
+    if (static_cast<int>(m.size()) < min_drives) continue;
+    Eigen::Vector2d c = Eigen::Vector2d::Zero();
+    for (const std::size_t j : m) c += q[j];
+    c /= static_cast<double>(m.size());
+    m = gather(c);  // once more around the centre
+    if (static_cast<int>(m.size()) < min_drives) continue;
+    c.setZero();
+    for (const std::size_t j : m) {
+      c += q[j];
+      used[j] = 1;
+    }
+    out.centre.push_back(c / static_cast<double>(m.size()));
+    out.members.push_back(std::move(m));
+  }
+  return out;
+}
+
+}  // namespace
+
+DriveAlignmentResult align_drives(std::span<const AlignmentDrive> drives,
+                                  const DriveAlignmentConfig& cfg) {
+  POLMAP_EXPECT(cfg.node_spacing_m > 0.0 && cfg.candidate_sigma_m > 0.0);
+  POLMAP_EXPECT(cfg.vote_cell_m > 0.0 && cfg.vote_radius_m > cfg.vote_cell_m);
+  const auto t0 = std::chrono::steady_clock::now();
+  DriveAlignmentResult res;
+  res.corrections.resize(drives.size());
+  std::vector<double> drive_std(drives.size(), 0.0), drive_std_yaw(drives.size(), 0.0);
+  bool any_consumer = false;
+  for (std::size_t d = 0; d < drives.size(); ++d) {
+    DriveCorrection& c = res.corrections[d];
+    c.drive = drives[d].drive;
+    const auto& tr = drives[d].trajectory;
+    if (tr.empty()) continue;
+    std::vector<double> stds, yaws;
+    for (const auto& s : tr) {
+      stds.push_back(s.std_m);
+      yaws.push_back(s.std_yaw_rad);
+    }
+    drive_std[d] = median(stds);
+    drive_std_yaw[d] = median(yaws);
+    c.survey_grade = drive_std[d] <= cfg.survey_grade_std_m;
+    any_consumer = any_consumer || drive_std[d] >= cfg.consumer_grade_std_m;
+    (c.survey_grade ? res.survey_grade_drives : res.consumer_grade_drives) += 1;
+    // Resample the trajectory every ~1 m and place the nodes.
+    double s = 0.0;
+    c.path_m.push_back(tr.front().position_m);
+    c.path_s_m.push_back(0.0);
+    for (std::size_t i = 1; i < tr.size(); ++i) {
+      s += (tr[i].position_m - tr[i - 1].position_m).norm();
+      if (s - c.path_s_m.back() >= 1.0 || i + 1 == tr.size()) {
+        c.path_m.push_back(tr[i].position_m);
+        c.path_s_m.push_back(s);
+      }
+    }
+    const int n = std::max(1, static_cast<int>(std::ceil(s / cfg.node_spacing_m))) + 1;
+    for (int k = 0; k < n; ++k) {
+      const double sk = std::min(s, k * cfg.node_spacing_m);
+      if (!c.node_s_m.empty() && sk <= c.node_s_m.back()) break;
+      c.node_s_m.push_back(sk);
+      c.node_position_m.push_back(path_at(c, sk));
+      c.node_correction.push_back(Eigen::Vector3d::Zero());
+    }
+  }
+  if (!any_consumer) {
+    for (auto& c : res.corrections) {  // identity everywhere
+      std::fill(c.node_correction.begin(), c.node_correction.end(), Eigen::Vector3d::Zero());
+    }
+    res.status = DriveAlignmentResult::Status::NotNeeded;
+    return res;
+  }
+
+  // Tie every point candidate to its drive's nodes.
+  std::vector<Attached> att;
+  for (std::size_t d = 0; d < drives.size(); ++d) {
+    const DriveCorrection& c = res.corrections[d];
+    if (c.node_s_m.empty()) continue;
+    for (const Eigen::Vector2d& p : drives[d].points_m) {
+      Attached a;
+      a.drive = d;
+      a.p = p;
+      const double s = c.nearest_s_m(p);
+      a.pivot = path_at(c, s);
+      const auto it = std::upper_bound(c.node_s_m.begin(), c.node_s_m.end(), s);
+      const std::size_t k = it == c.node_s_m.begin()
+                                ? 0
+                                : static_cast<std::size_t>(it - c.node_s_m.begin()) - 1;
+      a.k0 = k;
+      a.k1 = std::min(k + 1, c.node_s_m.size() - 1);
+      a.w = a.k1 == a.k0 ? 0.0
+                         : std::clamp((s - c.node_s_m[k]) / (c.node_s_m[a.k1] - c.node_s_m[k]),
+                                      0.0, 1.0);
+      if (a.w == 0.0) a.k1 = a.k0;
+      att.push_back(a);
+    }
+  }
+
+  for (int r = 0; r < cfg.vote_rounds; ++r) vote_round(att, res.corrections, cfg);
+
+  Clusters cl;
+  for (const double gate : cfg.gates_m) {
+    cl = cluster(att, positions(att, res.corrections), gate, cfg.min_cluster_drives);
+    if (cl.members.empty()) continue;
+    ceres::Problem problem;
+    // Priors and smoothness of every drive's nodes.
+    for (std::size_t d = 0; d < drives.size(); ++d) {
+      DriveCorrection& c = res.corrections[d];
+      const std::size_t n = c.node_s_m.size();
+      if (n == 0) continue;
+      const double inflate =
+          std::sqrt(std::max(1.0, cfg.gnss_correlation_length_m / cfg.node_spacing_m));
+      const double sp = std::max(drive_std[d], 0.005) * inflate;
+      const double sy = std::max(drive_std_yaw[d], 1e-4) * inflate;
+      for (std::size_t k = 0; k < n; ++k) {
+        problem.AddResidualBlock(
+            new ceres::AutoDiffCostFunction<Prior, 3, 3>(new Prior{1.0 / sp, 1.0 / sy}), nullptr,
+            c.node_correction[k].data());
+        if (k + 1 < n) {
+          const double step = std::max(1e-3, (c.node_s_m[k + 1] - c.node_s_m[k]) /
+                                                 cfg.node_spacing_m);
+          problem.AddResidualBlock(
+              new ceres::AutoDiffCostFunction<Smoothness, 3, 3, 3>(
+                  new Smoothness{1.0 / (cfg.smoothness_sigma_m * std::sqrt(step)),
+                                 1.0 / (cfg.smoothness_yaw_sigma_rad * std::sqrt(step))}),
+              nullptr, c.node_correction[k].data(), c.node_correction[k + 1].data());
+        }
+      }
+    }
+    std::vector<Eigen::Vector2d> lm = cl.centre;
+    for (std::size_t j = 0; j < cl.members.size(); ++j) {
+      for (const std::size_t i : cl.members[j]) {
+        const Attached& a = att[i];
+        auto& n = res.corrections[a.drive].node_correction;
+        auto* loss = new ceres::HuberLoss(2.0);
+        if (a.k0 == a.k1) {
+          problem.AddResidualBlock(
+              new ceres::AutoDiffCostFunction<MemberResidualOneNode, 2, 3, 2>(
+                  new MemberResidualOneNode(a, cfg.candidate_sigma_m)),
+              loss, n[a.k0].data(), lm[j].data());
+        } else {
+          problem.AddResidualBlock(new ceres::AutoDiffCostFunction<MemberResidual, 2, 3, 3, 2>(
+                                       new MemberResidual(a, cfg.candidate_sigma_m)),
+                                   loss, n[a.k0].data(), n[a.k1].data(), lm[j].data());
+        }
+      }
+    }
+    ceres::Solver::Options opt;
+    opt.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
+    opt.max_num_iterations = cfg.max_iterations;
+    opt.num_threads = 2;
+    opt.logging_type = ceres::SILENT;
+    ceres::Solver::Summary summary;
+    ceres::Solve(opt, &problem, &summary);
+    cl.centre = lm;
+  }
+  if (cl.members.empty()) {
+    res.status = DriveAlignmentResult::Status::NoOverlap;
+    for (auto& c : res.corrections) {
+      std::fill(c.node_correction.begin(), c.node_correction.end(), Eigen::Vector3d::Zero());
+    }
+  } else {
+    res.status = DriveAlignmentResult::Status::Aligned;
+    const std::vector<Eigen::Vector2d> q = positions(att, res.corrections);
+    double s2 = 0.0;
+    for (std::size_t j = 0; j < cl.members.size(); ++j) {
+      for (const std::size_t i : cl.members[j]) s2 += (q[i] - cl.centre[j]).squaredNorm();
+      res.associations += static_cast<int>(cl.members[j].size());
+    }
+    res.clusters = static_cast<int>(cl.members.size());
+    res.residual_rms_m = std::sqrt(s2 / std::max(1, res.associations));
+  }
+  double sum = 0.0;
+  int count = 0;
+  for (const auto& c : res.corrections) {
+    if (c.survey_grade) continue;
+    for (const auto& n : c.node_correction) {
+      sum += n.head<2>().norm();
+      ++count;
+    }
+  }
+  res.mean_correction_m = count > 0 ? sum / count : 0.0;
+  res.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return res;
+}
+
+}  // namespace polmap::mapping

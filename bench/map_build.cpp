@@ -39,6 +39,7 @@
 #include <set>
 #include <sstream>
 
+#include "polmap/eval/map_geometry.hpp"
 #include "polmap/eval/study.hpp"
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/mapping_service/map_builder.hpp"
@@ -444,9 +445,10 @@ class SyntheticSource final : public DriveSource {
 class SimSource final : public DriveSource {
  public:
   SimSource(const std::string& world, double length_m, unsigned seed, fs::path cache,
-            bool with_gridmap)
-      : cache_(std::move(cache)) {
+            bool with_gridmap, sim::GnssGrade gnss = sim::GnssGrade::Rtk, int rtk_drives = 0)
+      : cache_(std::move(cache)), rtk_drives_(rtk_drives) {
     sim_.seed = seed;
+    sim_.gnss.grade = gnss;
     world_ = sim::load_world(world, length_m, seed, sim_);
     for (const auto& o : world_->objects) {
       if (!o.permanent) continue;
@@ -484,6 +486,7 @@ class SimSource final : public DriveSource {
   }
   std::size_t ingest(MapStore& store, const fs::path& /*dir*/, int n, int k) override {
     sim::SimConfig cfg = sim_;
+    if (k < rtk_drives_) cfg.gnss.grade = sim::GnssGrade::Rtk;  // survey-grade anchors
     int index = k;
     std::string name = "drive_" + std::to_string(k);
     if (k == n + 1) {  // the short drive: 30 s (about 300 m) of a drive no fleet has
@@ -502,6 +505,7 @@ class SimSource final : public DriveSource {
   }
   [[nodiscard]] const Truth& truth() const override { return truth_; }
   [[nodiscard]] const tiles::LocalFrame& frame() const override { return world_->frame; }
+  [[nodiscard]] const sim::World& world() const { return *world_; }
   /// Class of the world object nearest to x (within 2 m), "(temporary)" marked.
   [[nodiscard]] std::string nearest_object(const Eigen::Vector2d& x) const {
     double best = 2.0;
@@ -568,6 +572,7 @@ class SimSource final : public DriveSource {
   sim::SimConfig sim_;
   eval::StudyConfig study_;
   std::shared_ptr<const sim::World> world_;
+  int rtk_drives_ = 0;
   Truth truth_;
 };
 
@@ -619,7 +624,18 @@ int main(int argc, char** argv) {
   app.add_option("--co-presence-phi", filter.co_presence.min_phi, "co-presence: min phi");
   app.add_option("--co-presence-share", filter.co_presence.max_detection_share,
                  "co-presence: landmarks detected by more than this share are kept");
+  std::string gnss = "rtk";
+  int rtk_drives = 0;
+  app.add_option("--gnss", gnss,
+                 "simulated drives' positioning: rtk (survey-grade) | consumer (metre-level "
+                 "drifting errors; the build aligns the drives, drive_alignment.hpp)")
+      ->check(CLI::IsMember({"rtk", "consumer"}));
+  app.add_option("--rtk-drives", rtk_drives, "with --gnss consumer: the first N drives are RTK");
   CLI11_PARSE(app, argc, argv);
+  if (gnss != "rtk" && world.empty()) {
+    std::fprintf(stderr, "--gnss needs --world (the synthetic route has no trajectories)\n");
+    return 2;
+  }
   if (merged && world.empty()) {
     std::fprintf(stderr, "--merged needs --world (the synthetic route has no gridmaps)\n");
     return 2;
@@ -635,9 +651,11 @@ int main(int argc, char** argv) {
     source = std::make_unique<SyntheticSource>(length_km, points_per_km, walls_per_km,
                                                temporaries_per_km, seed);
   } else {
-    const fs::path cache = sim_cache.empty() ? root / "packages" : fs::path(sim_cache);
-    source = std::make_unique<SimSource>(world, length_km * 1000.0, seed,
-                                         merged ? cache / "with_gridmap" : cache, merged);
+    fs::path cache = sim_cache.empty() ? root / "packages" : fs::path(sim_cache);
+    if (gnss == "consumer") cache /= "consumer_rtk" + std::to_string(rtk_drives);
+    source = std::make_unique<SimSource>(
+        world, length_km * 1000.0, seed, merged ? cache / "with_gridmap" : cache, merged,
+        gnss == "consumer" ? sim::GnssGrade::Consumer : sim::GnssGrade::Rtk, rtk_drives);
   }
 
   std::printf(
@@ -668,6 +686,28 @@ int main(int argc, char** argv) {
       return 1;
     }
     const Accuracy acc = accuracy(store, r.version, source->truth(), source->frame(), radius_m);
+    if (const auto* sim_source = dynamic_cast<const SimSource*>(source.get())) {
+      // The map's geometry against truth (absolute offset; relative after a rigid fit per
+      // 200 m window) and what the drive alignment did.
+      std::vector<Eigen::Vector2d> lm;
+      for (const auto& p : store.landmarks_in(r.version, std::nullopt, false).points) {
+        lm.push_back(source->frame().to_local(p.position));
+      }
+      const eval::MapGeometry g =
+          eval::map_geometry(lm, eval::truth_point_objects(sim_source->world()));
+      std::printf(
+          "  geometry (%d drives, gnss %s, %d rtk): matched %d, offset %.3f m, raw rms %.3f m, "
+          "rigid-fit rms %.3f m, 200 m window rms %.3f m (%d windows), yaw %.3f deg | "
+          "alignment %s: %lld drives, %lld anchors, %lld clusters, residual %.3f m, mean "
+          "correction %.2f m, %.2f s\n",
+          n, gnss.c_str(), std::min(rtk_drives, n), g.matched, g.offset_m, g.raw_rms_m,
+          g.global_rms_m, g.window_rms_m, g.windows, g.yaw_truth_map_rad * 180.0 / M_PI,
+          r.stats.alignment_status.c_str(), static_cast<long long>(r.stats.aligned_drives),
+          static_cast<long long>(r.stats.alignment_anchor_drives),
+          static_cast<long long>(r.stats.alignment_clusters), r.stats.alignment_residual_rms_m,
+          r.stats.alignment_mean_correction_m, r.stats.seconds_alignment);
+      std::fflush(stdout);
+    }
     if (explain) source->explain(store, r.version, radius_m);
     if (merged) {
       // The same drives' merged gridmap, the vehicle's detectors on it (weak = objects fewer

@@ -26,12 +26,24 @@ std::vector<TaggedPointCandidate> tagged_points(const CandidateSet& cands,
                                                 const tiles::LocalFrame& frame);
 std::vector<TaggedLineCandidate> tagged_lines(const CandidateSet& cands,
                                               const tiles::LocalFrame& frame);
-/// The passes of the included drives whose box meets `query`, in the build frame.
+/// Corrections of aligned consumer-grade drives by drive row (none: the drive as stored).
+using DriveCorrections = std::unordered_map<std::int64_t, DriveCorrection>;
+/// Aligns the consumer-grade drives the build loads and corrects their candidates in
+/// place (cfg.align_drives; statistics into st).
+DriveCorrections align_candidates(const MapStore& store, const std::optional<GeoBox>& query,
+                                  const std::vector<std::string>& excluded,
+                                  std::vector<TaggedPointCandidate>& tp,
+                                  std::vector<TaggedLineCandidate>& tl,
+                                  const tiles::LocalFrame& frame, const MapBuilderConfig& cfg,
+                                  MapBuildStats& st);
+/// The passes of the included drives whose box meets `query`, in the build frame, their
+/// paths corrected like their candidates.
 std::vector<DrivePass> drive_passes(const MapStore& store, const std::optional<GeoBox>& query,
                                     const std::vector<std::string>& excluded,
                                     const std::vector<TaggedPointCandidate>& tp,
                                     const std::vector<TaggedLineCandidate>& tl,
-                                    const tiles::LocalFrame& frame, const VisibilityConfig& vcfg);
+                                    const tiles::LocalFrame& frame, const VisibilityConfig& vcfg,
+                                    const DriveCorrections& corrections = {});
 /// The frame position as a geodetic point quantized to 1e-8 degrees (stable keys).
 GeoPoint to_geo_quantized(const tiles::LocalFrame& frame, const Eigen::Vector2d& xy);
 /// Consensus landmarks as stored rows (region filter as MapStore::landmarks_in), with the

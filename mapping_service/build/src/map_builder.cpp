@@ -216,6 +216,13 @@ nlohmann::json to_json(const MapBuildStats& s) {
                          {"retired_groups", s.line_consensus.retired_groups},
                          {"polylines", s.line_consensus.polylines},
                          {"snapped_ends", s.line_consensus.snapped_ends}};
+  j["alignment"] = {{"status", s.alignment_status},
+                    {"aligned_drives", s.aligned_drives},
+                    {"anchor_drives", s.alignment_anchor_drives},
+                    {"clusters", s.alignment_clusters},
+                    {"residual_rms_m", s.alignment_residual_rms_m},
+                    {"mean_correction_m", s.alignment_mean_correction_m},
+                    {"seconds", s.seconds_alignment}};
   j["seconds"] = {{"load", s.seconds_load},           {"consensus", s.seconds_consensus},
                   {"landmarks", s.seconds_landmarks}, {"tiles", s.seconds_tiles},
                   {"gridmap", s.seconds_gridmap},     {"total", s.seconds_total}};
@@ -274,6 +281,83 @@ std::vector<TaggedLineCandidate> tagged_lines(const CandidateSet& cands,
   return tl;
 }
 
+double positioning_std_m(const DriveRecord& d, const char* key, double fallback) {
+  const auto it = d.manifest.find("positioning");
+  if (it == d.manifest.end() || !it->is_object()) return fallback;
+  const auto v = it->find(key);
+  return v != it->end() && v->is_number() ? v->get<double>() : fallback;
+}
+
+/// Aligns the consumer-grade drives among those the build loads (drive_alignment.hpp) in
+/// the build frame and corrects their candidates in place. Survey-grade fleets cost one
+/// look at each drive's record: trajectories are read only when a consumer drive is there.
+/// Drives stored before the store kept "positioning" count as survey-grade (they are).
+DriveCorrections align_candidates(const MapStore& store, const std::optional<GeoBox>& query,
+                                  const std::vector<std::string>& excluded,
+                                  std::vector<TaggedPointCandidate>& tp,
+                                  std::vector<TaggedLineCandidate>& tl,
+                                  const tiles::LocalFrame& frame, const MapBuilderConfig& cfg,
+                                  MapBuildStats& st) {
+  DriveCorrections out;
+  if (!cfg.align_drives) return out;
+  const auto t0 = std::chrono::steady_clock::now();
+  const std::set<std::string> skip(excluded.begin(), excluded.end());
+  std::vector<DriveRecord> drives;
+  bool any_consumer = false;
+  for (DriveRecord& d : query ? store.drives_in(*query) : store.list_drives()) {
+    if (skip.contains(d.drive_id)) continue;
+    any_consumer = any_consumer || positioning_std_m(d, "median_std_m", 0.0) >=
+                                       cfg.alignment.consumer_grade_std_m;
+    drives.push_back(std::move(d));
+  }
+  st.alignment_status = "not_needed";
+  if (!any_consumer) return out;
+  std::unordered_map<std::int64_t, std::size_t> index;
+  std::vector<AlignmentDrive> in;
+  for (const DriveRecord& d : drives) {
+    AlignmentDrive a;
+    a.drive = d.row;
+    const double sd = positioning_std_m(d, "median_std_m", 0.014);
+    const double sy = positioning_std_m(d, "median_std_yaw_rad", 0.001);
+    for (const TrajectorySample& s : store.drive_trajectory(d.drive_id)) {
+      a.trajectory.push_back(
+          {s.time_s, frame.to_local(GeoPoint{s.lat_deg, s.lon_deg, 0.0}), sd, sy});
+    }
+    index[d.row] = in.size();
+    in.push_back(std::move(a));
+  }
+  for (const auto& p : tp) {
+    if (const auto it = index.find(p.drive); it != index.end()) {
+      in[it->second].points_m.push_back(p.candidate.position_m);
+    }
+  }
+  const DriveAlignmentResult r = align_drives(in, cfg.alignment);
+  st.alignment_status = std::string(to_string(r.status));
+  st.aligned_drives = r.consumer_grade_drives;
+  st.alignment_anchor_drives = r.survey_grade_drives;
+  st.alignment_clusters = r.clusters;
+  st.alignment_residual_rms_m = r.residual_rms_m;
+  st.alignment_mean_correction_m = r.mean_correction_m;
+  if (r.status == DriveAlignmentResult::Status::Aligned) {
+    for (const DriveCorrection& c : r.corrections) {
+      if (!c.survey_grade) out.emplace(c.drive, c);
+    }
+    for (auto& p : tp) {
+      if (const auto it = out.find(p.drive); it != out.end()) {
+        p.candidate.position_m = it->second.apply(p.candidate.position_m);
+      }
+    }
+    for (auto& l : tl) {
+      if (const auto it = out.find(l.drive); it != out.end()) {
+        l.candidate.start_m = it->second.apply(l.candidate.start_m);
+        l.candidate.end_m = it->second.apply(l.candidate.end_m);
+      }
+    }
+  }
+  st.seconds_alignment = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return out;
+}
+
 /// The passes of the drives that may have had the region in view: every included drive
 /// whose box meets the query box (also those without candidates there: a pass that saw
 /// nothing is evidence too), with its trajectory in the build frame and its view range
@@ -282,7 +366,8 @@ std::vector<DrivePass> drive_passes(const MapStore& store, const std::optional<G
                                     const std::vector<std::string>& excluded,
                                     const std::vector<TaggedPointCandidate>& tp,
                                     const std::vector<TaggedLineCandidate>& tl,
-                                    const tiles::LocalFrame& frame, const VisibilityConfig& vcfg) {
+                                    const tiles::LocalFrame& frame, const VisibilityConfig& vcfg,
+                                    const DriveCorrections& corrections) {
   const std::set<std::string> skip(excluded.begin(), excluded.end());
   std::unordered_map<std::int64_t, std::vector<Eigen::Vector2d>> cand_of_drive;
   for (const auto& p : tp) cand_of_drive[p.drive].push_back(p.candidate.position_m);
@@ -299,7 +384,11 @@ std::vector<DrivePass> drive_passes(const MapStore& store, const std::optional<G
     pass.start_time_s = d.start_time_s;
     pass.vehicle =
         vehicles.emplace(d.vehicle_id, static_cast<std::int64_t>(vehicles.size())).first->second;
-    for (const GeoPoint& g : store.drive_path(d.drive_id)) pass.path_m.push_back(frame.to_local(g));
+    const auto corr = corrections.find(d.row);
+    for (const GeoPoint& g : store.drive_path(d.drive_id)) {
+      const Eigen::Vector2d p = frame.to_local(g);
+      pass.path_m.push_back(corr == corrections.end() ? p : corr->second.apply(p));
+    }
     if (pass.path_m.empty()) continue;  // no trajectory: judged by its candidates alone
     const auto it = cand_of_drive.find(d.row);
     pass.view_range_m = it == cand_of_drive.end()
@@ -768,11 +857,13 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version, const MapB
       st.drives_used = static_cast<std::int64_t>(drives.size());
     }
     const tiles::LocalFrame frame(region_centre(build_region, cands));
-    const std::vector<TaggedPointCandidate> tp = tagged_points(cands, frame);
-    const std::vector<TaggedLineCandidate> tl = tagged_lines(cands, frame);
-    const VisibilityIndex view(
-        drive_passes(store, query, req.excluded_drive_ids, tp, tl, frame, req.visibility),
-        req.visibility);
+    std::vector<TaggedPointCandidate> tp = tagged_points(cands, frame);
+    std::vector<TaggedLineCandidate> tl = tagged_lines(cands, frame);
+    const DriveCorrections corrections =
+        align_candidates(store, query, req.excluded_drive_ids, tp, tl, frame, cfg_, st);
+    const VisibilityIndex view(drive_passes(store, query, req.excluded_drive_ids, tp, tl, frame,
+                                            req.visibility, corrections),
+                               req.visibility);
     st.drives_passing = static_cast<std::int64_t>(view.passes().size());
     st.seconds_load = clock.lap();
 

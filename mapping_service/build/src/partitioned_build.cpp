@@ -222,10 +222,13 @@ BuildJobOutput region_job(const MapStore& store, std::int64_t version, const Map
   std::erase_if(cands.points, [&](const auto& c) { return c.drive > max_row; });
   std::erase_if(cands.lines, [&](const auto& c) { return c.drive > max_row; });
   const tiles::LocalFrame frame(tiles::tile_center(region));
-  const auto tp = tagged_points(cands, frame);
-  const auto tl = tagged_lines(cands, frame);
-  std::vector<DrivePass> passes =
-      drive_passes(store, query, req.excluded_drive_ids, tp, tl, frame, req.visibility);
+  auto tp = tagged_points(cands, frame);
+  auto tl = tagged_lines(cands, frame);
+  MapBuildStats align_stats;  // a region job reports no statistics of its own
+  const DriveCorrections corrections =
+      align_candidates(store, query, req.excluded_drive_ids, tp, tl, frame, cfg, align_stats);
+  std::vector<DrivePass> passes = drive_passes(store, query, req.excluded_drive_ids, tp, tl,
+                                               frame, req.visibility, corrections);
   std::erase_if(passes, [&](const DrivePass& p) { return p.drive > max_row; });
   const VisibilityIndex view(std::move(passes), req.visibility);
   PointConsensusResult pc = consensus_points(tp, req.points, &view);

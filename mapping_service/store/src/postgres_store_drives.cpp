@@ -152,7 +152,7 @@ PutDriveResult PostgresMapStore::put_drive(const DrivePackage& package,
           .add(m.distance_m)
           .add(static_cast<std::int64_t>(package.points.size()))
           .add(static_cast<std::int64_t>(package.lines.size()))
-          .add(manifest_json(m).dump())
+          .add(manifest_json(package).dump())
           .add(content_hash)
           .add(bytes)
           .add(now_iso());

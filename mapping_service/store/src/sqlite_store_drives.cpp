@@ -99,7 +99,7 @@ PutDriveResult SqliteMapStore::put_drive(const DrivePackage& package,
           .bind(11, m.distance_m)
           .bind(12, static_cast<std::int64_t>(package.points.size()))
           .bind(13, static_cast<std::int64_t>(package.lines.size()))
-          .bind(14, manifest_json(m).dump())
+          .bind(14, manifest_json(package).dump())
           .bind(15, rel_path)
           .bind(16, bytes)
           .bind(17, now_iso())

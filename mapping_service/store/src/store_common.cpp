@@ -7,6 +7,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <bit>
 #include <cerrno>
 #include <cmath>
@@ -106,7 +107,8 @@ bool box_intersects(const GeoBox& b, double lat0, double lon0, double lat1, doub
   return false;
 }
 
-nlohmann::json manifest_json(const DriveManifest& m) {
+nlohmann::json manifest_json(const DrivePackage& package) {
+  const DriveManifest& m = package.manifest;
   nlohmann::json j;
   j["format_version"] = m.format_version;
   j["drive_id"] = m.drive_id;
@@ -120,6 +122,26 @@ nlohmann::json manifest_json(const DriveManifest& m) {
   j["cell_size_m"] = m.cell_size_m;
   j["distance_m"] = m.distance_m;
   j["producer"] = m.producer;
+  if (!package.trajectory.empty()) {
+    std::vector<double> pos, yaw;
+    std::array<std::size_t, 3> solutions{};
+    for (const TrajectorySample& s : package.trajectory) {
+      pos.push_back(std::max(s.std_east_m, s.std_north_m));
+      yaw.push_back(s.std_yaw_rad);
+      const auto k = static_cast<std::size_t>(s.solution);
+      if (k < solutions.size()) ++solutions[k];
+    }
+    auto median = [](std::vector<double>& v) {
+      const auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
+      std::nth_element(v.begin(), mid, v.end());
+      return *mid;
+    };
+    const auto top = static_cast<std::size_t>(
+        std::max_element(solutions.begin(), solutions.end()) - solutions.begin());
+    j["positioning"] = {{"median_std_m", median(pos)},
+                        {"median_std_yaw_rad", median(yaw)},
+                        {"solution", std::string(to_string(static_cast<GnssSolution>(top)))}};
+  }
   return j;
 }
 

@@ -33,7 +33,11 @@ std::string iso_utc(std::chrono::system_clock::time_point t);
 std::vector<GeoBox> split_box(const GeoBox& b);
 bool box_contains(const GeoBox& b, double lat, double lon);
 bool box_intersects(const GeoBox& b, double lat0, double lon0, double lat1, double lon1);
-nlohmann::json manifest_json(const DriveManifest& m);
+/// What the store keeps of a validated package's manifest (DriveRecord::manifest), with
+/// "positioning" derived from its validated trajectory: median reported 1-sigma horizontal
+/// accuracy (max of east and north) and heading accuracy, and the most common solution
+/// type. Map builds use it to tell survey-grade from consumer-grade drives.
+nlohmann::json manifest_json(const DrivePackage& package);
 /// Bytes of a file, or of all regular files below a directory.
 std::int64_t dir_bytes(const std::filesystem::path& p);
 /// The table of a tile layer (the same names in every backend's schema).

@@ -60,6 +60,7 @@
 #include <vector>
 
 #include "polmap/mapping_service/consensus.hpp"
+#include "polmap/mapping_service/drive_alignment.hpp"
 #include "polmap/mapping_service/fleet_gridmap.hpp"
 #include "polmap/mapping_service/landmark_diff.hpp"
 #include "polmap/mapping_service/store.hpp"
@@ -138,6 +139,11 @@ struct MapBuilderConfig {
   double line_tile_sample_m = 1.0;
   /// How changes against the current version are found (recorded per version).
   LandmarkDiffConfig diff;
+  /// Drives with consumer-grade GNSS (manifest "positioning": median reported accuracy of
+  /// at least alignment.consumer_grade_std_m) are aligned to each other and to the
+  /// survey-grade drives before consensus (drive_alignment.hpp); false: never.
+  bool align_drives = true;
+  DriveAlignmentConfig alignment;
 };
 
 /// Figures of one build (also stored as the version's statistics JSON).
@@ -177,6 +183,14 @@ struct MapBuildStats {
   std::int64_t landmarks_retired = 0;
   PointConsensusResult::Stats point_consensus;
   LineConsensusResult::Stats line_consensus;
+  /// Drive alignment: "off", "not_needed", "aligned" or "no_overlap" (drive_alignment.hpp).
+  std::string alignment_status = "off";
+  std::int64_t aligned_drives = 0;  ///< consumer-grade drives aligned
+  std::int64_t alignment_anchor_drives = 0;  ///< survey-grade drives among those loaded
+  std::int64_t alignment_clusters = 0;
+  double alignment_residual_rms_m = 0.0;
+  double alignment_mean_correction_m = 0.0;
+  double seconds_alignment = 0.0;
   double seconds_load = 0.0;
   double seconds_consensus = 0.0;
   double seconds_landmarks = 0.0;  ///< geodetic conversion and writing landmarks

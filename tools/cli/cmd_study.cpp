@@ -37,6 +37,8 @@ struct StudyOptions {
   double slip_gradient_deg = -1.0;
   bool no_common_yaw = false;
   std::string realism_sources;
+  std::string gnss = "rtk";
+  int rtk_drives = 0;
   bool http = false;
   bool json = false;
   bool keep_packages = false;
@@ -76,6 +78,17 @@ void run(const StudyOptions& o) {
     cfg.sim.realism = sim::only_sources(cfg.sim.realism, o.realism_sources);
   }
   if (o.no_common_yaw) cfg.localizer.mount_calibration.estimate_common_yaw = false;
+  // Positioning of the drives' recorded trajectories: survey-grade, or a series car's
+  // consumer GNSS (the build aligns those drives; errors are measured in the map's frame,
+  // and every sample counts: the simulator's truth is exact, whatever the GNSS fix).
+  if (o.rtk_drives < 0 || (o.rtk_drives > 0 && o.gnss != "consumer")) {
+    throw ValidationError("study: --rtk-drives N (N >= 0) needs --gnss consumer");
+  }
+  if (o.gnss == "consumer") {
+    cfg.sim.gnss.grade = sim::GnssGrade::Consumer;
+    cfg.rtk_drives = o.rtk_drives;
+    cfg.require_carrier_phase = false;
+  }
   // The simulated vehicle's side-slip gradient is a vehicle parameter the localizer is
   // given, like its mounts (the nominal value of the vehicle, not the drive's truth).
   cfg.localizer.egomotion.side_slip_gradient_rad_per_mps2 =
@@ -118,6 +131,7 @@ void run(const StudyOptions& o) {
   for (const PolLevel l : cfg.levels) text << eval::format_accuracy_table(r, l) << '\n';
   if (cfg.levels.size() > 1) text << eval::format_level_table(r) << '\n';
   text << eval::format_uncertainty_table(r) << '\n';
+  text << eval::format_map_geometry_table(r) << '\n';
   text << eval::format_speed_table(r) << '\n';
   if (cfg.diagnose) text << eval::format_diagnosis_table(r) << '\n';
   text << "figures: ";

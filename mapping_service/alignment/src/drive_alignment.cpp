@@ -108,8 +108,8 @@ struct Cloud {
     return false;
   }
 };
-using Tree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<double, Cloud>,
-                                                 Cloud, 2, std::size_t>;
+using Tree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<double, Cloud>, Cloud,
+                                                 2, std::size_t>;
 
 struct MemberResidual {
   MemberResidual(const Attached& a, double sigma) : a_(a), inv_sigma_(1.0 / sigma) {}
@@ -390,14 +390,13 @@ DriveAlignmentResult align_drives(std::span<const AlignmentDrive> drives,
       const double s = c.nearest_s_m(p);
       a.pivot = path_at(c, s);
       const auto it = std::upper_bound(c.node_s_m.begin(), c.node_s_m.end(), s);
-      const std::size_t k = it == c.node_s_m.begin()
-                                ? 0
-                                : static_cast<std::size_t>(it - c.node_s_m.begin()) - 1;
+      const std::size_t k =
+          it == c.node_s_m.begin() ? 0 : static_cast<std::size_t>(it - c.node_s_m.begin()) - 1;
       a.k0 = k;
       a.k1 = std::min(k + 1, c.node_s_m.size() - 1);
-      a.w = a.k1 == a.k0 ? 0.0
-                         : std::clamp((s - c.node_s_m[k]) / (c.node_s_m[a.k1] - c.node_s_m[k]),
-                                      0.0, 1.0);
+      a.w = a.k1 == a.k0
+                ? 0.0
+                : std::clamp((s - c.node_s_m[k]) / (c.node_s_m[a.k1] - c.node_s_m[k]), 0.0, 1.0);
       if (a.w == 0.0) a.k1 = a.k0;
       att.push_back(a);
     }
@@ -424,8 +423,8 @@ DriveAlignmentResult align_drives(std::span<const AlignmentDrive> drives,
             new ceres::AutoDiffCostFunction<Prior, 3, 3>(new Prior{1.0 / sp, 1.0 / sy}), nullptr,
             c.node_correction[k].data());
         if (k + 1 < n) {
-          const double step = std::max(1e-3, (c.node_s_m[k + 1] - c.node_s_m[k]) /
-                                                 cfg.node_spacing_m);
+          const double step =
+              std::max(1e-3, (c.node_s_m[k + 1] - c.node_s_m[k]) / cfg.node_spacing_m);
           problem.AddResidualBlock(
               new ceres::AutoDiffCostFunction<Smoothness, 3, 3, 3>(
                   new Smoothness{1.0 / (cfg.smoothness_sigma_m * std::sqrt(step)),
@@ -441,10 +440,9 @@ DriveAlignmentResult align_drives(std::span<const AlignmentDrive> drives,
         auto& n = res.corrections[a.drive].node_correction;
         auto* loss = new ceres::HuberLoss(2.0);
         if (a.k0 == a.k1) {
-          problem.AddResidualBlock(
-              new ceres::AutoDiffCostFunction<MemberResidualOneNode, 2, 3, 2>(
-                  new MemberResidualOneNode(a, cfg.candidate_sigma_m)),
-              loss, n[a.k0].data(), lm[j].data());
+          problem.AddResidualBlock(new ceres::AutoDiffCostFunction<MemberResidualOneNode, 2, 3, 2>(
+                                       new MemberResidualOneNode(a, cfg.candidate_sigma_m)),
+                                   loss, n[a.k0].data(), lm[j].data());
         } else {
           problem.AddResidualBlock(new ceres::AutoDiffCostFunction<MemberResidual, 2, 3, 3, 2>(
                                        new MemberResidual(a, cfg.candidate_sigma_m)),

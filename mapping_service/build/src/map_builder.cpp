@@ -306,8 +306,8 @@ DriveCorrections align_candidates(const MapStore& store, const std::optional<Geo
   bool any_consumer = false;
   for (DriveRecord& d : query ? store.drives_in(*query) : store.list_drives()) {
     if (skip.contains(d.drive_id)) continue;
-    any_consumer = any_consumer || positioning_std_m(d, "median_std_m", 0.0) >=
-                                       cfg.alignment.consumer_grade_std_m;
+    any_consumer = any_consumer ||
+                   positioning_std_m(d, "median_std_m", 0.0) >= cfg.alignment.consumer_grade_std_m;
     drives.push_back(std::move(d));
   }
   st.alignment_status = "not_needed";
@@ -354,7 +354,8 @@ DriveCorrections align_candidates(const MapStore& store, const std::optional<Geo
       }
     }
   }
-  st.seconds_alignment = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  st.seconds_alignment =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return out;
 }
 

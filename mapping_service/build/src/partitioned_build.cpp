@@ -227,8 +227,8 @@ BuildJobOutput region_job(const MapStore& store, std::int64_t version, const Map
   MapBuildStats align_stats;  // a region job reports no statistics of its own
   const DriveCorrections corrections =
       align_candidates(store, query, req.excluded_drive_ids, tp, tl, frame, cfg, align_stats);
-  std::vector<DrivePass> passes = drive_passes(store, query, req.excluded_drive_ids, tp, tl,
-                                               frame, req.visibility, corrections);
+  std::vector<DrivePass> passes = drive_passes(store, query, req.excluded_drive_ids, tp, tl, frame,
+                                               req.visibility, corrections);
   std::erase_if(passes, [&](const DrivePass& p) { return p.drive > max_row; });
   const VisibilityIndex view(std::move(passes), req.visibility);
   PointConsensusResult pc = consensus_points(tp, req.points, &view);

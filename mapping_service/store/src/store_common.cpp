@@ -136,8 +136,8 @@ nlohmann::json manifest_json(const DrivePackage& package) {
       std::nth_element(v.begin(), mid, v.end());
       return *mid;
     };
-    const auto top = static_cast<std::size_t>(
-        std::max_element(solutions.begin(), solutions.end()) - solutions.begin());
+    const auto top = static_cast<std::size_t>(std::max_element(solutions.begin(), solutions.end()) -
+                                              solutions.begin());
     j["positioning"] = {{"median_std_m", median(pos)},
                         {"median_std_yaw_rad", median(yaw)},
                         {"solution", std::string(to_string(static_cast<GnssSolution>(top)))}};

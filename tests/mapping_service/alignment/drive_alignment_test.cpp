@@ -3,12 +3,12 @@
 // (bias + slow drift, as the simulator's consumer GNSS), candidates with 5 cm noise and
 // single-drive clutter. The aligned candidates of all drives must agree to centimetres,
 // and survey-grade drives must pin the absolute position.
+#include "polmap/mapping_service/drive_alignment.hpp"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <random>
-
-#include "polmap/mapping_service/drive_alignment.hpp"
 
 namespace polmap::mapping {
 namespace {
@@ -100,8 +100,8 @@ std::pair<double, Eigen::Vector2d> landmark_rms(const World& w, const Fleet& f,
     for (const auto& l : w.landmarks) {
       Eigen::Vector2d seen = l + f.errors[d].at(l.x());
       if (r) seen = r->corrections[d].apply(seen);
-      diffs[static_cast<std::size_t>(std::clamp(static_cast<int>(l.x() / kWindowM), 0,
-                                                windows - 1))]
+      diffs[static_cast<std::size_t>(
+                std::clamp(static_cast<int>(l.x() / kWindowM), 0, windows - 1))]
           .push_back(seen - l);
       mean_all += seen - l;
       ++n_all;

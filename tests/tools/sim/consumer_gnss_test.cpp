@@ -130,5 +130,37 @@ TEST(ConsumerGnss, TwoDrivesShareTheCanyonErrorAtTheSamePlace) {
   EXPECT_LT((err[0] - err[1]).norm(), 0.1 * err[0].norm() + 0.02);
 }
 
+TEST(ConsumerGnss, NavigationFilterSmoothsTheCanyonError) {
+  const auto w = canyon_world(0.0, 1000.0, 8.0);
+  GnssSimConfig cfg;
+  cfg.grade = GnssGrade::Consumer;
+  cfg.consumer.bias_sigma_m = 0.0;
+  cfg.consumer.heading_sigma_deg = 0.0;
+  cfg.consumer.outages_per_km = 0.0;
+  const auto field = std::make_shared<CanyonMultipathField>(*w, cfg.consumer, 9);
+  GnssErrorModel m(cfg, 100.0, 1);
+  m.set_multipath(field);
+  double d_rec = 0, d_raw = 0, s_rec = 0, s_raw = 0;
+  Eigen::Vector2d prev_rec, prev_raw;
+  for (int i = 0; i < 900; ++i) {  // 10 Hz at 10 m/s: 1 m per sample
+    const double x = 50.0 + i;
+    const TrajectorySample g = m.sample(test::state_at(x, 0.0, 0.0, 10.0, 0.0, 0.1 * i), w->frame);
+    const Eigen::Vector2d rec = w->frame.to_local(g.lat_deg, g.lon_deg) - Eigen::Vector2d(x, 0);
+    const Eigen::Vector2d raw = field->error_m({x, 0.0}, 0.0);
+    if (i > 100) {  // after the filter's start-up
+      d_rec += (rec - prev_rec).squaredNorm();
+      d_raw += (raw - prev_raw).squaredNorm();
+      s_rec += rec.squaredNorm();
+      s_raw += raw.squaredNorm();
+    }
+    prev_rec = rec;
+    prev_raw = raw;
+  }
+  // The recorded error changes several times slower per metre than the raw field, and
+  // keeps a good part of its size (100 m filter length vs 40 m field correlation).
+  EXPECT_LT(std::sqrt(d_rec), 0.3 * std::sqrt(d_raw));
+  EXPECT_GT(std::sqrt(s_rec), 0.2 * std::sqrt(s_raw));
+}
+
 }  // namespace
 }  // namespace polmap::sim

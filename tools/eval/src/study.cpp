@@ -14,6 +14,7 @@
 #include <sstream>
 #include <thread>
 
+#include "polmap/eval/map_geometry.hpp"
 #include "polmap/eval/stage_budget.hpp"
 #include "polmap/eval/store_tile_source.hpp"
 #include "polmap/eval/svg_plot.hpp"
@@ -233,7 +234,14 @@ StudyDriveResult localize_simulated_drive(const std::shared_ptr<const sim::World
 
   // Reference: the simulator's exact poses, carrier-phase flags of the drive's GNSS.
   std::vector<ReferenceSample> ref;
-  for (const sim::ExactState& e : simulator.exact_trajectory()) {
+  for (sim::ExactState e : simulator.exact_trajectory()) {
+    if (opt.truth_to_map) {  // the map's frame (see LocalizeOptions)
+      const auto& [R, t] = *opt.truth_to_map;
+      const Eigen::Vector2d p = R.transpose() * (Eigen::Vector2d(e.x_m, e.y_m) - t);
+      e.x_m = p.x();
+      e.y_m = p.y();
+      e.yaw_rad -= std::atan2(R(1, 0), R(0, 0));
+    }
     const sim::GeoTruth g = sim::to_geo_truth(e, world->frame);
     ref.push_back({e.time_s, g.lat_deg, g.lon_deg, g.yaw_enu_rad, e.v_mps, fix.fixed_at(e.time_s)});
   }
@@ -748,6 +756,14 @@ StudyResult run_study(const StudyConfig& cfg,
     sim_cfg.seed = seed;
     std::shared_ptr<const sim::World> world =
         sim::load_world(cfg.world, cfg.length_m, seed, sim_cfg);
+    // Consumer-grade studies: the first rtk_drives drives are survey-grade.
+    auto drive_sim_cfg = [&](int k) {
+      sim::SimConfig c = sim_cfg;
+      if (k < cfg.rtk_drives) c.gnss.grade = sim::GnssGrade::Rtk;
+      return c;
+    };
+    const bool consumer = sim_cfg.gnss.grade == sim::GnssGrade::Consumer;
+    const std::vector<Eigen::Vector2d> truth_points = truth_point_objects(*world);
     for (const PolLevel level : cfg.levels) {
       const auto dir = cfg.out_dir / ("seed_" + std::to_string(seed)) / level_dir_name(level);
       std::filesystem::remove_all(dir, ec);
@@ -760,7 +776,7 @@ StudyResult run_study(const StudyConfig& cfg,
       for (int k = 0; k < cfg.drives; ++k) {
         const auto pkg_dir = dir / "packages" / ("drive_" + std::to_string(k));
         StudyPackage sp = simulate_and_package(
-            world, sim_cfg, k, level, cfg, pkg_dir,
+            world, drive_sim_cfg(k), k, level, cfg, pkg_dir,
             [&](double f) { report("simulate+process", seed, level, k, f, 1.0); });
         const mapping::DrivePackage pkg = mapping::read_and_validate_package(pkg_dir);
         store.put_drive(pkg, pkg_dir, pkg.content_sha256);
@@ -811,7 +827,20 @@ StudyResult run_study(const StudyConfig& cfg,
           lo.errors_csv_path = dir / ("errors_" + drive_id + ".csv");
         }
         lo.progress = [&](double f) { report("localize", seed, level, k, f, 1.0); };
-        StudyDriveResult r = localize_simulated_drive(world, sim_cfg, k, level, cfg, *source, lo);
+        std::vector<Eigen::Vector2d> map_points;
+        for (const auto& p : store.landmarks_in(br.version, std::nullopt, false).points) {
+          map_points.push_back(world->frame.to_local(p.position));
+        }
+        const MapGeometry geo = map_geometry(map_points, truth_points);
+        if (consumer && geo.status == MapGeometry::Status::Ok) {
+          lo.truth_to_map = std::make_pair(geo.R_truth_map, geo.t_truth_map_m);
+        }
+        StudyDriveResult r =
+            localize_simulated_drive(world, drive_sim_cfg(k), k, level, cfg, *source, lo);
+        r.map_offset_m = geo.offset_m;
+        r.map_rigid_rms_m = geo.global_rms_m;
+        r.map_window_rms_m = geo.window_rms_m;
+        r.errors_in_map_frame = lo.truth_to_map.has_value();
         r.seed = seed;
         r.point_candidates = processed[k].point_candidates;
         r.line_candidates = processed[k].line_candidates;
@@ -822,9 +851,10 @@ StudyResult run_study(const StudyConfig& cfg,
         r.map_build_s = build_s;
         if (cfg.diagnose) {
           report("diagnose", seed, level, k, 0.0, 0.0);
-          r.diagnosis = diagnose_drive(world, sim_cfg, k, level, cfg, store, br.version, {},
-                                       cfg.write_trajectories ? dir / ("diag_" + drive_id + ".csv")
-                                                              : std::filesystem::path{});
+          r.diagnosis =
+              diagnose_drive(world, drive_sim_cfg(k), k, level, cfg, store, br.version, {},
+                             cfg.write_trajectories ? dir / ("diag_" + drive_id + ".csv")
+                                                    : std::filesystem::path{});
         }
         r.tile_bytes =
             fetcher ? fetcher->stats().bytes_downloaded : store_tiles->stats().bytes_read;
@@ -951,6 +981,24 @@ std::string format_uncertainty_table(const StudyResult& r) {
                   std::string(to_string(s.level)).c_str(), static_cast<long long>(e.nees_samples),
                   e.nees_mean, 100 * e.nees_within_q95_share, static_cast<long long>(e.pl_samples),
                   100 * e.pl_bounded_share, e.pl_mean_m);
+    o << buf;
+  }
+  return o.str();
+}
+
+std::string format_map_geometry_table(const StudyResult& r) {
+  std::ostringstream o;
+  o << "Map geometry of each leave-one-out map against truth (point landmarks; offset = mean "
+       "truth - map, rms after one rigid fit and after a rigid fit per 200 m window)\n";
+  char buf[256];
+  std::snprintf(buf, sizeof buf, "%-6s %-5s %-5s %9s %10s %10s %s\n", "level", "seed", "drive",
+                "offset m", "rigid rms", "200m rms", "errors in");
+  o << buf;
+  for (const auto& d : r.results) {
+    std::snprintf(buf, sizeof buf, "%-6s %-5llu #%-4d %9.3f %10.3f %10.3f %s\n",
+                  std::string(to_string(d.level)).c_str(), static_cast<unsigned long long>(d.seed),
+                  d.drive + 1, d.map_offset_m, d.map_rigid_rms_m, d.map_window_rms_m,
+                  d.errors_in_map_frame ? "map frame" : "world frame");
     o << buf;
   }
   return o.str();
@@ -1105,6 +1153,11 @@ nlohmann::json to_json(const StudyResult& r) {
          {"map_point_landmarks", d.map_point_landmarks},
          {"map_line_landmarks", d.map_line_landmarks},
          {"map_build_s", d.map_build_s},
+         {"map_geometry",
+          {{"offset_m", d.map_offset_m},
+           {"rigid_fit_rms_m", d.map_rigid_rms_m},
+           {"window_200m_rms_m", d.map_window_rms_m},
+           {"errors_in_map_frame", d.errors_in_map_frame}}},
          {"errors", to_json(d.errors)},
          {"converged", d.converged},
          {"converge_time_s", d.converge_time_s},

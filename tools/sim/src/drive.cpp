@@ -319,7 +319,17 @@ TrajectorySample GnssErrorModel::sample_consumer(const ExactState& s,
   }
   const Eigen::Vector2d p_true(s.x_m, s.y_m);
   Eigen::Vector2d xy = p_true + c.bias_sigma_m * Eigen::Vector2d(cbx_, cby_) + outage_drift_m_;
-  if (multipath_) xy += multipath_->error_m(p_true, s.yaw_rad);
+  if (multipath_) {
+    const Eigen::Vector2d raw = multipath_->error_m(p_true, s.yaw_rad);
+    if (!multipath_started_) {
+      multipath_m_ = raw;  // no history before the first sample
+      multipath_started_ = true;
+    } else {
+      multipath_m_ +=
+          (1.0 - std::exp(-dt_s / std::max(c.fusion_tau_s, 1e-6))) * (raw - multipath_m_);
+    }
+    xy += multipath_m_;
+  }
   double yaw_err_rad = c.heading_sigma_deg * kDeg * ch_;
   if (ins_.enabled) yaw_err_rad += heading_bias_rad_;
   const GeoPoint g = frame.to_geo(xy);

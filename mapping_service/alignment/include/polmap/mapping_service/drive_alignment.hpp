@@ -102,9 +102,9 @@ struct DriveAlignmentResult {
   std::vector<DriveCorrection> corrections;  ///< one per input drive, same order
   int survey_grade_drives = 0;
   int consumer_grade_drives = 0;
-  int clusters = 0;              ///< landmarks associated in the final round
-  int associations = 0;          ///< candidate-landmark residuals in the final round
-  double residual_rms_m = 0.0;   ///< RMS candidate-landmark distance after the final round
+  int clusters = 0;                ///< landmarks associated in the final round
+  int associations = 0;            ///< candidate-landmark residuals in the final round
+  double residual_rms_m = 0.0;     ///< RMS candidate-landmark distance after the final round
   double mean_correction_m = 0.0;  ///< mean |(dx, dy)| over the consumer-grade nodes
   double seconds = 0.0;
 };

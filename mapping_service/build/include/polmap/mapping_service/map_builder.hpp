@@ -185,7 +185,7 @@ struct MapBuildStats {
   LineConsensusResult::Stats line_consensus;
   /// Drive alignment: "off", "not_needed", "aligned" or "no_overlap" (drive_alignment.hpp).
   std::string alignment_status = "off";
-  std::int64_t aligned_drives = 0;  ///< consumer-grade drives aligned
+  std::int64_t aligned_drives = 0;           ///< consumer-grade drives aligned
   std::int64_t alignment_anchor_drives = 0;  ///< survey-grade drives among those loaded
   std::int64_t alignment_clusters = 0;
   double alignment_residual_rms_m = 0.0;

@@ -115,6 +115,9 @@ struct StudyConfig {
   bool write_trajectories = true;
   /// Also run diagnose_drive for every left-out drive (doubles the run time).
   bool diagnose = false;
+  /// With sim.gnss.grade = Consumer: the first rtk_drives drives are survey-grade (map
+  /// anchors). Consumer studies evaluate in the map's own frame (StudyDriveResult::map_*).
+  int rtk_drives = 0;
 };
 
 /// RMSE and maximum of the included samples.
@@ -192,6 +195,14 @@ struct StudyDriveResult {
   std::int64_t map_point_landmarks = 0;
   std::int64_t map_line_landmarks = 0;
   double map_build_s = 0.0;
+  /// The leave-one-out map's point landmarks against truth (eval/map_geometry.hpp): absolute
+  /// offset, RMS after one rigid fit and after a rigid fit per 200 m window. With consumer-
+  /// grade GNSS the localization errors are measured in the map's frame (truth moved by the
+  /// rigid fit), as a map without survey-grade drives has no better absolute reference.
+  double map_offset_m = 0.0;
+  double map_rigid_rms_m = 0.0;
+  double map_window_rms_m = 0.0;
+  bool errors_in_map_frame = false;
   // --- localization
   ErrorSummary errors;
   bool converged = false;        ///< reached Tracking at some point
@@ -300,6 +311,9 @@ struct LocalizeOptions {
   std::function<void(double fraction)> progress;
   /// Called before every sensor frame with its time (tests: stop a server mid-drive).
   std::function<void(double time_s)> before_frame;
+  /// Evaluate in the map's frame: truth positions p become R^T (p - t) and yaws lose the
+  /// fit's yaw, for a map whose truth ~ R map + t (world frame, metres).
+  std::optional<std::pair<Eigen::Matrix2d, Eigen::Vector2d>> truth_to_map;
 };
 
 /// Simulates drive `drive` again (the same frames as for mapping) and localizes
@@ -337,6 +351,9 @@ std::string format_level_table(const StudyResult& r);
 std::string format_speed_table(const StudyResult& r);
 /// NEES and protection-level figures per level (issue 15's honest uncertainty).
 std::string format_uncertainty_table(const StudyResult& r);
+/// Per left-out drive: its map's geometry against truth (absolute offset, rigid-fit and
+/// 200 m window RMS) and whether its errors are in the map's frame.
+std::string format_map_geometry_table(const StudyResult& r);
 /// Stage diagnosis per drive (drives without diagnosis are skipped).
 std::string format_diagnosis_table(const StudyResult& r);
 

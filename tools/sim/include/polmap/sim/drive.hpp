@@ -124,6 +124,8 @@ class GnssErrorModel {
   double outage_left_s_ = 0, consumer_outage_total_s_ = 0;
   Eigen::Vector2d outage_dir_ = Eigen::Vector2d::UnitX();
   Eigen::Vector2d outage_drift_m_ = Eigen::Vector2d::Zero();
+  Eigen::Vector2d multipath_m_ = Eigen::Vector2d::Zero();  ///< after the fusion low-pass
+  bool multipath_started_ = false;
 };
 
 /// Exact pose converted to geodetic (truth CSV, tests).

@@ -80,6 +80,32 @@ TEST_P(StoreDrives, PutDriveRoundTripsRowsCandidatesAndFiles) {
   EXPECT_GT(st.drive_store_bytes, 0);
 }
 
+TEST_P(StoreDrives, StoredManifestCarriesThePositioningOfTheValidatedTrajectory) {
+  // What map builds use to tell consumer-grade drives (aligned before consensus) from
+  // survey-grade ones: the medians of the trajectory's reported accuracy, not a claim.
+  MapStore& s = store();
+  auto pkg = make_package("drive_consumer", 10, 2, 1);
+  ASSERT_GE(pkg.trajectory.size(), 3U);
+  for (std::size_t i = 0; i < pkg.trajectory.size(); ++i) {
+    auto& t = pkg.trajectory[i];
+    const bool outlier = i == 0;  // one sample with a fix does not make the drive survey-grade
+    t.std_east_m = outlier ? 0.014F : 2.0F;
+    t.std_north_m = outlier ? 0.014F : 1.5F;
+    t.std_yaw_rad = 0.005F;
+    t.solution = outlier ? GnssSolution::CarrierPhaseFixed : GnssSolution::Standalone;
+  }
+  const auto [tar, hash] = write_archive(tmp(), "c", "package bytes C");
+  const auto r = s.put_drive(pkg, tar, hash);
+  const auto d = s.get_drive("drive_consumer");
+  ASSERT_TRUE(d.has_value());
+  for (const nlohmann::json& m : {r.drive.manifest, d->manifest}) {
+    const nlohmann::json& p = m.at("positioning");
+    EXPECT_FLOAT_EQ(p.at("median_std_m").get<float>(), 2.0F);  // max of east and north
+    EXPECT_FLOAT_EQ(p.at("median_std_yaw_rad").get<float>(), 0.005F);
+    EXPECT_EQ(p.at("solution"), "standalone");
+  }
+}
+
 TEST_P(StoreDrives, PutDriveCopiesPackageDirectories) {
   const fs::path dir = tmp() / "pkgdir";
   fs::create_directories(dir);

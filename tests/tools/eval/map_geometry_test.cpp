@@ -1,12 +1,12 @@
 // Map geometry against truth: a shifted and rotated copy of the truth (plus noise and
 // false landmarks) is matched, its offset and rotation recovered, and the window RMS
 // ignores what a rigid fit per window explains but not a local distortion.
+#include "polmap/eval/map_geometry.hpp"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <random>
-
-#include "polmap/eval/map_geometry.hpp"
 
 namespace polmap::eval {
 namespace {
@@ -29,7 +29,8 @@ TEST(MapGeometry, RecoversOffsetAndRotationOfAShiftedMap) {
   R << std::cos(th), -std::sin(th), std::sin(th), std::cos(th);
   const Eigen::Vector2d t(2.4, -1.1);
   std::vector<Eigen::Vector2d> map;
-  for (const auto& p : truth) map.push_back(R.transpose() * (p - t) + Eigen::Vector2d(g(rng), g(rng)));
+  for (const auto& p : truth)
+    map.push_back(R.transpose() * (p - t) + Eigen::Vector2d(g(rng), g(rng)));
   std::uniform_real_distribution<double> u(0.0, 600.0);
   for (int i = 0; i < 30; ++i) map.emplace_back(u(rng), 40.0 + u(rng) / 20.0);  // false ones
   const MapGeometry m = map_geometry(map, truth);
@@ -47,7 +48,8 @@ TEST(MapGeometry, WindowFitAbsorbsASlowBendButNotNoise) {
   const auto truth = truth_points(rng);
   std::vector<Eigen::Vector2d> map;
   // A bend: the map drifts 1 m sideways over 600 m (sinusoid), no noise.
-  for (const auto& p : truth) map.push_back(p + Eigen::Vector2d(0.0, 0.5 * std::sin(p.x() / 100.0)));
+  for (const auto& p : truth)
+    map.push_back(p + Eigen::Vector2d(0.0, 0.5 * std::sin(p.x() / 100.0)));
   const MapGeometry m = map_geometry(map, truth);
   ASSERT_EQ(m.status, MapGeometry::Status::Ok);
   EXPECT_GT(m.global_rms_m, 0.15);

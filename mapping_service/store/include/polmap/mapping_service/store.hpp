@@ -79,9 +79,12 @@ struct DriveRecord {
   GeoBox bbox;  ///< of trajectory and candidates
   PolLevel pol_level = PolLevel::Full;
   double distance_m = 0.0;
-  std::int64_t num_points = 0;         ///< point candidates stored
-  std::int64_t num_lines = 0;          ///< line candidates stored
-  nlohmann::json manifest;             ///< manifest.json as ingested
+  std::int64_t num_points = 0;  ///< point candidates stored
+  std::int64_t num_lines = 0;   ///< line candidates stored
+  /// What the store keeps of the validated manifest, with "positioning" (median reported
+  /// horizontal and heading accuracy and the most common solution type of the validated
+  /// trajectory; absent for drives stored before it was kept: survey-grade).
+  nlohmann::json manifest;
   std::filesystem::path package_path;  ///< absolute path of the stored package copy
   std::string ingested_at;             ///< ISO 8601 UTC, e.g. "2024-05-01T12:00:00Z"
 };

@@ -445,10 +445,12 @@ class SyntheticSource final : public DriveSource {
 class SimSource final : public DriveSource {
  public:
   SimSource(const std::string& world, double length_m, unsigned seed, fs::path cache,
-            bool with_gridmap, sim::GnssGrade gnss = sim::GnssGrade::Rtk, int rtk_drives = 0)
+            bool with_gridmap, sim::GnssGrade gnss = sim::GnssGrade::Rtk, int rtk_drives = 0,
+            double canyon_multipath_m = -1.0)
       : cache_(std::move(cache)), rtk_drives_(rtk_drives) {
     sim_.seed = seed;
     sim_.gnss.grade = gnss;
+    if (canyon_multipath_m >= 0.0) sim_.gnss.consumer.canyon_multipath_m = canyon_multipath_m;
     world_ = sim::load_world(world, length_m, seed, sim_);
     for (const auto& o : world_->objects) {
       if (!o.permanent) continue;
@@ -631,6 +633,9 @@ int main(int argc, char** argv) {
                  "drifting errors; the build aligns the drives, drive_alignment.hpp)")
       ->check(CLI::IsMember({"rtk", "consumer"}));
   app.add_option("--rtk-drives", rtk_drives, "with --gnss consumer: the first N drives are RTK");
+  double canyon_multipath_m = -1.0;
+  app.add_option("--canyon-multipath-m", canyon_multipath_m,
+                 "with --gnss consumer: canyon multipath amplitude (default: the simulator's)");
   CLI11_PARSE(app, argc, argv);
   if (gnss != "rtk" && world.empty()) {
     std::fprintf(stderr, "--gnss needs --world (the synthetic route has no trajectories)\n");
@@ -652,10 +657,14 @@ int main(int argc, char** argv) {
                                                temporaries_per_km, seed);
   } else {
     fs::path cache = sim_cache.empty() ? root / "packages" : fs::path(sim_cache);
-    if (gnss == "consumer") cache /= "consumer_rtk" + std::to_string(rtk_drives);
+    if (gnss == "consumer") {
+      cache /= "consumer_rtk" + std::to_string(rtk_drives) +
+               (canyon_multipath_m >= 0.0 ? "_mp" + std::to_string(canyon_multipath_m) : "");
+    }
     source = std::make_unique<SimSource>(
         world, length_km * 1000.0, seed, merged ? cache / "with_gridmap" : cache, merged,
-        gnss == "consumer" ? sim::GnssGrade::Consumer : sim::GnssGrade::Rtk, rtk_drives);
+        gnss == "consumer" ? sim::GnssGrade::Consumer : sim::GnssGrade::Rtk, rtk_drives,
+        canyon_multipath_m);
   }
 
   std::printf(

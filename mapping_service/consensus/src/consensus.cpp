@@ -168,9 +168,13 @@ std::vector<PointGroup> split_modes(const std::vector<TaggedPointCandidate>& pts
   }
   const double h = 0.5 * cfg.max_pair_distance_m;
   const double cell = h / 3.0;
+  // The histogram is anchored at the group's first candidate (lowest id), not at the
+  // frame origin: the modes found must not depend on where the region's frame is
+  // centred (which moves with every candidate of the region, lines included).
+  const Eigen::Vector2d origin = pts[*std::min_element(g.begin(), g.end())].candidate.position_m;
   std::map<std::pair<std::int64_t, std::int64_t>, int> hist;
   for (std::size_t i : g) {
-    const auto& p = pts[i].candidate.position_m;
+    const Eigen::Vector2d p = pts[i].candidate.position_m - origin;
     ++hist[{static_cast<std::int64_t>(std::floor(p.x() / cell)),
             static_cast<std::int64_t>(std::floor(p.y() / cell))}];
   }
@@ -192,7 +196,8 @@ std::vector<PointGroup> split_modes(const std::vector<TaggedPointCandidate>& pts
   const int min_density = std::max(2, cfg.support.min_drives);
   for (const auto& [d, c] : dens) {
     if (d < min_density) break;
-    const Eigen::Vector2d start((c.first + 0.5) * cell, (c.second + 0.5) * cell);
+    const Eigen::Vector2d start =
+        origin + Eigen::Vector2d((c.first + 0.5) * cell, (c.second + 0.5) * cell);
     // A cell already within a found mode's kernel leads to that mode.
     bool covered = false;
     for (const auto& m : modes) covered = covered || (m - start).norm() < h;

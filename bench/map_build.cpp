@@ -23,6 +23,8 @@
 //   bench_map_build [--drives 2,4,8,16] [--length-km 2] [--seed 1] [--keep DIR]
 //                   [--view-fraction F] (default: the builder's; 0 = fixed count only)
 //                   [--world urban [--sim-cache DIR]] (drives from the simulator)
+//                   [--explain] [--dump DIR] (simulator: what false landmarks are near; the
+//                   map, line candidates and world objects as CSV for offline analysis)
 #include <sys/resource.h>
 
 #include <CLI/CLI.hpp>
@@ -391,6 +393,10 @@ class DriveSource {
   /// Prints what the false point landmarks are near (simulator: nearest world object).
   virtual void explain(const MapStore& /*store*/, std::int64_t /*version*/,
                        double /*radius_m*/) const {}
+  /// Writes the map, the line candidates and the world objects as CSV (local metres) into
+  /// dir, for offline analysis (simulator only).
+  virtual void dump(const MapStore& /*store*/, std::int64_t /*version*/,
+                    const fs::path& /*dir*/) const {}
 };
 
 class SyntheticSource final : public DriveSource {
@@ -568,6 +574,54 @@ class SimSource final : public DriveSource {
     for (const auto& [k, v] : cls) std::printf(" %s %d;", k.c_str(), v);
     std::printf("\n");
   }
+  void dump(const MapStore& store, std::int64_t version, const fs::path& dir) const override {
+    fs::create_directories(dir);
+    const auto& f = world_->frame;
+    std::ofstream objs(dir / "objects.csv");
+    objs << "id,class,permanent,presence,x,y\n";
+    for (const auto& o : world_->objects) {
+      for (const auto& p : o.geometry_m) {
+        objs << o.id << ',' << sim::to_string(o.cls) << ',' << (o.permanent ? 1 : 0) << ','
+             << o.presence_probability << ',' << p.x() << ',' << p.y() << '\n';
+      }
+    }
+    const LandmarkSet lms = store.landmarks_in(version, std::nullopt, false);
+    std::ofstream ll(dir / "line_landmarks.csv");
+    ll << "id,support,spread,x,y\n";
+    for (std::size_t i = 0; i < lms.lines.size(); ++i) {
+      for (const auto& g : lms.lines[i].polyline) {
+        const Eigen::Vector2d x = f.to_local(g);
+        ll << i << ',' << lms.lines[i].support_drives << ',' << lms.lines[i].spread_m << ','
+           << x.x() << ',' << x.y() << '\n';
+      }
+    }
+    std::ofstream pl(dir / "point_landmarks.csv");
+    pl << "id,support,x,y\n";
+    for (std::size_t i = 0; i < lms.points.size(); ++i) {
+      const Eigen::Vector2d x = f.to_local(lms.points[i].position);
+      pl << i << ',' << lms.points[i].support_drives << ',' << x.x() << ',' << x.y() << '\n';
+    }
+    const CandidateSet cands = store.candidates_in(std::nullopt);
+    std::ofstream lc(dir / "line_candidates.csv");
+    lc << "drive,x0,y0,x1,y1,strength\n";
+    for (const auto& c : cands.lines) {
+      const Eigen::Vector2d a = f.to_local(c.start), b = f.to_local(c.end);
+      lc << c.drive << ',' << a.x() << ',' << a.y() << ',' << b.x() << ',' << b.y() << ','
+         << c.candidate.strength << '\n';
+    }
+    std::ofstream pc(dir / "point_candidates.csv");
+    pc << "drive,x,y\n";
+    for (const auto& c : cands.points) {
+      const Eigen::Vector2d a = f.to_local(c.position);
+      pc << c.drive << ',' << a.x() << ',' << a.y() << '\n';
+    }
+    std::ofstream tr(dir / "route.csv");
+    tr << "x,y\n";
+    for (double s = 0; s < world_->route.length_m(); s += 1.0) {
+      const sim::PathPoint p = world_->route.at(s);
+      tr << p.x_m << ',' << p.y_m << '\n';
+    }
+  }
 
  private:
   fs::path cache_;
@@ -604,6 +658,9 @@ int main(int argc, char** argv) {
                  "drives from the simulator over this world (urban | industrial | rural | "
                  "FILE.osm | FILE.xodr) instead of the synthetic route");
   bool explain = false;
+  std::string dump;
+  app.add_option("--dump", dump,
+                 "write the map, line candidates and world objects as CSV into DIR/nN (simulator)");
   app.add_flag("--explain", explain, "print what false point landmarks are near (simulator)");
   app.add_option("--sim-cache", sim_cache,
                  "simulated packages are kept here and reused (default: KEEP/packages)");
@@ -718,6 +775,7 @@ int main(int argc, char** argv) {
       std::fflush(stdout);
     }
     if (explain) source->explain(store, r.version, radius_m);
+    if (!dump.empty()) source->dump(store, r.version, fs::path(dump) / ("n" + std::to_string(n)));
     if (merged) {
       // The same drives' merged gridmap, the vehicle's detectors on it (weak = objects fewer
       // than half of the drives detected on their own).

@@ -279,6 +279,51 @@ void fit_ends(LineCandidate& l, const cv::Mat& db, const CellBox& box, double cs
   l.end_m = b + eb * d;
 }
 
+/// Whether a segment is the azimuth spread of a point target (file comment of the
+/// header): its dB profile decays away from its brightest point.
+bool point_spread(const LineCandidate& l, const cv::Mat& db, const CellBox& box, double cs,
+                  const LineExtractorConfig& cfg) {
+  if (!(cfg.spread_min_decay_db_per_m > 0.0)) return false;
+  const Eigen::Vector2d a = l.start_m, b = l.end_m;
+  const double len = (b - a).norm();
+  if (len < 4.0 * cs) return false;
+  const Eigen::Vector2d d = (b - a) / len;
+  const Eigen::Vector2d n(-d.y(), d.x());
+  std::vector<double> prof;
+  for (double t = 0.0; t <= len; t += cs) {
+    float best = 0.0F;  // outside the image: the floor
+    for (int k = -1; k <= 1; ++k)
+      best = std::max(best, value_at(db, box, cs, a + t * d + k * cs * n));
+    prof.push_back(best);
+  }
+  const int m = static_cast<int>(prof.size());
+  // Brightest point of the profile smoothed over ±2 cells (a single speckle spike
+  // does not decide where the peak is).
+  int peak = 0;
+  double best = -1.0;
+  for (int i = 0; i < m; ++i) {
+    double s = 0.0;
+    int c = 0;
+    for (int j = std::max(0, i - 2); j <= std::min(m - 1, i + 2); ++j) s += prof[j], ++c;
+    if (s / c > best) best = s / c, peak = i;
+  }
+  // Theil–Sen slope of level against distance from the peak (median of pairwise
+  // slopes; robust to the bumps where the spread crosses a curb or another target).
+  // At most ~100 samples: the pairs grow quadratically.
+  const int stride = std::max(1, m / 100);
+  std::vector<double> slopes;
+  for (int i = 0; i < m; i += stride) {
+    for (int j = i + stride; j < m; j += stride) {
+      const double dx = (std::abs(j - peak) - std::abs(i - peak)) * cs;
+      if (std::abs(dx) > 0.25) slopes.push_back((prof[j] - prof[i]) / dx);
+    }
+  }
+  if (slopes.empty()) return false;
+  auto mid = slopes.begin() + static_cast<std::ptrdiff_t>(slopes.size() / 2);
+  std::nth_element(slopes.begin(), mid, slopes.end());
+  return *mid <= -cfg.spread_min_decay_db_per_m;
+}
+
 Eigen::Vector2d pixel_xy(const CellBox& box, double cs, double col, double row) {
   return {(box.min_ix + col + 0.5) * cs, (box.min_iy + row + 0.5) * cs};
 }
@@ -471,6 +516,7 @@ std::vector<LineCandidate> extract_lines(const cv::Mat& power, const CellBox& bo
   out = merge_collinear(std::move(out), cfg);
   std::vector<LineCandidate> kept;
   for (LineCandidate& lc : out) {
+    if (point_spread(lc, ri.db, box, cs, cfg)) continue;
     if (core != nullptr) {
       const Eigen::Vector2d lo(core->min_ix * cs, core->min_iy * cs);
       const Eigen::Vector2d hi(core->max_ix * cs, core->max_iy * cs);

@@ -2,7 +2,8 @@
 // clutter is recovered within 0.3 m at its ends and 1° in direction, at any
 // orientation; point-like blobs give no lines; a wall crossing gridmap chunk
 // borders comes out as one segment; filtering only around cells above the floor gives
-// what filtering the whole image gives.
+// what filtering the whole image gives; the azimuth spread of a point target is no
+// line, a wall with a bright spot is.
 #include "polmap/radar/line_extractor.hpp"
 
 #include <gtest/gtest.h>
@@ -112,6 +113,65 @@ TEST(LineExtractor, PointBlobsGiveNoLines) {
     }
   }
   EXPECT_TRUE(extract_lines(img, box, kCell, 1.0 / 3.0, 3).empty());
+}
+
+/// A ridge whose power decays from a peak at `centre` by `decay_db_per_m` along
+/// direction d (the azimuth spread of a point target seen from afar: sharp across the
+/// range direction, long across it), down to the background, plus speckle.
+void add_spread(std::mt19937& rng, const CellBox& box, cv::Mat& img, const Eigen::Vector2d& centre,
+                const Eigen::Vector2d& d, double peak, double decay_db_per_m) {
+  std::gamma_distribution<double> g(4, 0.25);
+  const Eigen::Vector2d n(-d.y(), d.x());
+  for (int row = 0; row < img.rows; ++row) {
+    for (int col = 0; col < img.cols; ++col) {
+      const Eigen::Vector2d c((box.min_ix + col + 0.5) * kCell, (box.min_iy + row + 0.5) * kCell);
+      const double along = std::abs(d.dot(c - centre)), across = n.dot(c - centre) / kCell;
+      const double level = peak * std::pow(10.0, -0.1 * decay_db_per_m * along);
+      img.ptr<float>(row)[col] +=
+          static_cast<float>(level * std::exp(-0.5 * across * across / 0.36) * g(rng));
+    }
+  }
+}
+
+TEST(LineExtractor, PointTargetSpreadIsNoLineWallWithBrightSpotIs) {
+  // Spread of a point target: 40 dB over the floor at the target, 10 dB/m decay (the
+  // median of simulated urban drives), about 8 m of ridge. A wall 20 dB over the floor
+  // with a bright spot (a recess, 40 dB) in its middle stays a line.
+  std::mt19937 rng(7);
+  const CellBox box{0, 0, 300, 200};
+  const double noise = 1.0 / 3.0;  // floor: q·σ² = 1
+  cv::Mat img = scene(rng, box, {{{3.0, 14.0}, {27.0, 14.0}}}, 100.0, 4);
+  for (int r = -2; r <= 2; ++r) {
+    for (int c = -2; c <= 2; ++c) img.ptr<float>(140 + r)[150 + c] += 1e4F;
+  }
+  const Eigen::Vector2d target(12.0, 6.0);
+  const double th = 80.0 * std::numbers::pi / 180.0;
+  add_spread(rng, box, img, target, {std::cos(th), std::sin(th)}, 1e4, 10.0);
+  LineExtractorConfig off;
+  off.spread_min_decay_db_per_m = 0.0;
+  const auto all = extract_lines(img, box, kCell, noise, 3, off);
+  auto is_spread = [&](const LineCandidate& l) {
+    return dist_to_segment(target, l.start_m, l.end_m) < 0.5 &&
+           angle_deg(l.end_m - l.start_m, {std::cos(th), std::sin(th)}) < 10.0;
+  };
+  ASSERT_EQ(std::count_if(all.begin(), all.end(), is_spread), 1) << describe(all);
+  const auto lines = extract_lines(img, box, kCell, noise, 3);
+  EXPECT_EQ(std::count_if(lines.begin(), lines.end(), is_spread), 0) << describe(lines);
+  // Every other segment (the wall, broken at its bright spot into overlapping pieces
+  // with or without the rejection) is kept unchanged, and together they span the wall.
+  ASSERT_EQ(lines.size() + 1, all.size()) << describe(lines) << " vs" << describe(all);
+  double lo = 1e9, hi = -1e9;
+  for (const auto& l : all) {
+    if (is_spread(l)) continue;
+    EXPECT_TRUE(std::any_of(lines.begin(), lines.end(), [&](const LineCandidate& k) {
+      return k.start_m == l.start_m && k.end_m == l.end_m;
+    })) << describe({l});
+    EXPECT_LT(std::abs(l.start_m.y() - 14.0) + std::abs(l.end_m.y() - 14.0), 0.5);
+    lo = std::min({lo, l.start_m.x(), l.end_m.x()});
+    hi = std::max({hi, l.start_m.x(), l.end_m.x()});
+  }
+  EXPECT_LT(std::abs(lo - 3.0), 0.3);
+  EXPECT_LT(std::abs(hi - 27.0), 0.3);
 }
 
 TEST(LineExtractor, WallAcrossChunkBordersIsOneSegment) {

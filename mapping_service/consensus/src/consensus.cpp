@@ -168,9 +168,13 @@ std::vector<PointGroup> split_modes(const std::vector<TaggedPointCandidate>& pts
   }
   const double h = 0.5 * cfg.max_pair_distance_m;
   const double cell = h / 3.0;
+  // The histogram is anchored at the group's first candidate (lowest id), not at the
+  // frame origin: the modes found must not depend on where the region's frame is
+  // centred (which moves with every candidate of the region, lines included).
+  const Eigen::Vector2d origin = pts[*std::min_element(g.begin(), g.end())].candidate.position_m;
   std::map<std::pair<std::int64_t, std::int64_t>, int> hist;
   for (std::size_t i : g) {
-    const auto& p = pts[i].candidate.position_m;
+    const Eigen::Vector2d p = pts[i].candidate.position_m - origin;
     ++hist[{static_cast<std::int64_t>(std::floor(p.x() / cell)),
             static_cast<std::int64_t>(std::floor(p.y() / cell))}];
   }
@@ -192,7 +196,8 @@ std::vector<PointGroup> split_modes(const std::vector<TaggedPointCandidate>& pts
   const int min_density = std::max(2, cfg.support.min_drives);
   for (const auto& [d, c] : dens) {
     if (d < min_density) break;
-    const Eigen::Vector2d start((c.first + 0.5) * cell, (c.second + 0.5) * cell);
+    const Eigen::Vector2d start =
+        origin + Eigen::Vector2d((c.first + 0.5) * cell, (c.second + 0.5) * cell);
     // A cell already within a found mode's kernel leads to that mode.
     bool covered = false;
     for (const auto& m : modes) covered = covered || (m - start).norm() < h;
@@ -285,6 +290,7 @@ PointConsensusResult finish_points(const std::vector<TaggedPointCandidate>& pts,
 
 struct Seg {
   Eigen::Vector2d a, b;
+  std::int64_t drive = 0;
   [[nodiscard]] Eigen::Vector2d dir() const { return b - a; }
   [[nodiscard]] double length() const { return (b - a).norm(); }
 };
@@ -325,6 +331,56 @@ struct MergedLine {
   double spread_m = 0.0;
 };
 
+/// The part of direction `dir` (through `o`) that at least
+/// max(1, ceil(cfg.extent_min_drive_share × drives)) distinct drives' segments cover,
+/// projected: [lo, hi] between the outermost such places (inner gaps kept). The extreme
+/// member ends are the tails of the end-position noise and move outward as drives
+/// accumulate; the covered part does not. Empty (lo > hi) if no place is covered
+/// that often.
+std::pair<double, double> covered_extent(const std::vector<Seg>& segs, const Eigen::Vector2d& o,
+                                         const Eigen::Vector2d& dir,
+                                         const LineConsensusConfig& cfg) {
+  std::map<std::int64_t, std::vector<std::pair<double, double>>> by_drive;
+  double tmin = std::numeric_limits<double>::infinity(), tmax = -tmin;
+  for (const Seg& g : segs) {
+    const double ta = (g.a - o).dot(dir), tb = (g.b - o).dot(dir);
+    by_drive[g.drive].emplace_back(std::min(ta, tb), std::max(ta, tb));
+    tmin = std::min(tmin, std::min(ta, tb));
+    tmax = std::max(tmax, std::max(ta, tb));
+  }
+  const int need = std::max(
+      1, static_cast<int>(
+             std::ceil(cfg.extent_min_drive_share * static_cast<double>(by_drive.size()) - 1e-9)));
+  // Events of each drive's union of intervals; sweep for the count of drives covering.
+  std::vector<std::pair<double, int>> ev;
+  for (auto& [drive, iv] : by_drive) {
+    std::sort(iv.begin(), iv.end());
+    double lo = iv.front().first, hi = iv.front().second;
+    for (std::size_t k = 1; k <= iv.size(); ++k) {
+      if (k < iv.size() && iv[k].first <= hi) {
+        hi = std::max(hi, iv[k].second);
+        continue;
+      }
+      ev.emplace_back(lo, +1);
+      ev.emplace_back(hi, -1);
+      if (k < iv.size()) lo = iv[k].first, hi = iv[k].second;
+    }
+  }
+  // Openings before closings at the same place: touching pieces count as covering it.
+  std::sort(ev.begin(), ev.end(), [](const auto& x, const auto& y) {
+    return x.first != y.first ? x.first < y.first : x.second > y.second;
+  });
+  double lo = tmax, hi = tmin;
+  int count = 0;
+  for (const auto& [t, delta] : ev) {
+    const int before = count;
+    count += delta;
+    if (count >= need && before < need) lo = std::min(lo, t);
+    if (before >= need && count < need) hi = std::max(hi, t);
+  }
+  return {lo, hi};
+}
+
 MergedLine merge_group(const std::vector<Seg>& segs, const LineConsensusConfig& cfg) {
   // Principal direction: eigenvector of the length-weighted direction scatter
   // (axial: a segment and its reverse count the same).
@@ -356,7 +412,13 @@ MergedLine merge_group(const std::vector<Seg>& segs, const LineConsensusConfig& 
       tmax = std::max(tmax, t);
     }
   }
-  const auto samples = sample_members(segs, cfg.curve_sample_spacing_m);
+  if (const auto [lo, hi] = covered_extent(segs, centroid, d, cfg); lo < hi) tmin = lo, tmax = hi;
+  // Member samples within the covered extent (the rest are the ends' noise tails).
+  std::vector<Eigen::Vector2d> samples;
+  for (const auto& p : sample_members(segs, cfg.curve_sample_spacing_m)) {
+    const double t = (p - centroid).dot(d);
+    if (t >= tmin - 1e-9 && t <= tmax + 1e-9) samples.push_back(p);
+  }
   MergedLine out;
   out.polyline = {centroid + tmin * d, centroid + tmax * d};
   double worst = 0.0;
@@ -365,7 +427,9 @@ MergedLine merge_group(const std::vector<Seg>& segs, const LineConsensusConfig& 
   if (worst > cfg.polyline_max_error_m) {
     // Curve: centre line from bins along the chord between the two mutually
     // farthest samples, then RDP with the error bound. Works for curves that
-    // turn by less than ~150° (the chord parameter must stay monotonic).
+    // turn by less than ~150° (the chord parameter must stay monotonic). The
+    // extent is the covered one along the chord, from all member samples again.
+    samples = sample_members(segs, cfg.curve_sample_spacing_m);
     std::size_t ia = 0;
     double far = -1.0;
     for (std::size_t i = 0; i < samples.size(); ++i) {
@@ -380,13 +444,26 @@ MergedLine merge_group(const std::vector<Seg>& segs, const LineConsensusConfig& 
     }
     const Eigen::Vector2d chord_o = samples[ia];
     const Eigen::Vector2d chord_d = (samples[ib] - samples[ia]).normalized();
-    const double chord_len = (samples[ib] - samples[ia]).norm();
+    if (const auto [lo, hi] = covered_extent(segs, chord_o, chord_d, cfg); lo < hi) {
+      std::erase_if(samples, [&](const Eigen::Vector2d& p) {
+        const double t = (p - chord_o).dot(chord_d);
+        return t < lo - 1e-9 || t > hi + 1e-9;
+      });
+      // Extreme retained samples along the chord.
+      for (std::size_t i = 0; i < samples.size(); ++i) {
+        const double t = (samples[i] - chord_o).dot(chord_d);
+        if (t < (samples[ia] - chord_o).dot(chord_d) || i == 0) ia = i;
+        if (t > (samples[ib] - chord_o).dot(chord_d) || i == 0) ib = i;
+      }
+    }
+    const double t0 = (samples[ia] - chord_o).dot(chord_d);
+    const double chord_len = (samples[ib] - chord_o).dot(chord_d) - t0;
     const double bin = cfg.curve_sample_spacing_m;
     const int nbins = std::max(1, static_cast<int>(std::ceil(chord_len / bin)) + 1);
     std::vector<Eigen::Vector2d> sum(static_cast<std::size_t>(nbins), Eigen::Vector2d::Zero());
     std::vector<int> cnt(static_cast<std::size_t>(nbins), 0);
     for (const auto& p : samples) {
-      const double t = (p - chord_o).dot(chord_d);
+      const double t = (p - chord_o).dot(chord_d) - t0;
       const int k = std::clamp(static_cast<int>(std::floor(t / bin + 0.5)), 0, nbins - 1);
       sum[static_cast<std::size_t>(k)] += p;
       ++cnt[static_cast<std::size_t>(k)];
@@ -422,7 +499,7 @@ MergedLine merge_group(const std::vector<Seg>& segs, const LineConsensusConfig& 
     const double r = point_polyline_distance(p, out.polyline);
     ss += r * r;
   }
-  out.spread_m = std::sqrt(ss / static_cast<double>(samples.size()));
+  out.spread_m = samples.empty() ? 0.0 : std::sqrt(ss / static_cast<double>(samples.size()));
   return out;
 }
 
@@ -761,7 +838,7 @@ LineConsensusResult consensus_lines(std::span<const TaggedLineCandidate> candida
     std::vector<Seg> segs;
     std::vector<std::int64_t> support;
     for (std::size_t i : g) {
-      segs.push_back({lines[i].candidate.start_m, lines[i].candidate.end_m});
+      segs.push_back({lines[i].candidate.start_m, lines[i].candidate.end_m, lines[i].drive});
       support.push_back(lines[i].candidate_id);
     }
     MergedLine merged = merge_group(segs, cfg);

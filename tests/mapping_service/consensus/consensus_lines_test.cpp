@@ -1,6 +1,7 @@
 // Line consensus: hull/projection distances, merging of re-observed walls,
 // separation of parallel walls, curves as polylines within the error bound,
-// snapping of crossing / nearly crossing ends.
+// snapping of crossing / nearly crossing ends, ends where enough drives end (not at
+// the farthest member end).
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -61,6 +62,50 @@ TEST(ConsensusLines, TwoNoisyObservationsOfAWallMergeToTheSpanningSegment) {
   EXPECT_EQ(r.landmarks[0].support_drives, 2U);
   EXPECT_LT(r.landmarks[0].spread_m, 0.03);
   EXPECT_EQ(r.support[0], (std::vector<std::int64_t>{1, 2}));
+}
+
+TEST(ConsensusLines, ManyDrivesEndWhereMostOfThemEndNotAtTheFarthestEnd) {
+  // A 10 m wall seen by 64 drives, ends with 0.1 m noise, every 8th drive running on
+  // 0.5–1.5 m past the far end (a bright corner beside it), some drives seeing it in two
+  // pieces. The landmark ends where half of the drives still cover it.
+  std::mt19937 rng(5);
+  std::normal_distribution<double> n(0.0, 0.1), lat(0.0, 0.02);
+  std::uniform_real_distribution<double> over(0.5, 1.5);
+  std::vector<TaggedLineCandidate> in;
+  std::int64_t id = 0;
+  for (int d = 0; d < 64; ++d) {
+    const double a = n(rng), b = 10.0 + n(rng) + (d % 8 == 0 ? over(rng) : 0.0);
+    if (d % 5 == 0) {  // two pieces with a gap
+      in.push_back(seg(id++, d, {a, lat(rng)}, {4.0, lat(rng)}));
+      in.push_back(seg(id++, d, {4.6, lat(rng)}, {b, lat(rng)}));
+    } else {
+      in.push_back(seg(id++, d, {a, lat(rng)}, {b, lat(rng)}));
+    }
+  }
+  const auto r = consensus_lines(in);
+  ASSERT_EQ(r.landmarks.size(), 1U);
+  const auto& pl = r.landmarks[0].polyline_m;
+  ASSERT_EQ(pl.size(), 2U);
+  const double lo = std::min(pl.front().x(), pl.back().x());
+  const double hi = std::max(pl.front().x(), pl.back().x());
+  EXPECT_LT(std::abs(lo), 0.1);
+  EXPECT_LT(std::abs(hi - 10.0), 0.1);  // the farthest member end is at ~11.4 m
+  EXPECT_LT(r.landmarks[0].spread_m, 0.05);
+  // Share 0 (or a 2-drive group): the union of the members, as the paper.
+  LineConsensusConfig cfg;
+  cfg.extent_min_drive_share = 0.0;
+  const auto u = consensus_lines(in, cfg);
+  ASSERT_EQ(u.landmarks.size(), 1U);
+  EXPECT_GT(std::max(u.landmarks[0].polyline_m.front().x(), u.landmarks[0].polyline_m.back().x()),
+            11.0);
+  const std::vector<TaggedLineCandidate> two{seg(0, 1, {0.0, 0.0}, {8.0, 0.0}),
+                                             seg(1, 2, {2.0, 0.03}, {10.0, 0.03})};
+  const auto t = consensus_lines(two);
+  ASSERT_EQ(t.landmarks.size(), 1U);
+  EXPECT_NEAR(std::min(t.landmarks[0].polyline_m.front().x(), t.landmarks[0].polyline_m.back().x()),
+              0.0, 0.01);
+  EXPECT_NEAR(std::max(t.landmarks[0].polyline_m.front().x(), t.landmarks[0].polyline_m.back().x()),
+              10.0, 0.01);
 }
 
 TEST(ConsensusLines, SingleDriveAndDistantCollinearSegmentsDoNotMerge) {

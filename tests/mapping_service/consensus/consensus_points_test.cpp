@@ -1,5 +1,6 @@
 // Point consensus (paper §III-D): cross-drive pairs closer than d_p, connected
-// components, >= N_p drives; k-d tree result checked against brute force.
+// components, >= N_p drives; k-d tree result checked against brute force; the modes of
+// a many-drive group do not depend on where the frame's origin is.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -87,6 +88,37 @@ TEST(ConsensusPoints, MinDrivesAndMajorityClass) {
   const std::vector<TaggedPointCandidate> tie{cand(1, 1, 0, 0, ScatteringClass::Even),
                                               cand(2, 2, 0.1, 0, ScatteringClass::Odd)};
   EXPECT_EQ(consensus_points(tie).landmarks[0].scattering, ScatteringClass::Mixed);
+}
+
+TEST(ConsensusPoints, SplitModesDoNotDependOnTheFrameOrigin) {
+  // Elongated, bimodal clusters of 16 drives (as facade corners give): the builder's
+  // frame is centred on its region's candidates, so the same candidates arrive shifted
+  // by an arbitrary offset; the landmarks must shift with them and nothing else.
+  std::mt19937 rng(11);
+  std::normal_distribution<double> n(0.0, 0.04);
+  std::vector<TaggedPointCandidate> in;
+  std::int64_t id = 0;
+  for (int k = 0; k < 20; ++k) {
+    const Eigen::Vector2d c(3.0 * k, 0.5 * k);
+    for (int d = 0; d < 16; ++d) {
+      const double along = (d % 2 == 0 ? -0.09 : 0.09) + n(rng);
+      in.push_back(cand(id++, d, c.x() + along, c.y() + n(rng)));
+    }
+  }
+  const auto ref = consensus_points(in);
+  ASSERT_GT(ref.stats.split_groups, 0U);
+  for (const Eigen::Vector2d& off :
+       {Eigen::Vector2d(0.0123, -0.0371), Eigen::Vector2d(-0.031, 0.017),
+        Eigen::Vector2d(1234.5678, -876.5432)}) {
+    std::vector<TaggedPointCandidate> moved = in;
+    for (auto& c : moved) c.candidate.position_m += off;
+    const auto r = consensus_points(moved);
+    ASSERT_EQ(r.landmarks.size(), ref.landmarks.size()) << off.transpose();
+    for (std::size_t i = 0; i < r.landmarks.size(); ++i) {
+      EXPECT_LT((r.landmarks[i].position_m - off - ref.landmarks[i].position_m).norm(), 1e-6);
+      EXPECT_EQ(r.support[i], ref.support[i]);
+    }
+  }
 }
 
 TEST(ConsensusPoints, KdTreeEqualsBruteForceOnRandomSets) {

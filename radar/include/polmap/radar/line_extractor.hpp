@@ -22,6 +22,16 @@
 /// line of height h dB and width w, R ≈ h·w/(σ√(2π)); e.g. h = 20 dB, w = 0.1 m,
 /// σ = 0.15 m gives 5 dB.
 ///
+/// Point-target spread. A strong point target (pole, trunk, facade corner) seen from
+/// tens of metres smears along the azimuth over the beam and its sidelobes (±r·θ, e.g.
+/// ±2–4 m at 30 m): a sharp ridge across the range direction, the same in every drive
+/// over the route, through the target and behind opaque walls. Its power falls off
+/// from the target on both sides; an extended object's does not (its level along the
+/// line is flat up to speckle and bright spots). Segments whose dB profile decays with
+/// the distance from its brightest point (LineExtractorConfig::spread_min_decay_db_per_m)
+/// are dropped. On the simulated urban route these
+/// were 70 % of one drive's line candidates and 98 % of the false line landmark length.
+///
 /// The gridmap is processed in chunks of chunk_tiles² tiles with a halo; segments
 /// are clipped to their chunk and collinear pieces are merged across chunks.
 #include <opencv2/core.hpp>
@@ -67,6 +77,15 @@ struct LineExtractorConfig {
   /// end and breaks on speckle.
   double end_level_fraction = 0.5;
   double max_end_extension_m = 2.0;
+  /// Point-target spread rejection (file comment): a segment is dropped when its dB
+  /// profile (3-cell maximum across the line, every cell) falls off with the distance
+  /// from its brightest point by at least this much (Theil–Sen slope, dB/m). 3 dB/m: the
+  /// azimuth spread of simulated point targets decays by ~10 dB/m (median; 3.5° beam,
+  /// −17 dB sidelobes, seen from 20–50 m; the slowest ~2–3 dB/m, a weak broad spread
+  /// under a strong neighbour), curbs and facades by ~0.5 dB/m; on a simulated urban
+  /// drive it dropped 209 of 218 spread segments (95 % of their length) and 2.3 % of
+  /// the true line length (4 dB/m: 204, 92 %, 1.8 %). 0 disables.
+  double spread_min_decay_db_per_m = 3.0;
   /// Collinear merge (Hough duplicates, chunk borders): angle, lateral offset, gap.
   double merge_angle_deg = 2.0;
   double merge_offset_m = 0.15;

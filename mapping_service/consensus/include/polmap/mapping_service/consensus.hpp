@@ -138,6 +138,13 @@ struct LineConsensusConfig {
   /// is refined RDP-style until no member sample is farther than this from
   /// it (the error bound of "no shortcut").
   double polyline_max_error_m = 0.1;
+  /// A merged line spans the part of it that at least
+  /// max(1, ceil(extent_min_drive_share × its drives)) distinct drives' candidates
+  /// cover, not the extreme member ends: those are the tails of the end-position noise
+  /// and move outward as drives accumulate (simulated urban route, 64 drives: landmark
+  /// ends 0.3–1.9 m beyond facade and curb ends, the median member end within 0.3 m).
+  /// 0.5: the support rule's share; groups of 1–2 drives keep the union.
+  double extent_min_drive_share = 0.5;
   /// Spacing of samples along member segments when building a curve's
   /// centre line (bins of this width along the curve are averaged).
   double curve_sample_spacing_m = 0.25;
@@ -204,13 +211,13 @@ PointConsensusResult consensus_points(std::span<const TaggedPointCandidate> cand
 /// and projection distance < max_projection_distance_m (found through a grid
 /// over bounding boxes grown by max_projection_distance_m), connected
 /// components, groups with >= min_drives drives. A straight group merges to
-/// the segment spanned by the farthest projections of its members' end
-/// points onto the group's principal (length-weighted) direction, through the
-/// length-weighted centroid; a curved group becomes a polyline (see
-/// LineConsensusConfig::polyline_max_error_m). Finally end edges that cross
-/// or nearly cross are snapped to their intersection. spread_m = RMS distance
-/// of member samples (every curve_sample_spacing_m along each member) to the
-/// merged polyline, before snapping.
+/// the segment along the group's principal (length-weighted) direction, through
+/// the length-weighted centroid, over the part that enough of its drives cover
+/// (LineConsensusConfig::extent_min_drive_share); a curved group becomes a
+/// polyline (see LineConsensusConfig::polyline_max_error_m). Finally end edges
+/// that cross or nearly cross are snapped to their intersection. spread_m = RMS
+/// distance of member samples (every curve_sample_spacing_m along each member,
+/// within that extent) to the merged polyline, before snapping.
 LineConsensusResult consensus_lines(std::span<const TaggedLineCandidate> candidates,
                                     const LineConsensusConfig& cfg = {},
                                     const VisibilityIndex* view = nullptr);

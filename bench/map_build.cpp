@@ -458,30 +458,18 @@ class SimSource final : public DriveSource {
     sim_.gnss.grade = gnss;
     if (canyon_multipath_m >= 0.0) sim_.gnss.consumer.canyon_multipath_m = canyon_multipath_m;
     world_ = sim::load_world(world, length_m, seed, sim_);
+    truth_.points = eval::truth_point_objects(*world_);  // the study's truth too
     for (const auto& o : world_->objects) {
-      if (!o.permanent) continue;
+      if (!o.permanent || o.geometry_m.size() < 2) continue;
       using C = sim::ObjectClass;
       switch (o.cls) {
-        case C::LampPole:
-        case C::SignPole:
-        case C::SignPlate:
-        case C::TrafficLight:
-        case C::Pole:
-        case C::GuardrailPost:
-        case C::GuidePost:
-        case C::TreeTrunk:
-        case C::FacadeRecess:
-        case C::FacadeCorner:
-        case C::FencePost:
-          if (o.geometry_m.size() == 1) truth_.points.push_back(o.geometry_m[0]);
-          break;
         case C::GuardrailBeam:
         case C::Curbstone:
         case C::RoadBorder:
         case C::Wall:
         case C::Facade:
         case C::FenceMesh:
-          if (o.geometry_m.size() >= 2) truth_.lines.push_back(o.geometry_m);
+          truth_.lines.push_back(o.geometry_m);
           break;
         default:
           break;

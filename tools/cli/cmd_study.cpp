@@ -188,6 +188,14 @@ void setup(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--realism-sources", opts->realism_sources,
                   "with --realism realistic: keep only these sources on (comma separated)");
+  cmd->add_option("--gnss", opts->gnss,
+                  "positioning of the mapping drives: rtk (survey-grade) | consumer (a series "
+                  "car's GNSS; the build aligns the drives, errors in the map's frame)")
+      ->check(CLI::IsMember({"rtk", "consumer"}))
+      ->capture_default_str();
+  cmd->add_option("--rtk-drives", opts->rtk_drives,
+                  "with --gnss consumer: the first N drives are survey-grade (anchors)")
+      ->capture_default_str();
   cmd->add_flag("--no-calibrate-common-yaw", opts->no_common_yaw,
                 "the localizer calibrates relative mount yaws only, not the yaw common to "
                 "all mounts (radar/mount_calibration.hpp)");

@@ -165,8 +165,14 @@ inline void put_real_package(MapStore& store, const fs::path& tmp, const World& 
 inline void put_drive_along(MapStore& store, const fs::path& tmp, const World& w,
                             const std::string& name, unsigned seed, Eigen::Vector2d lo,
                             Eigen::Vector2d hi, const std::vector<Eigen::Vector2d>& path,
-                            int temporaries = 20, double start_time_s = 0.0) {
+                            int temporaries = 20, double start_time_s = 0.0,
+                            const Eigen::Vector2d& gnss_error_m = Eigen::Vector2d::Zero(),
+                            float reported_std_m = 0.0F) {
+  // gnss_error_m: the drive's positioning error, shifting its candidates and trajectory
+  // alike (a consumer-grade receiver reports reported_std_m, solution standalone).
   DrivePackage pkg = observe(w, name, seed, lo, hi, temporaries);
+  for (auto& c : pkg.points) c.position_m += gnss_error_m;
+  for (auto& l : pkg.lines) l.start_m += gnss_error_m, l.end_m += gnss_error_m;
   pkg.manifest.start_time_s = start_time_s;
   pkg.manifest.pol_level = PolLevel::SingleLR;
   pkg.manifest.sensors = default_front_mounts();
@@ -175,12 +181,14 @@ inline void put_drive_along(MapStore& store, const fs::path& tmp, const World& w
   double t = start_time_s;
   for (std::size_t k = 0; k < path.size(); ++k) {
     if (k > 0) t += (path[k] - path[k - 1]).norm() / 10.0;
-    const GeoPoint g = world.to_geo(path[k]);
+    const GeoPoint g = world.to_geo(path[k] + gnss_error_m);
     TrajectorySample s;
     s.time_s = t;
     s.lat_deg = g.lat_deg;
     s.lon_deg = g.lon_deg;
     s.speed_mps = 10.0;
+    s.std_east_m = s.std_north_m = reported_std_m;
+    s.solution = reported_std_m > 0.5F ? GnssSolution::Standalone : GnssSolution::CarrierPhaseFixed;
     pkg.trajectory.push_back(s);
   }
   pkg.manifest.end_time_s = t + 1.0;

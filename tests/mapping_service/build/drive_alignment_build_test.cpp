@@ -33,13 +33,13 @@ struct Result {
 Result build_consumer_fleet(const fs::path& dir, bool align) {
   const World w = road_world();
   SqliteMapStore store(dir / "map.db");
-  const std::vector<Eigen::Vector2d> errors{{1.8, -1.2}, {-1.5, 0.9}, {0.4, 2.1},
-                                            {-2.2, -0.6}, {1.1, 1.4}, {-0.3, -1.9}};
+  const std::vector<Eigen::Vector2d> errors{{1.8, -1.2},  {-1.5, 0.9}, {0.4, 2.1},
+                                            {-2.2, -0.6}, {1.1, 1.4},  {-0.3, -1.9}};
   std::vector<Eigen::Vector2d> path;
   for (double x = -160.0; x <= 160.0; x += 5.0) path.emplace_back(x, 0.0);
   for (std::size_t d = 0; d < errors.size(); ++d) {
-    put_drive_along(store, dir, w, "consumer_" + std::to_string(d), 300 + d, {-150, -30},
-                    {150, 30}, path, 0, 100.0 * d, errors[d], 2.0F);
+    put_drive_along(store, dir, w, "consumer_" + std::to_string(d), 300 + d, {-150, -30}, {150, 30},
+                    path, 0, 100.0 * d, errors[d], 2.0F);
   }
   MapBuilderConfig cfg;
   cfg.align_drives = align;

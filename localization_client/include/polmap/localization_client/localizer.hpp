@@ -71,6 +71,11 @@ ExtractorConfig with_chunk_tiles(ExtractorConfig cfg, int chunk_tiles) {
   return cfg;
 }
 
+inline radar::LineExtractorConfig without_spread_rejection(radar::LineExtractorConfig cfg) {
+  cfg.spread_min_decay_db_per_m = 0.0;
+  return cfg;
+}
+
 /// All parameters of the pipeline; defaults are the paper's where it gives
 /// them (Weishaupt et al. 2024, §IV-B), otherwise documented choices.
 struct LocalizerConfig {
@@ -114,7 +119,12 @@ struct LocalizerConfig {
   /// to 50 m fits, and no chunk halos are processed twice. Mapping keeps 8-tile chunks
   /// (bounded memory on long drives).
   radar::PointExtractorConfig points = with_chunk_tiles(radar::PointExtractorConfig{}, 32);
-  radar::LineExtractorConfig lines = with_chunk_tiles(radar::LineExtractorConfig{}, 32);
+  /// Without the mapping's rejection of point-target azimuth smears: a line candidate the
+  /// map does not have is simply not matched, and the rejection cost the client lines it
+  /// matches (polmap study --world urban --length-m 600 --drives 3, 2026-12-04: lat / rot
+  /// RMSE 0.061 m / 0.18 deg with it, 0.056 m / 0.14 deg without).
+  radar::LineExtractorConfig lines =
+      without_spread_rejection(with_chunk_tiles(radar::LineExtractorConfig{}, 32));
   LocalMapConfig local_map;
   MatcherConfig matcher;
   SmoothingConfig smoothing;

@@ -452,11 +452,12 @@ class SimSource final : public DriveSource {
  public:
   SimSource(const std::string& world, double length_m, unsigned seed, fs::path cache,
             bool with_gridmap, sim::GnssGrade gnss = sim::GnssGrade::Rtk, int rtk_drives = 0,
-            double canyon_multipath_m = -1.0)
+            double canyon_multipath_m = -1.0, double heading_sigma_deg = -1.0)
       : cache_(std::move(cache)), rtk_drives_(rtk_drives) {
     sim_.seed = seed;
     sim_.gnss.grade = gnss;
     if (canyon_multipath_m >= 0.0) sim_.gnss.consumer.canyon_multipath_m = canyon_multipath_m;
+    if (heading_sigma_deg >= 0.0) sim_.gnss.consumer.heading_sigma_deg = heading_sigma_deg;
     world_ = sim::load_world(world, length_m, seed, sim_);
     truth_.points = eval::truth_point_objects(*world_);  // the study's truth too
     for (const auto& o : world_->objects) {
@@ -506,13 +507,15 @@ class SimSource final : public DriveSource {
   [[nodiscard]] std::string nearest_object(const Eigen::Vector2d& x) const {
     double best = 2.0;
     std::string name = "nothing within 2 m";
-    for (const auto& o : world_->objects) {
-      const double d = point_polyline_distance(x, o.geometry_m);
+    auto take = [&](double d, const sim::WorldObject& o) {
       if (d < best) {
         best = d;
         name = std::string(sim::to_string(o.cls)) + (o.permanent ? "" : " (temporary)");
       }
-    }
+    };
+    for (const auto& o : world_->objects) take(point_polyline_distance(x, o.geometry_m), o);
+    // A car's geometry is its centre; its scattering centres sit at its corners and sides.
+    for (const auto& p : world_->points) take((p.pos_m - x).norm(), world_->objects[p.object]);
     return name;
   }
   void explain(const MapStore& store, std::int64_t version, double radius_m) const override {
@@ -584,10 +587,16 @@ class SimSource final : public DriveSource {
       }
     }
     std::ofstream pl(dir / "point_landmarks.csv");
-    pl << "id,support,x,y\n";
+    pl << "id,support,spread,scattering,x,y,true,nearest\n";
+    const PointIndex truth(truth_.points);
     for (std::size_t i = 0; i < lms.points.size(); ++i) {
-      const Eigen::Vector2d x = f.to_local(lms.points[i].position);
-      pl << i << ',' << lms.points[i].support_drives << ',' << x.x() << ',' << x.y() << '\n';
+      const auto& p = lms.points[i];
+      const Eigen::Vector2d x = f.to_local(p.position);
+      bool ok = false;
+      truth.within(x, 0.3, [&](std::size_t, double) { ok = true; });
+      pl << i << ',' << p.support_drives << ',' << p.spread_m << ','
+         << static_cast<int>(p.scattering) << ',' << x.x() << ',' << x.y() << ',' << (ok ? 1 : 0)
+         << ",\"" << nearest_object(x) << "\"\n";
     }
     const CandidateSet cands = store.candidates_in(std::nullopt);
     std::ofstream lc(dir / "line_candidates.csv");
@@ -660,7 +669,10 @@ int main(int argc, char** argv) {
   app.add_option("--merged-thresholds", merged_thresholds,
                  "pCFAR thresholds (d_ex) for the merged gridmap, one row each")
       ->delimiter(',');
-  int line_peaks = 0, co_presence = 1;
+  int line_peaks = 0, co_presence = 1, surface_peaks = 1;
+  app.add_option("--surface-peaks", surface_peaks,
+                 "1: odd-bounce points inside line landmarks need a higher detection share "
+                 "(point_filter.hpp SurfacePeakRule), 0: off");
   app.add_option("--line-peaks", line_peaks,
                  "remove point landmarks that are peaks of line landmarks (1) or not (0, default)");
   app.add_option("--co-presence", co_presence,
@@ -681,6 +693,9 @@ int main(int argc, char** argv) {
   double canyon_multipath_m = -1.0;
   app.add_option("--canyon-multipath-m", canyon_multipath_m,
                  "with --gnss consumer: canyon multipath amplitude (default: the simulator's)");
+  double heading_sigma_deg = -1.0;
+  app.add_option("--consumer-heading-deg", heading_sigma_deg,
+                 "with --gnss consumer: heading error sigma (default: the simulator's)");
   CLI11_PARSE(app, argc, argv);
   if (gnss != "rtk" && world.empty()) {
     std::fprintf(stderr, "--gnss needs --world (the synthetic route has no trajectories)\n");
@@ -704,12 +719,13 @@ int main(int argc, char** argv) {
     fs::path cache = sim_cache.empty() ? root / "packages" : fs::path(sim_cache);
     if (gnss == "consumer") {
       cache /= "consumer_rtk" + std::to_string(rtk_drives) +
-               (canyon_multipath_m >= 0.0 ? "_mp" + std::to_string(canyon_multipath_m) : "");
+               (canyon_multipath_m >= 0.0 ? "_mp" + std::to_string(canyon_multipath_m) : "") +
+               (heading_sigma_deg >= 0.0 ? "_hd" + std::to_string(heading_sigma_deg) : "");
     }
     source = std::make_unique<SimSource>(
         world, length_km * 1000.0, seed, merged ? cache / "with_gridmap" : cache, merged,
         gnss == "consumer" ? sim::GnssGrade::Consumer : sim::GnssGrade::Rtk, rtk_drives,
-        canyon_multipath_m);
+        canyon_multipath_m, heading_sigma_deg);
   }
 
   std::printf(
@@ -732,6 +748,7 @@ int main(int argc, char** argv) {
       req.points.support.min_view_fraction = req.lines.support.min_view_fraction = *view_fraction;
     req.points.filter.co_presence = filter.co_presence;
     req.points.filter.line_peaks.enabled = line_peaks != 0;
+    req.points.filter.surface_peaks.enabled = surface_peaks != 0;
     req.points.filter.co_presence.enabled = co_presence != 0;
     const MapBuilder builder;
     const auto r = builder.build(store, req);

@@ -83,6 +83,11 @@ nlohmann::json request_json(const MapBuildRequest& r, const MapBuilderConfig& c)
                    {"max_line_distance_m", f.line_peaks.max_line_distance_m},
                    {"min_along_across_ratio", f.line_peaks.min_along_across_ratio},
                    {"min_along_spread_m", f.line_peaks.min_along_spread_m}}},
+                 {"surface_peaks",
+                  {{"enabled", f.surface_peaks.enabled},
+                   {"max_line_distance_m", f.surface_peaks.max_line_distance_m},
+                   {"min_vertex_distance_m", f.surface_peaks.min_vertex_distance_m},
+                   {"min_detection_share", f.surface_peaks.min_detection_share}}},
                  {"co_presence",
                   {{"enabled", f.co_presence.enabled},
                    {"neighbour_radius_m", f.co_presence.neighbour_radius_m},
@@ -178,6 +183,7 @@ nlohmann::json to_json(const MapBuildStats& s) {
   j["point_landmarks"] = s.point_landmarks;
   j["line_landmarks"] = s.line_landmarks;
   j["point_line_peaks"] = s.point_line_peaks;
+  j["point_surface_peaks"] = s.point_surface_peaks;
   j["point_temporary"] = s.point_temporary;
   j["point_out_of_view"] = s.point_out_of_view;
   j["tiles_total"] = s.tiles_total;
@@ -874,6 +880,7 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version, const MapB
     const LineConsensusResult lc = consensus_lines(tl, req.lines, &view);
     const PointFilterResult pf = filter_point_landmarks(pc, lc, tp, &view, req.points.filter);
     st.point_line_peaks = static_cast<std::int64_t>(pf.line_peaks);
+    st.point_surface_peaks = static_cast<std::int64_t>(pf.surface_peaks);
     st.point_temporary = static_cast<std::int64_t>(pf.temporary);
     st.point_out_of_view = static_cast<std::int64_t>(pf.out_of_view);
     st.point_consensus = pc.stats;

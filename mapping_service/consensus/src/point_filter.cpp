@@ -21,17 +21,20 @@ double log_choose(int n, int k) {
 struct NearestLine {
   double distance_m = std::numeric_limits<double>::infinity();
   Eigen::Vector2d direction = Eigen::Vector2d::UnitX();
+  std::size_t line = 0;  ///< index of the line landmark
 };
 
 /// Line segments in a uniform grid for nearest-segment queries within a radius.
 class SegmentGrid {
  public:
   SegmentGrid(const LineConsensusResult& lines, double cell) : cell_(cell) {
-    for (const auto& l : lines.landmarks) {
+    for (std::size_t li = 0; li < lines.landmarks.size(); ++li) {
+      const auto& l = lines.landmarks[li];
       for (std::size_t i = 0; i + 1 < l.polyline_m.size(); ++i) {
         const Eigen::Vector2d a = l.polyline_m[i], b = l.polyline_m[i + 1];
         const std::size_t s = segs_.size();
         segs_.push_back({a, b});
+        seg_line_.push_back(li);
         const auto [x0, y0] = key(a.cwiseMin(b));
         const auto [x1, y1] = key(a.cwiseMax(b));
         for (auto x = x0; x <= x1; ++x) {
@@ -54,6 +57,7 @@ class SegmentGrid {
           if (d < out.distance_m && (b - a).norm() > 0.0) {
             out.distance_m = d;
             out.direction = (b - a).normalized();
+            out.line = seg_line_[s];
           }
         }
       }
@@ -71,6 +75,7 @@ class SegmentGrid {
   }
   double cell_;
   std::vector<std::pair<Eigen::Vector2d, Eigen::Vector2d>> segs_;
+  std::vector<std::size_t> seg_line_;
   std::unordered_map<std::uint64_t, std::vector<std::size_t>> cells_;
 };
 
@@ -97,6 +102,8 @@ PointFilterResult filter_point_landmarks(PointConsensusResult& points,
                                          const VisibilityIndex* view,
                                          const PointFilterConfig& cfg) {
   POLMAP_EXPECT(cfg.line_peaks.max_line_distance_m >= 0.0 &&
+                cfg.surface_peaks.max_line_distance_m >= 0.0 &&
+                cfg.surface_peaks.max_line_distance_m <= 2.0 &&  // the segment grid's reach
                 cfg.co_presence.neighbour_radius_m > 0.0);
   const std::size_t n = points.landmarks.size();
   PointFilterResult out;
@@ -139,6 +146,17 @@ PointFilterResult filter_point_landmarks(PointConsensusResult& points,
       PointEvidence& ev = out.evidence[i];
       if (!std::isfinite(nl.distance_m)) continue;
       ev.line_distance_m = nl.distance_m;
+      double vd = std::numeric_limits<double>::infinity();
+      for (const auto& v : lines.landmarks[nl.line].polyline_m) vd = std::min(vd, (v - p).norm());
+      ev.vertex_distance_m = vd;
+      const SurfacePeakRule& sp = cfg.surface_peaks;
+      if (sp.enabled && points.landmarks[i].scattering == ScatteringClass::Odd &&
+          nl.distance_m <= sp.max_line_distance_m && vd > sp.min_vertex_distance_m &&
+          !in_view[i].empty() &&
+          static_cast<double>(support[i].size()) <=
+              sp.min_detection_share * static_cast<double>(in_view[i].size())) {
+        ev.verdict = PointEvidence::Verdict::SurfacePeak;
+      }
       const Eigen::Vector2d u = nl.direction;
       const Eigen::Vector2d w(-u.y(), u.x());
       double sa = 0.0, sc = 0.0;
@@ -154,7 +172,8 @@ PointFilterResult filter_point_landmarks(PointConsensusResult& points,
       if (m == 0) continue;
       ev.along_spread_m = std::sqrt(sa / static_cast<double>(m));
       ev.across_spread_m = std::sqrt(sc / static_cast<double>(m));
-      if (cfg.line_peaks.enabled && nl.distance_m <= cfg.line_peaks.max_line_distance_m &&
+      if (cfg.line_peaks.enabled && ev.verdict == PointEvidence::Verdict::Kept &&
+          nl.distance_m <= cfg.line_peaks.max_line_distance_m &&
           ev.along_spread_m >= cfg.line_peaks.min_along_spread_m &&
           ev.along_spread_m >= cfg.line_peaks.min_along_across_ratio * ev.across_spread_m) {
         ev.verdict = PointEvidence::Verdict::LinePeak;
@@ -281,6 +300,9 @@ PointFilterResult filter_point_landmarks(PointConsensusResult& points,
       case PointEvidence::Verdict::LinePeak:
         ++out.line_peaks;
         continue;
+      case PointEvidence::Verdict::SurfacePeak:
+        ++out.surface_peaks;
+        continue;
       case PointEvidence::Verdict::Temporary:
         ++out.temporary;
         continue;
@@ -296,7 +318,8 @@ PointFilterResult filter_point_landmarks(PointConsensusResult& points,
     kept_result.support.push_back(std::move(points.support[i]));
     if (i < points.verdicts.size()) kept_result.verdicts.push_back(points.verdicts[i]);
   }
-  kept_result.stats.rejected_groups += out.line_peaks + out.temporary + out.out_of_view;
+  kept_result.stats.rejected_groups +=
+      out.line_peaks + out.surface_peaks + out.temporary + out.out_of_view;
   points = std::move(kept_result);
   return out;
 }

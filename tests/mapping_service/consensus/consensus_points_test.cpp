@@ -91,9 +91,10 @@ TEST(ConsensusPoints, MinDrivesAndMajorityClass) {
 }
 
 TEST(ConsensusPoints, SplitModesDoNotDependOnTheFrameOrigin) {
-  // Elongated, bimodal clusters of 16 drives (as facade corners give): the builder's
-  // frame is centred on its region's candidates, so the same candidates arrive shifted
-  // by an arbitrary offset; the landmarks must shift with them and nothing else.
+  // Bimodal clusters of 16 drives (two objects 0.34 m apart, chained into one component
+  // by the candidates' noise): the builder's frame is centred on its region's candidates,
+  // so the same candidates arrive shifted by an arbitrary offset; the landmarks must shift
+  // with them and nothing else.
   std::mt19937 rng(11);
   std::normal_distribution<double> n(0.0, 0.04);
   std::vector<TaggedPointCandidate> in;
@@ -101,7 +102,7 @@ TEST(ConsensusPoints, SplitModesDoNotDependOnTheFrameOrigin) {
   for (int k = 0; k < 20; ++k) {
     const Eigen::Vector2d c(3.0 * k, 0.5 * k);
     for (int d = 0; d < 16; ++d) {
-      const double along = (d % 2 == 0 ? -0.09 : 0.09) + n(rng);
+      const double along = (d % 2 == 0 ? -0.17 : 0.17) + n(rng);
       in.push_back(cand(id++, d, c.x() + along, c.y() + n(rng)));
     }
   }
@@ -119,6 +120,24 @@ TEST(ConsensusPoints, SplitModesDoNotDependOnTheFrameOrigin) {
       EXPECT_EQ(r.support[i], ref.support[i]);
     }
   }
+}
+
+TEST(ConsensusPoints, ModesCloserThanThePairDistanceAreOneLandmark) {
+  // A facade corner seen from its two faces: 16 drives, two modes 0.24 m apart (the
+  // simulated urban route gave 0.23-0.28 m). One object: one landmark between them.
+  std::mt19937 rng(5);
+  std::normal_distribution<double> n(0.0, 0.03);
+  std::vector<TaggedPointCandidate> in;
+  std::int64_t id = 0;
+  for (int d = 0; d < 16; ++d) {
+    const double along = (d < 10 ? -0.12 : 0.12) + n(rng);
+    in.push_back(cand(id++, d, along, n(rng)));
+  }
+  const auto r = consensus_points(in);
+  ASSERT_EQ(r.landmarks.size(), 1U);
+  EXPECT_EQ(r.stats.split_groups, 0U);
+  EXPECT_LT(std::abs(r.landmarks[0].position_m.y()), 0.05);
+  EXPECT_LT(std::abs(r.landmarks[0].position_m.x()), 0.15);
 }
 
 TEST(ConsensusPoints, KdTreeEqualsBruteForceOnRandomSets) {

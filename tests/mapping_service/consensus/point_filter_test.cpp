@@ -278,6 +278,61 @@ TEST(PointFilter, LinePeaksOnACurbGoPoleBesideItStays) {
   }
 }
 
+TEST(PointFilter, OddPeaksInsideAWallNeedMostPassesCornersRecessesAndPolesDoNot) {
+  // Four passes along x; a facade (line landmark) along y = -5 with a bend at x = 0.
+  const int n = 4;
+  const VisibilityIndex view = passes_along_x(n);
+  std::vector<TaggedPointCandidate> in;
+  std::int64_t id = 0;
+  auto object = [&](Eigen::Vector2d p, ScatteringClass cls, int drives) {
+    for (int d = 1; d <= drives; ++d) {
+      TaggedPointCandidate c;
+      c.candidate_id = id++;
+      c.drive = d;
+      c.candidate.position_m = p + Eigen::Vector2d(0.01 * d, -0.01 * d);
+      c.candidate.scattering = cls;
+      in.push_back(c);
+    }
+  };
+  object({10.0, -5.0}, ScatteringClass::Odd, 2);   // 0: wall peak, 2 of 4: removed
+  object({-10.0, -5.0}, ScatteringClass::Odd, 3);  // 1: 3 of 4 (> 0.6): kept
+  object({20.0, -5.0}, ScatteringClass::Even, 2);  // 2: recess (even): kept
+  object({0.4, -5.0}, ScatteringClass::Odd, 2);    // 3: at the bend (a corner): kept
+  object({5.0, -3.0}, ScatteringClass::Odd, 2);    // 4: a pole 2 m in front: kept
+  object({-20.0, -4.8}, ScatteringClass::Odd, 2);  // 5: 0.2 m off the wall: removed
+  LineConsensusResult lines;
+  LineLandmark wall;
+  wall.polyline_m = {{-40.0, -5.0}, {0.0, -5.0}, {40.0, -5.2}};
+  lines.landmarks.push_back(wall);
+  PointConsensusResult pc = consensus_points(in, {}, &view);
+  ASSERT_EQ(pc.landmarks.size(), 6U);
+  std::vector<Eigen::Vector2d> before;
+  for (const auto& l : pc.landmarks) before.push_back(l.position_m);
+  const PointFilterResult f = filter_point_landmarks(pc, lines, in, &view);
+  EXPECT_EQ(f.surface_peaks, 2U);
+  using V = PointEvidence::Verdict;
+  std::vector<V> expect(6, V::Kept);
+  for (std::size_t i = 0; i < before.size(); ++i) {
+    const Eigen::Vector2d p = before[i];
+    // Objects were added in order; consensus keeps candidate-id order.
+    EXPECT_NEAR(
+        f.evidence[i].vertex_distance_m,
+        std::min({(p - Eigen::Vector2d(-40, -5)).norm(), (p - Eigen::Vector2d(0, -5)).norm(),
+                  (p - Eigen::Vector2d(40, -5.2)).norm()}),
+        1e-9);
+  }
+  EXPECT_EQ(f.evidence[0].verdict, V::SurfacePeak);
+  EXPECT_EQ(f.evidence[5].verdict, V::SurfacePeak);
+  for (std::size_t i : {1U, 2U, 3U, 4U}) EXPECT_EQ(f.evidence[i].verdict, V::Kept) << i;
+  EXPECT_EQ(pc.landmarks.size(), 4U);
+  // Off: everything stays.
+  PointConsensusResult again = consensus_points(in, {}, &view);
+  PointFilterConfig off;
+  off.surface_peaks.enabled = false;
+  EXPECT_EQ(filter_point_landmarks(again, lines, in, &view, off).surface_peaks, 0U);
+  EXPECT_EQ(again.landmarks.size(), 6U);
+}
+
 TEST(PointFilter, DisabledByDefaultLinePeakRuleKeepsEverything) {
   const int n = 6;
   const VisibilityIndex view = passes_along_x(n);

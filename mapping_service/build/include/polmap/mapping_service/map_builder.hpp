@@ -156,6 +156,7 @@ struct MapBuildStats {
   std::int64_t line_landmarks = 0;
   /// Point landmarks removed by filter_point_landmarks (point_filter.hpp).
   std::int64_t point_line_peaks = 0;
+  std::int64_t point_surface_peaks = 0;
   std::int64_t point_temporary = 0;
   std::int64_t point_out_of_view = 0;
   std::int64_t tiles_total = 0;     ///< localization tiles of the new version

@@ -110,7 +110,8 @@ struct PointConsensusConfig {
   double max_pair_distance_m = 0.3;
   SupportRule support;
   /// Groups of at least this many drives are split at their density modes (mean
-  /// shift, radius d_p / 2) and each mode positioned by the mean of its members
+  /// shift, radius d_p / 2; modes closer than d_p are one) and each mode positioned by
+  /// the mean of its members
   /// within d_p / 2 (robust to clutter at the rim); smaller groups keep the paper's
   /// plain mean.
   int split_min_drives = 8;

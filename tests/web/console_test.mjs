@@ -203,6 +203,15 @@ await check('the operator key shows the fleet and never reaches the URL or the l
   await waitFor(page, () => /^[0-9]+ drives$/.test(document.getElementById('fleet-status').textContent));
   assert.equal(await page.textContent('#fleet-status'), '3 drives');
   assert.equal(await page.$$eval('#drives tbody tr', (t) => t.length), 3);
+  // Status, positioning and date columns: the simulated drives are RTK-grade, their clock
+  // is relative (the upload day is shown), and each is used by the current version or newer.
+  const rows = await page.$$eval('#drives tbody tr', (t) => t.map((r) => [...r.cells].map((c) => c.textContent)));
+  for (const r of rows) {
+    assert.match(r[1], /^(in v[0-9]+|new \(next build\)|excluded from v[0-9]+)$/, 'status ' + r[1]);
+    assert.match(r[4], /^survey [0-9]+ cm$/, 'positioning ' + r[4]);
+    assert.match(r[5], /^[0-9]{4}-[0-9]{2}-[0-9]{2} \(upload\)$/, 'date ' + r[5]);
+  }
+  assert.ok(rows.some((r) => /^in v[0-9]+$/.test(r[1])), 'some drive is in the current version');
   assert.equal(await page.inputValue('#api-key'), '', 'the field is cleared');
   await page.click('#layer-coverage');
   await idle();

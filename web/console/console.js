@@ -361,6 +361,29 @@
   }
 
   // ------------------------------------------------------------------ fleet
+  // A drive's place in the current map: ingested after that version was started → not in a
+  // map yet; named in its excluded drives → excluded; otherwise used by it.
+  function driveStatus(r, cur) {
+    if (!cur) return 'new';
+    const excluded = ((cur.parameters || {}).excluded_drive_ids || []).includes(r.drive_id);
+    if (excluded) return 'excluded from v' + cur.version;
+    if (r.ingested_at && cur.created_at && r.ingested_at > cur.created_at) return 'new (next build)';
+    return 'in v' + cur.version;
+  }
+
+  // Survey-grade (RTK, < 0.1 m) or consumer-grade positioning, from the drive's manifest.
+  function positioningLabel(p) {
+    const m = Number(p.median_std_m);
+    if (!Number.isFinite(m)) return '';
+    return (m <= 0.1 ? 'survey ' : 'consumer ') + (m < 1 ? (100 * m).toFixed(0) + ' cm' : m.toFixed(1) + ' m');
+  }
+
+  // The drive's day when its clock is UTC (after 2000), else the day it was uploaded.
+  function driveDate(r) {
+    if (r.start_time_s > 946684800) return new Date(r.start_time_s * 1000).toISOString().slice(0, 10);
+    return r.ingested_at ? r.ingested_at.slice(0, 10) + ' (upload)' : '';
+  }
+
   async function loadFleet() {
     const status = $('fleet-status');
     const body = $('drives').querySelector('tbody');
@@ -368,12 +391,15 @@
     if (!state.key) { status.textContent = 'enter an operator key to see the drives'; return; }
     try {
       const d = await getJson('/v1/drives', true);
+      const cur = (state.versions || []).find((v) => v.version === state.current);
       for (const r of d.drives) {
         const tr = document.createElement('tr');
         cell(tr, r.drive_id);
+        cell(tr, driveStatus(r, cur));
         cell(tr, r.vehicle_id);
         cell(tr, r.distance_m !== undefined ? (r.distance_m / 1000).toFixed(2) : '');
-        cell(tr, r.start_time_s ? new Date(r.start_time_s * 1000).toISOString().slice(0, 10) : '');
+        cell(tr, r.positioning ? positioningLabel(r.positioning) : '');
+        cell(tr, driveDate(r));
         const td = document.createElement('td');
         const del = text(document.createElement('button'), 'delete');
         del.type = 'button';

@@ -125,6 +125,10 @@ nlohmann::json drive_to_json(const DriveRecord& d, bool with_manifest) {
                    {"ingested_at", d.ingested_at},
                    {"href", "/v1/drives/" + d.drive_id}};
   if (with_manifest) j["manifest"] = d.manifest;
+  // The validated trajectory's accuracy (store_common.cpp): which drives are consumer-grade.
+  if (d.manifest.is_object() && d.manifest.contains("positioning")) {
+    j["positioning"] = d.manifest["positioning"];
+  }
   return j;
 }
 

@@ -57,6 +57,37 @@ TEST(ConsumerGnss, BiasHasConfiguredSigmaAndIsSlowlyVarying) {
   EXPECT_GT(lag_num / lag_den, 0.99);
 }
 
+TEST(ConsumerGnss, TheFusedErrorChangesAtCentimetresPerSecond) {
+  // At 100 Hz, the trajectory's error changes as a Doppler-aided navigation solution's
+  // does: increments over 1 s of RMS sigma * sqrt(1 / (tau * fusion_tau)) ~ 0.027 m, not
+  // the raw Gauss-Markov bias's sigma * sqrt(2 / tau) ~ 0.12 m.
+  GnssSimConfig cfg;
+  cfg.grade = GnssGrade::Consumer;
+  cfg.consumer.outages_per_km = 0.0;
+  cfg.consumer.heading_sigma_deg = 0.0;
+  const tiles::LocalFrame frame(GeoPoint{48.0, 11.0, 0.0});
+  auto increment_rms = [&](double fusion_tau_s) {
+    cfg.consumer.fusion_tau_s = fusion_tau_s;
+    double s2 = 0, n = 0;
+    for (std::uint64_t seed = 1; seed <= 10; ++seed) {
+      GnssErrorModel m(cfg, 600.0, seed);
+      Eigen::Vector2d prev = Eigen::Vector2d::Zero();
+      int k = 0;
+      for (double t = 0; t < 600.0; t += 0.01, ++k) {
+        const TrajectorySample g = m.sample(test::state_at(0.0, 0.0, 0.0, 0.0, 0.0, t), frame);
+        if (k % 100 != 0) continue;
+        const Eigen::Vector2d e = frame.to_local(g.lat_deg, g.lon_deg);
+        if (t > 60.0) s2 += (e - prev).squaredNorm(), n += 2;
+        prev = e;
+      }
+    }
+    return std::sqrt(s2 / n);
+  };
+  const double fused = increment_rms(10.0), raw = increment_rms(1e-9);
+  EXPECT_NEAR(fused, 1.5 / std::sqrt(300.0 * 10.0), 0.01);
+  EXPECT_NEAR(raw, 1.5 * std::sqrt(2.0 / 300.0), 0.02);
+}
+
 TEST(ConsumerGnss, OutagesDriftWithDistanceAndRecover) {
   GnssSimConfig cfg;
   cfg.grade = GnssGrade::Consumer;

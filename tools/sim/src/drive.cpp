@@ -318,18 +318,22 @@ TrajectorySample GnssErrorModel::sample_consumer(const ExactState& s,
     outage_drift_m_ *= std::exp(-dt_s / std::max(c.recovery_tau_s, 1e-6));
   }
   const Eigen::Vector2d p_true(s.x_m, s.y_m);
-  Eigen::Vector2d xy = p_true + c.bias_sigma_m * Eigen::Vector2d(cbx_, cby_) + outage_drift_m_;
-  if (multipath_) {
-    const Eigen::Vector2d raw = multipath_->error_m(p_true, s.yaw_rad);
-    if (!multipath_started_) {
-      multipath_m_ = raw;  // no history before the first sample
-      multipath_started_ = true;
-    } else {
-      multipath_m_ +=
-          (1.0 - std::exp(-dt_s / std::max(c.fusion_tau_s, 1e-6))) * (raw - multipath_m_);
-    }
-    xy += multipath_m_;
+  // The receiver's error (bias and canyon multipath) reaches the trajectory through the
+  // car's navigation filter, which weighs it against wheel odometry and IMU: a first-order
+  // low-pass. Without it the Gauss-Markov bias would be rough at the sample rate (its
+  // increments grow with the square root of time: 0.12 m within 1 s for sigma 1.5 m,
+  // tau 300 s), i.e. a velocity error of ~0.1 m/s, which a fused solution does not have
+  // (the low-passed bias changes at sigma / sqrt(tau * fusion_tau) = 0.03 m/s).
+  Eigen::Vector2d raw = c.bias_sigma_m * Eigen::Vector2d(cbx_, cby_);
+  if (multipath_) raw += multipath_->error_m(p_true, s.yaw_rad);
+  if (!fused_started_) {
+    fused_error_m_ = raw;  // no history before the first sample
+    fused_started_ = true;
+  } else {
+    fused_error_m_ +=
+        (1.0 - std::exp(-dt_s / std::max(c.fusion_tau_s, 1e-6))) * (raw - fused_error_m_);
   }
+  Eigen::Vector2d xy = p_true + fused_error_m_ + outage_drift_m_;
   double yaw_err_rad = c.heading_sigma_deg * kDeg * ch_;
   if (ins_.enabled) yaw_err_rad += heading_bias_rad_;
   const GeoPoint g = frame.to_geo(xy);

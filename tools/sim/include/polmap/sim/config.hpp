@@ -159,9 +159,10 @@ struct ConsumerGnssConfig {
   double multipath_correlation_m = 40.0;
   /// Facades within this distance left and right count as a canyon.
   double canyon_radius_m = 30.0;
-  /// The car's navigation filter weighs GNSS against wheel odometry and IMU: multipath
-  /// errors that change faster than this time constant are smoothed out (first-order
-  /// low-pass of the multipath error along the drive).
+  /// The car's navigation filter weighs GNSS against wheel odometry and IMU: receiver
+  /// errors (bias and multipath) that change faster than this time constant are smoothed
+  /// out (first-order low-pass of the receiver error along the drive; the trajectory's
+  /// error then changes at ~0.03 m/s, as a Doppler-aided solution's velocity error).
   double fusion_tau_s = 10.0;
   /// Outages (tunnels, underpasses, receiver resets) per km; during one the solution dead-
   /// reckons with wheel odometry and gyro and drifts by this share of the distance driven.

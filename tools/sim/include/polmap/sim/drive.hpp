@@ -124,8 +124,9 @@ class GnssErrorModel {
   double outage_left_s_ = 0, consumer_outage_total_s_ = 0;
   Eigen::Vector2d outage_dir_ = Eigen::Vector2d::UnitX();
   Eigen::Vector2d outage_drift_m_ = Eigen::Vector2d::Zero();
-  Eigen::Vector2d multipath_m_ = Eigen::Vector2d::Zero();  ///< after the fusion low-pass
-  bool multipath_started_ = false;
+  /// Receiver error (bias + multipath) after the navigation filter's low-pass.
+  Eigen::Vector2d fused_error_m_ = Eigen::Vector2d::Zero();
+  bool fused_started_ = false;
 };
 
 /// Exact pose converted to geodetic (truth CSV, tests).

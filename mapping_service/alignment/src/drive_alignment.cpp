@@ -152,6 +152,82 @@ struct Smoothness {
   }
 };
 
+// The vehicle's odometry between two nodes of a drive (see DriveAlignmentConfig): node
+// positions as the GNSS reported them, and the displacement integrated from wheel speed
+// along the reported heading, expressed in the frame of node k's reported heading. The
+// navigation solution's heading error is slow (tens of seconds): it rotates the step, which
+// the node's yaw correction models; the GNSS position error does not enter at all.
+struct OdometryStep {
+  Eigen::Vector2d p0 = Eigen::Vector2d::Zero(), p1 = Eigen::Vector2d::Zero();
+  double yaw0_rad = 0.0;
+  Eigen::Vector2d body_m = Eigen::Vector2d::Zero();
+  bool valid = true;
+};
+
+struct OdometryFactor {
+  OdometryStep o;
+  double inv_m, inv_rad;
+  // a, b: the nodes' corrections (dx, dy, dyaw); scale: the drive's wheel-speed scale error.
+  template <typename T>
+  bool operator()(const T* a, const T* b, const T* scale, T* r) const {
+    const T th = o.yaw0_rad + a[2];
+    const T sc = 1.0 + scale[0];
+    const T c = cos(th), s = sin(th);
+    const T px = sc * (c * o.body_m.x() - s * o.body_m.y());
+    const T py = sc * (s * o.body_m.x() + c * o.body_m.y());
+    r[0] = ((o.p1.x() + b[0]) - (o.p0.x() + a[0]) - px) * inv_m;
+    r[1] = ((o.p1.y() + b[1]) - (o.p0.y() + a[1]) - py) * inv_m;
+    r[2] = (b[2] - a[2]) * inv_rad;  // the heading error changes slowly
+    return true;
+  }
+};
+
+struct ScalePrior {
+  double inv;
+  template <typename T>
+  bool operator()(const T* scale, T* r) const {
+    r[0] = scale[0] * inv;
+    return true;
+  }
+};
+
+double wrap_rad(double a) { return std::remainder(a, 2.0 * M_PI); }
+
+// Odometry steps between the nodes of a drive (node k at trajectory sample node_sample[k]):
+// speed along the heading, midpoint rule. Empty when a sample lacks heading or speed; a step
+// is not valid when two samples of a moving vehicle in it are further apart than max_gap_s
+// (a standing vehicle's samples may be sparse: it does not move in between).
+std::vector<OdometryStep> odometry_steps(const std::vector<AlignmentSample>& tr,
+                                         const std::vector<std::size_t>& node_sample,
+                                         double max_gap_s) {
+  std::vector<OdometryStep> out;
+  for (const auto& smp : tr) {
+    if (!std::isfinite(smp.yaw_rad) || !std::isfinite(smp.speed_mps)) return {};
+  }
+  constexpr double kStandingMps = 0.1;
+  for (std::size_t k = 0; k + 1 < node_sample.size(); ++k) {
+    OdometryStep o;
+    const std::size_t i0 = node_sample[k], i1 = node_sample[k + 1];
+    o.p0 = tr[i0].position_m;
+    o.p1 = tr[i1].position_m;
+    o.yaw0_rad = tr[i0].yaw_rad;
+    for (std::size_t j = i0; j < i1; ++j) {
+      const double dt = tr[j + 1].time_s - tr[j].time_s;
+      if (!(dt > 0.0)) return {};
+      const double v = 0.5 * (tr[j].speed_mps + tr[j + 1].speed_mps);
+      if (dt > max_gap_s && std::max(tr[j].speed_mps, tr[j + 1].speed_mps) > kStandingMps) {
+        o.valid = false;  // this step gets the smoothness prior
+      }
+      // Heading relative to node k's, halfway between the two samples.
+      const double h0 = wrap_rad(tr[j].yaw_rad - o.yaw0_rad);
+      const double mid = h0 + 0.5 * wrap_rad(tr[j + 1].yaw_rad - tr[j].yaw_rad);
+      o.body_m += v * dt * Eigen::Vector2d(std::cos(mid), std::sin(mid));
+    }
+    out.push_back(o);
+  }
+  return out;
+}
+
 struct Prior {
   double inv_m, inv_rad;
   template <typename T>
@@ -334,6 +410,9 @@ DriveAlignmentResult align_drives(std::span<const AlignmentDrive> drives,
   DriveAlignmentResult res;
   res.corrections.resize(drives.size());
   std::vector<double> drive_std(drives.size(), 0.0), drive_std_yaw(drives.size(), 0.0);
+  std::vector<std::vector<OdometryStep>> steps(drives.size());
+  // Per drive: wheel-odometry scale error (estimated with the corrections).
+  std::vector<double> odo_scale(drives.size(), 0.0);
   bool any_consumer = false;
   for (std::size_t d = 0; d < drives.size(); ++d) {
     DriveCorrection& c = res.corrections[d];
@@ -350,25 +429,30 @@ DriveAlignmentResult align_drives(std::span<const AlignmentDrive> drives,
     c.survey_grade = drive_std[d] <= cfg.survey_grade_std_m;
     any_consumer = any_consumer || drive_std[d] >= cfg.consumer_grade_std_m;
     (c.survey_grade ? res.survey_grade_drives : res.consumer_grade_drives) += 1;
-    // Resample the trajectory every ~1 m and place the nodes.
+    // Resample the trajectory every ~1 m; nodes at the first sample past each multiple of
+    // the node spacing, and at the last sample.
     double s = 0.0;
     c.path_m.push_back(tr.front().position_m);
     c.path_s_m.push_back(0.0);
+    std::vector<std::size_t> node_sample{0};
+    c.node_s_m.push_back(0.0);
+    c.node_position_m.push_back(tr.front().position_m);
     for (std::size_t i = 1; i < tr.size(); ++i) {
       s += (tr[i].position_m - tr[i - 1].position_m).norm();
       if (s - c.path_s_m.back() >= 1.0 || i + 1 == tr.size()) {
         c.path_m.push_back(tr[i].position_m);
         c.path_s_m.push_back(s);
       }
+      if (s >= c.node_s_m.back() + cfg.node_spacing_m ||
+          (i + 1 == tr.size() && s > c.node_s_m.back())) {
+        node_sample.push_back(i);
+        c.node_s_m.push_back(s);
+        c.node_position_m.push_back(tr[i].position_m);
+      }
     }
-    const int n = std::max(1, static_cast<int>(std::ceil(s / cfg.node_spacing_m))) + 1;
-    for (int k = 0; k < n; ++k) {
-      const double sk = std::min(s, k * cfg.node_spacing_m);
-      if (!c.node_s_m.empty() && sk <= c.node_s_m.back()) break;
-      c.node_s_m.push_back(sk);
-      c.node_position_m.push_back(path_at(c, sk));
-      c.node_correction.push_back(Eigen::Vector3d::Zero());
-    }
+    c.node_correction.assign(c.node_s_m.size(), Eigen::Vector3d::Zero());
+    if (cfg.use_odometry) steps[d] = odometry_steps(tr, node_sample, cfg.odometry_max_gap_s);
+    if (!c.survey_grade && !steps[d].empty()) ++res.odometry_drives;
   }
   if (!any_consumer) {
     for (auto& c : res.corrections) {  // identity everywhere
@@ -422,7 +506,15 @@ DriveAlignmentResult align_drives(std::span<const AlignmentDrive> drives,
         problem.AddResidualBlock(
             new ceres::AutoDiffCostFunction<Prior, 3, 3>(new Prior{1.0 / sp, 1.0 / sy}), nullptr,
             c.node_correction[k].data());
-        if (k + 1 < n) {
+        if (k + 1 < n && !steps[d].empty() && steps[d][k].valid) {
+          const OdometryStep& o = steps[d][k];
+          const double len = o.body_m.norm();
+          problem.AddResidualBlock(
+              new ceres::AutoDiffCostFunction<OdometryFactor, 3, 3, 3, 1>(new OdometryFactor{
+                  o, 1.0 / (cfg.odometry_sigma_m + cfg.odometry_sigma_per_m * len),
+                  1.0 / (cfg.odometry_yaw_sigma_rad + cfg.odometry_yaw_sigma_per_m * len)}),
+              nullptr, c.node_correction[k].data(), c.node_correction[k + 1].data(), &odo_scale[d]);
+        } else if (k + 1 < n) {
           const double step =
               std::max(1e-3, (c.node_s_m[k + 1] - c.node_s_m[k]) / cfg.node_spacing_m);
           problem.AddResidualBlock(
@@ -432,6 +524,12 @@ DriveAlignmentResult align_drives(std::span<const AlignmentDrive> drives,
               nullptr, c.node_correction[k].data(), c.node_correction[k + 1].data());
         }
       }
+    }
+    for (std::size_t d = 0; d < drives.size(); ++d) {
+      if (steps[d].empty()) continue;
+      problem.AddResidualBlock(new ceres::AutoDiffCostFunction<ScalePrior, 1, 1>(
+                                   new ScalePrior{1.0 / cfg.odometry_scale_sigma}),
+                               nullptr, &odo_scale[d]);
     }
     std::vector<Eigen::Vector2d> lm = cl.centre;
     for (std::size_t j = 0; j < cl.members.size(); ++j) {

@@ -228,6 +228,7 @@ nlohmann::json to_json(const MapBuildStats& s) {
                     {"clusters", s.alignment_clusters},
                     {"residual_rms_m", s.alignment_residual_rms_m},
                     {"mean_correction_m", s.alignment_mean_correction_m},
+                    {"odometry_drives", s.alignment_odometry_drives},
                     {"seconds", s.seconds_alignment}};
   j["seconds"] = {{"load", s.seconds_load},           {"consensus", s.seconds_consensus},
                   {"landmarks", s.seconds_landmarks}, {"tiles", s.seconds_tiles},
@@ -326,8 +327,15 @@ DriveCorrections align_candidates(const MapStore& store, const std::optional<Geo
     const double sd = positioning_std_m(d, "median_std_m", 0.014);
     const double sy = positioning_std_m(d, "median_std_yaw_rad", 0.001);
     for (const TrajectorySample& s : store.drive_trajectory(d.drive_id)) {
-      a.trajectory.push_back(
-          {s.time_s, frame.to_local(GeoPoint{s.lat_deg, s.lon_deg, 0.0}), sd, sy});
+      AlignmentSample smp;
+      smp.time_s = s.time_s;
+      smp.position_m = frame.to_local(GeoPoint{s.lat_deg, s.lon_deg, 0.0});
+      smp.std_m = sd;
+      smp.std_yaw_rad = sy;
+      // Heading in the build frame: ENU yaw plus the frame's meridian convergence there.
+      smp.yaw_rad = s.yaw_enu_rad + frame.convergence_rad(smp.position_m);
+      smp.speed_mps = s.speed_mps;
+      a.trajectory.push_back(smp);
     }
     index[d.row] = in.size();
     in.push_back(std::move(a));
@@ -344,6 +352,7 @@ DriveCorrections align_candidates(const MapStore& store, const std::optional<Geo
   st.alignment_clusters = r.clusters;
   st.alignment_residual_rms_m = r.residual_rms_m;
   st.alignment_mean_correction_m = r.mean_correction_m;
+  st.alignment_odometry_drives = r.odometry_drives;
   if (r.status == DriveAlignmentResult::Status::Aligned) {
     for (const DriveCorrection& c : r.corrections) {
       if (!c.survey_grade) out.emplace(c.drive, c);

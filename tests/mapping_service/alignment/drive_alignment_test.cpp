@@ -8,6 +8,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <limits>
 #include <random>
 
 namespace polmap::mapping {
@@ -18,10 +19,30 @@ constexpr double kRouteM = 1200.0;
 Eigen::Vector2d road(double s) {  // a gentle S-curve
   return {s, 40.0 * std::sin(s / 300.0)};
 }
+double road_slope(double s) { return 40.0 / 300.0 * std::cos(s / 300.0); }
+double road_yaw_rad(double s) { return std::atan(road_slope(s)); }
+
+/// Canyon multipath: an error of the place, the same for every drive passing there.
+Eigen::Vector2d shared_error(double s, double amplitude_m) {
+  return amplitude_m *
+         Eigen::Vector2d(std::sin(2 * M_PI * s / 170.0), std::cos(2 * M_PI * s / 130.0 + 1.0));
+}
 
 struct World {
   std::vector<Eigen::Vector2d> landmarks;
+  /// Per landmark: x of the road point nearest to it (where a drive sees it abeam and
+  /// where its GNSS error is taken).
+  std::vector<double> station;
 };
+
+double nearest_station(const Eigen::Vector2d& l) {
+  double best = l.x(), best_d = std::numeric_limits<double>::infinity();
+  for (double x = l.x() - 30.0; x <= l.x() + 30.0; x += 0.05) {
+    const double d = (road(x) - l).squaredNorm();
+    if (d < best_d) best_d = d, best = x;
+  }
+  return best;
+}
 
 World make_world(std::mt19937_64& rng) {
   World w;
@@ -31,6 +52,7 @@ World make_world(std::mt19937_64& rng) {
     const Eigen::Vector2d t = (road(s + 0.5) - road(s - 0.5)).normalized();
     const Eigen::Vector2d n(-t.y(), t.x());
     w.landmarks.push_back(road(s) + side * (4.0 + 20.0 * u(rng)) * n);
+    w.station.push_back(nearest_station(w.landmarks.back()));
   }
   return w;
 }
@@ -40,8 +62,9 @@ struct DriveError {
   Eigen::Vector2d bias;
   Eigen::Vector2d amp;
   double wavelength_m, phase;
+  double shared_m = 0.0;  ///< amplitude of the place's shared error (survey-grade: none)
   Eigen::Vector2d at(double s) const {
-    return bias + amp * std::sin(2 * M_PI * s / wavelength_m + phase);
+    return bias + amp * std::sin(2 * M_PI * s / wavelength_m + phase) + shared_error(s, shared_m);
   }
 };
 
@@ -50,7 +73,11 @@ struct Fleet {
   std::vector<DriveError> errors;
 };
 
-Fleet make_fleet(const World& w, int n, int survey, std::mt19937_64& rng) {
+/// n drives, the first `survey` survey-grade; consumer-grade ones also carry the place's
+/// shared error of amplitude shared_m. Samples carry the exact heading, speed and yaw rate
+/// (the vehicle's odometry) unless without_odometry.
+Fleet make_fleet(const World& w, int n, int survey, std::mt19937_64& rng, double shared_m = 0.0,
+                 bool without_odometry = false) {
   Fleet f;
   std::normal_distribution<double> g(0.0, 1.0);
   std::uniform_real_distribution<double> u(0.0, 1.0);
@@ -59,7 +86,7 @@ Fleet make_fleet(const World& w, int n, int survey, std::mt19937_64& rng) {
     DriveError e{rtk ? Eigen::Vector2d(0.01 * g(rng), 0.01 * g(rng))
                      : Eigen::Vector2d(1.5 * g(rng), 1.5 * g(rng)),
                  rtk ? Eigen::Vector2d::Zero() : Eigen::Vector2d(0.5 * g(rng), 0.5 * g(rng)),
-                 600.0 + 600.0 * u(rng), 2 * M_PI * u(rng)};
+                 600.0 + 600.0 * u(rng), 2 * M_PI * u(rng), rtk ? 0.0 : shared_m};
     AlignmentDrive a;
     a.drive = 100 + d;
     for (double s = 0.0; s <= kRouteM; s += 0.5) {
@@ -68,12 +95,17 @@ Fleet make_fleet(const World& w, int n, int survey, std::mt19937_64& rng) {
       smp.position_m = road(s) + e.at(s);
       smp.std_m = rtk ? 0.014 : 2.0;
       smp.std_yaw_rad = rtk ? 0.001 : 0.005;
+      if (!without_odometry) {  // 10 m/s along x
+        const double k = road_slope(s);
+        smp.yaw_rad = road_yaw_rad(s);
+        smp.speed_mps = 10.0 * std::sqrt(1.0 + k * k);
+      }
       a.trajectory.push_back(smp);
     }
-    for (const auto& l : w.landmarks) {
+    for (std::size_t i = 0; i < w.landmarks.size(); ++i) {
       if (u(rng) > 0.8) continue;  // missed in this drive
-      const double s = l.x();      // the road runs along x: nearest station ~ x
-      a.points_m.push_back(l + e.at(s) + Eigen::Vector2d(0.05 * g(rng), 0.05 * g(rng)));
+      a.points_m.push_back(w.landmarks[i] + e.at(w.station[i]) +
+                           Eigen::Vector2d(0.05 * g(rng), 0.05 * g(rng)));
     }
     for (int c = 0; c < 60; ++c) {  // single-drive clutter
       const double s = kRouteM * u(rng);
@@ -97,8 +129,9 @@ std::pair<double, Eigen::Vector2d> landmark_rms(const World& w, const Fleet& f,
   Eigen::Vector2d mean_all = Eigen::Vector2d::Zero();
   int n_all = 0;
   for (std::size_t d = 0; d < f.drives.size(); ++d) {
-    for (const auto& l : w.landmarks) {
-      Eigen::Vector2d seen = l + f.errors[d].at(l.x());
+    for (std::size_t i = 0; i < w.landmarks.size(); ++i) {
+      const Eigen::Vector2d& l = w.landmarks[i];
+      Eigen::Vector2d seen = l + f.errors[d].at(w.station[i]);
       if (r) seen = r->corrections[d].apply(seen);
       diffs[static_cast<std::size_t>(
                 std::clamp(static_cast<int>(l.x() / kWindowM), 0, windows - 1))]
@@ -122,11 +155,11 @@ std::pair<double, Eigen::Vector2d> landmark_rms(const World& w, const Fleet& f,
 double inter_drive_rms(const World& w, const Fleet& f, const DriveAlignmentResult& r) {
   double s2 = 0;
   int n = 0;
-  for (const auto& l : w.landmarks) {
+  for (std::size_t i = 0; i < w.landmarks.size(); ++i) {
     std::vector<Eigen::Vector2d> seen;
     Eigen::Vector2d mean = Eigen::Vector2d::Zero();
     for (std::size_t d = 0; d < f.drives.size(); ++d) {
-      seen.push_back(r.corrections[d].apply(l + f.errors[d].at(l.x())));
+      seen.push_back(r.corrections[d].apply(w.landmarks[i] + f.errors[d].at(w.station[i])));
       mean += seen.back();
     }
     mean /= static_cast<double>(seen.size());
@@ -146,15 +179,63 @@ TEST(DriveAlignment, ConsumerDrivesAgreeToCentimetresAfterAlignment) {
   EXPECT_EQ(r.consumer_grade_drives, 12);
   EXPECT_EQ(r.survey_grade_drives, 0);
   EXPECT_GT(r.clusters, static_cast<int>(w.landmarks.size() / 2));
+  EXPECT_EQ(r.odometry_drives, 12);
   const auto [rms_after, off_after] = landmark_rms(w, f, &r);
   EXPECT_GT(rms_before, 1.0);
   EXPECT_LT(inter_drive_rms(w, f, r), 0.06);
-  // Within 200 m windows what remains is the fleet's mean GNSS drift, which no relative
-  // measurement can see (12 drives, 0.5 m sinusoidal drift each): well below a metre.
-  EXPECT_LT(rms_after, 0.15) << "before " << rms_before;
+  // Within 200 m windows: the odometry fixes each drive's shape, so the fleet's mean GNSS
+  // drift (12 drives, 0.5 m sinusoidal drift each) does not bend the map.
+  EXPECT_LT(rms_after, 0.05) << "before " << rms_before;
   // Without anchors the absolute offset is what the GNSS priors average to: within a few
   // sigma of 1.5 m / sqrt(12), not pinned.
   EXPECT_LT(off_after.norm(), 3.0 * 1.5 * std::sqrt(2.0 / 12.0) + 0.3);
+}
+
+TEST(DriveAlignment, TheSharedCanyonErrorNeedsTheVehiclesOdometry) {
+  // Every consumer drive meets the same 0.8 m error at the same place (canyon multipath):
+  // landmark associations cannot see it (all drives agree), only the vehicle's own motion
+  // can. With odometry the map keeps the road's shape; without, it inherits the error.
+  std::mt19937_64 rng(21);
+  const World w = make_world(rng);
+  const Fleet with = make_fleet(w, 12, 0, rng, 0.8);
+  std::mt19937_64 rng2(21);
+  (void)make_world(rng2);
+  const Fleet without = make_fleet(w, 12, 0, rng2, 0.8, true);
+  const DriveAlignmentResult a = align_drives(with.drives);
+  const DriveAlignmentResult b = align_drives(without.drives);
+  ASSERT_EQ(a.status, DriveAlignmentResult::Status::Aligned);
+  ASSERT_EQ(b.status, DriveAlignmentResult::Status::Aligned);
+  EXPECT_EQ(a.odometry_drives, 12);
+  EXPECT_EQ(b.odometry_drives, 0);
+  const double rms_with = landmark_rms(w, with, &a).first;
+  const double rms_without = landmark_rms(w, without, &b).first;
+  EXPECT_LT(rms_with, 0.05);
+  EXPECT_GT(rms_without, 0.3);
+  EXPECT_LT(inter_drive_rms(w, with, a), 0.06);
+  // The same drives with odometry switched off in the configuration: as without.
+  DriveAlignmentConfig off;
+  off.use_odometry = false;
+  const DriveAlignmentResult c = align_drives(with.drives, off);
+  EXPECT_EQ(c.odometry_drives, 0);
+  EXPECT_GT(landmark_rms(w, with, &c).first, 0.3);
+}
+
+TEST(DriveAlignment, OdometryScaleErrorIsEstimated) {
+  // Each car's wheel speed is off by up to 0.6 % (tyre wear, pressure; what a series car's
+  // calibrated odometry leaves): the per-drive scale parameter absorbs it and the map
+  // keeps its shape.
+  std::mt19937_64 rng(31);
+  const World w = make_world(rng);
+  Fleet f = make_fleet(w, 10, 0, rng, 0.5);
+  std::uniform_real_distribution<double> u(-0.006, 0.006);
+  for (auto& d : f.drives) {
+    const double scale = 1.0 + u(rng);
+    for (auto& smp : d.trajectory) smp.speed_mps *= scale;
+  }
+  const DriveAlignmentResult r = align_drives(f.drives);
+  ASSERT_EQ(r.status, DriveAlignmentResult::Status::Aligned);
+  EXPECT_LT(landmark_rms(w, f, &r).first, 0.06);
+  EXPECT_LT(inter_drive_rms(w, f, r), 0.06);
 }
 
 TEST(DriveAlignment, SurveyGradeDrivesAnchorTheAbsolutePosition) {

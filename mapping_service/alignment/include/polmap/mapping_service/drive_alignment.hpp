@@ -10,6 +10,7 @@
 /// to decimetres. Pure computation in one local metric frame (the build frame).
 #include <Eigen/Core>
 #include <cstdint>
+#include <limits>
 #include <span>
 #include <string_view>
 #include <vector>
@@ -24,6 +25,12 @@ struct AlignmentSample {
   double std_m = 0.0;
   /// Reported 1-sigma heading accuracy, radians.
   double std_yaw_rad = 0.0;
+  /// The navigation solution's heading in the build frame (x axis = 0, counter-clockwise)
+  /// and the wheel speed: the vehicle's odometry, relative motion that is accurate over
+  /// tens of metres where the GNSS position error is not (the heading's error changes over
+  /// tens of seconds). NaN: unknown (no odometry factors for the drive).
+  double yaw_rad = std::numeric_limits<double>::quiet_NaN();
+  double speed_mps = std::numeric_limits<double>::quiet_NaN();
 };
 
 /// A drive as the alignment sees it: its trajectory (time order) and point candidates.
@@ -42,12 +49,35 @@ struct DriveAlignmentConfig {
   /// drive exceeds it (align_drives reports NotNeeded): RTK fleets keep today's maps.
   double consumer_grade_std_m = 0.3;
   /// Spacing of the correction nodes along a drive (arc length).
-  double node_spacing_m = 25.0;
-  /// Change of the correction between neighbouring nodes (1 sigma per node step): the
-  /// consumer error's bias drifts ~0.2 m per 25 m (sigma 1.5 m, tau 300 s at 10 m/s) and
-  /// canyon multipath changes faster, so the graph lets the landmarks decide.
+  double node_spacing_m = 10.0;
+  /// Change of the correction between neighbouring nodes (1 sigma per node step) for
+  /// drives without odometry: the consumer error's bias drifts ~0.2 m per 25 m (sigma
+  /// 1.5 m, tau 300 s at 10 m/s) and canyon multipath changes faster, so the graph lets the
+  /// landmarks decide.
   double smoothness_sigma_m = 0.3;
   double smoothness_yaw_sigma_rad = 0.002;
+  /// Odometry factors between neighbouring nodes (drives whose samples carry heading and
+  /// speed): the corrected displacement from node k to k+1 must equal the wheel speed
+  /// integrated along the corrected heading, and the heading correction changes slowly.
+  /// The store keeps one trajectory sample per metre with heading and speed, not the yaw
+  /// rate, so the heading is the navigation solution's. Canyon multipath repeats at the same place
+  /// in every drive, so only the vehicle's own motion can tell it from the road's shape (without
+  /// odometry the map inherits it: simulated urban route, 200 m windows 0.16 m RMS).
+  bool use_odometry = true;
+  /// Samples of a moving vehicle further apart than this break the odometry (the drive gets
+  /// the smoothness prior instead); the store keeps one per metre travelled.
+  double odometry_max_gap_s = 2.5;
+  /// Displacement noise per step: sigma_m + sigma_per_m x step length (wheel-speed noise
+  /// and slip; the scale error is a parameter of its own below).
+  double odometry_sigma_m = 0.02;
+  double odometry_sigma_per_m = 0.002;
+  /// Change of the heading correction per step: sigma_rad + sigma_per_m x step length (the
+  /// simulator's consumer heading error, 0.3 deg with tau 60 s, changes ~0.001 rad per
+  /// 10 m at 10 m/s).
+  double odometry_yaw_sigma_rad = 0.0005;
+  double odometry_yaw_sigma_per_m = 0.0001;
+  /// Per drive: wheel-odometry scale error (1 sigma, relative), estimated.
+  double odometry_scale_sigma = 0.003;
   /// Length over which the GNSS error of one drive is correlated: the reported sigma is
   /// applied once per this length, not once per node (the priors are not independent).
   double gnss_correlation_length_m = 300.0;
@@ -106,6 +136,7 @@ struct DriveAlignmentResult {
   int associations = 0;            ///< candidate-landmark residuals in the final round
   double residual_rms_m = 0.0;     ///< RMS candidate-landmark distance after the final round
   double mean_correction_m = 0.0;  ///< mean |(dx, dy)| over the consumer-grade nodes
+  int odometry_drives = 0;         ///< consumer-grade drives constrained by odometry
   double seconds = 0.0;
 };
 std::string_view to_string(DriveAlignmentResult::Status s);

@@ -191,6 +191,7 @@ struct MapBuildStats {
   std::int64_t alignment_clusters = 0;
   double alignment_residual_rms_m = 0.0;
   double alignment_mean_correction_m = 0.0;
+  std::int64_t alignment_odometry_drives = 0;  ///< of those, constrained by odometry
   double seconds_alignment = 0.0;
   double seconds_load = 0.0;
   double seconds_consensus = 0.0;

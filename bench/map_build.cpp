@@ -452,12 +452,18 @@ class SimSource final : public DriveSource {
  public:
   SimSource(const std::string& world, double length_m, unsigned seed, fs::path cache,
             bool with_gridmap, sim::GnssGrade gnss = sim::GnssGrade::Rtk, int rtk_drives = 0,
-            double canyon_multipath_m = -1.0, double heading_sigma_deg = -1.0)
+            double canyon_multipath_m = -1.0, double heading_sigma_deg = -1.0,
+            double bias_sigma_m = -1.0)
       : cache_(std::move(cache)), rtk_drives_(rtk_drives) {
     sim_.seed = seed;
     sim_.gnss.grade = gnss;
     if (canyon_multipath_m >= 0.0) sim_.gnss.consumer.canyon_multipath_m = canyon_multipath_m;
     if (heading_sigma_deg >= 0.0) sim_.gnss.consumer.heading_sigma_deg = heading_sigma_deg;
+    if (bias_sigma_m >= 0.0) {
+      sim_.gnss.consumer.bias_sigma_m = bias_sigma_m;
+      sim_.gnss.consumer.outages_per_km =
+          bias_sigma_m > 0.0 ? sim_.gnss.consumer.outages_per_km : 0.0;
+    }
     world_ = sim::load_world(world, length_m, seed, sim_);
     truth_.points = eval::truth_point_objects(*world_);  // the study's truth too
     for (const auto& o : world_->objects) {
@@ -693,7 +699,10 @@ int main(int argc, char** argv) {
   double canyon_multipath_m = -1.0;
   app.add_option("--canyon-multipath-m", canyon_multipath_m,
                  "with --gnss consumer: canyon multipath amplitude (default: the simulator's)");
-  double heading_sigma_deg = -1.0;
+  double heading_sigma_deg = -1.0, bias_sigma_m = -1.0;
+  app.add_option("--consumer-bias-m", bias_sigma_m,
+                 "with --gnss consumer: bias sigma per axis (0 also turns outages off; default: "
+                 "the simulator's)");
   app.add_option("--consumer-heading-deg", heading_sigma_deg,
                  "with --gnss consumer: heading error sigma (default: the simulator's)");
   CLI11_PARSE(app, argc, argv);
@@ -720,12 +729,13 @@ int main(int argc, char** argv) {
     if (gnss == "consumer") {
       cache /= "consumer_rtk" + std::to_string(rtk_drives) +
                (canyon_multipath_m >= 0.0 ? "_mp" + std::to_string(canyon_multipath_m) : "") +
-               (heading_sigma_deg >= 0.0 ? "_hd" + std::to_string(heading_sigma_deg) : "");
+               (heading_sigma_deg >= 0.0 ? "_hd" + std::to_string(heading_sigma_deg) : "") +
+               (bias_sigma_m >= 0.0 ? "_b" + std::to_string(bias_sigma_m) : "");
     }
     source = std::make_unique<SimSource>(
         world, length_km * 1000.0, seed, merged ? cache / "with_gridmap" : cache, merged,
         gnss == "consumer" ? sim::GnssGrade::Consumer : sim::GnssGrade::Rtk, rtk_drives,
-        canyon_multipath_m, heading_sigma_deg);
+        canyon_multipath_m, heading_sigma_deg, bias_sigma_m);
   }
 
   std::printf(

@@ -153,40 +153,53 @@ struct Smoothness {
 };
 
 // The vehicle's odometry between two nodes of a drive (see DriveAlignmentConfig): node
-// positions as the GNSS reported them, and the displacement integrated from wheel speed
-// along the reported heading, expressed in the frame of node k's reported heading. The
-// navigation solution's heading error is slow (tens of seconds): it rotates the step, which
-// the node's yaw correction models; the GNSS position error does not enter at all.
+// positions and headings as the GNSS reported them, and the displacement integrated from
+// wheel speed, expressed in the frame of node k's reported heading. With the yaw rate
+// (gyro), the heading inside the step and its change come from the gyro, so the step's
+// shape does not depend on the navigation solution's heading error at all; without it,
+// from the reported heading (whose error then bends the map where drives share it).
 struct OdometryStep {
   Eigen::Vector2d p0 = Eigen::Vector2d::Zero(), p1 = Eigen::Vector2d::Zero();
   double yaw0_rad = 0.0;
+  double reported_dyaw_rad = 0.0;  // wrapped reported yaw(k+1) - yaw(k)
   Eigen::Vector2d body_m = Eigen::Vector2d::Zero();
+  bool gyro = false;
+  double gyro_dyaw_rad = 0.0;  // integrated yaw rate (gyro mode)
+  double dt_s = 0.0;
   bool valid = true;
 };
 
 struct OdometryFactor {
   OdometryStep o;
   double inv_m, inv_rad;
-  // a, b: the nodes' corrections (dx, dy, dyaw); scale: the drive's wheel-speed scale error.
+  // a, b: the nodes' corrections (dx, dy, dyaw); odo: the drive's (wheel-speed scale
+  // error, yaw-rate bias in rad/s).
   template <typename T>
-  bool operator()(const T* a, const T* b, const T* scale, T* r) const {
-    const T th = o.yaw0_rad + a[2];
-    const T sc = 1.0 + scale[0];
+  bool operator()(const T* a, const T* b, const T* odo, T* r) const {
+    // A yaw-rate bias turns the step by half its accumulated heading error.
+    const T bias_turn = o.gyro ? T(-0.5 * o.dt_s) * odo[1] : T(0.0);
+    const T th = o.yaw0_rad + a[2] + bias_turn;
+    const T sc = 1.0 + odo[0];
     const T c = cos(th), s = sin(th);
     const T px = sc * (c * o.body_m.x() - s * o.body_m.y());
     const T py = sc * (s * o.body_m.x() + c * o.body_m.y());
     r[0] = ((o.p1.x() + b[0]) - (o.p0.x() + a[0]) - px) * inv_m;
     r[1] = ((o.p1.y() + b[1]) - (o.p0.y() + a[1]) - py) * inv_m;
-    r[2] = (b[2] - a[2]) * inv_rad;  // the heading error changes slowly
+    // The corrected heading changes as the gyro says; without a gyro, the correction (the
+    // heading error) changes slowly.
+    r[2] = o.gyro
+               ? (o.reported_dyaw_rad + b[2] - a[2] - (o.gyro_dyaw_rad - odo[1] * o.dt_s)) * inv_rad
+               : (b[2] - a[2]) * inv_rad;
     return true;
   }
 };
 
-struct ScalePrior {
-  double inv;
+struct OdometryPrior {
+  double inv_scale, inv_bias;
   template <typename T>
-  bool operator()(const T* scale, T* r) const {
-    r[0] = scale[0] * inv;
+  bool operator()(const T* odo, T* r) const {
+    r[0] = odo[0] * inv_scale;
+    r[1] = odo[1] * inv_bias;
     return true;
   }
 };
@@ -194,15 +207,18 @@ struct ScalePrior {
 double wrap_rad(double a) { return std::remainder(a, 2.0 * M_PI); }
 
 // Odometry steps between the nodes of a drive (node k at trajectory sample node_sample[k]):
-// speed along the heading, midpoint rule. Empty when a sample lacks heading or speed; a step
-// is not valid when two samples of a moving vehicle in it are further apart than max_gap_s
-// (a standing vehicle's samples may be sparse: it does not move in between).
+// speed along the heading (from the yaw rate when every sample has one, else the reported
+// heading), midpoint rule. Empty when a sample lacks heading or speed; a step is not valid
+// when two samples of a moving vehicle in it are further apart than max_gap_s (a standing
+// vehicle's samples may be sparse: it does not move in between).
 std::vector<OdometryStep> odometry_steps(const std::vector<AlignmentSample>& tr,
                                          const std::vector<std::size_t>& node_sample,
                                          double max_gap_s) {
   std::vector<OdometryStep> out;
+  bool gyro = true;
   for (const auto& smp : tr) {
     if (!std::isfinite(smp.yaw_rad) || !std::isfinite(smp.speed_mps)) return {};
+    gyro = gyro && std::isfinite(smp.yaw_rate_rps);
   }
   constexpr double kStandingMps = 0.1;
   for (std::size_t k = 0; k + 1 < node_sample.size(); ++k) {
@@ -211,6 +227,9 @@ std::vector<OdometryStep> odometry_steps(const std::vector<AlignmentSample>& tr,
     o.p0 = tr[i0].position_m;
     o.p1 = tr[i1].position_m;
     o.yaw0_rad = tr[i0].yaw_rad;
+    o.reported_dyaw_rad = wrap_rad(tr[i1].yaw_rad - tr[i0].yaw_rad);
+    o.gyro = gyro;
+    double h = 0.0;  // gyro heading relative to node k's
     for (std::size_t j = i0; j < i1; ++j) {
       const double dt = tr[j + 1].time_s - tr[j].time_s;
       if (!(dt > 0.0)) return {};
@@ -218,11 +237,19 @@ std::vector<OdometryStep> odometry_steps(const std::vector<AlignmentSample>& tr,
       if (dt > max_gap_s && std::max(tr[j].speed_mps, tr[j + 1].speed_mps) > kStandingMps) {
         o.valid = false;  // this step gets the smoothness prior
       }
-      // Heading relative to node k's, halfway between the two samples.
-      const double h0 = wrap_rad(tr[j].yaw_rad - o.yaw0_rad);
-      const double mid = h0 + 0.5 * wrap_rad(tr[j + 1].yaw_rad - tr[j].yaw_rad);
+      double mid = 0.0;
+      if (gyro) {
+        const double w = 0.5 * (tr[j].yaw_rate_rps + tr[j + 1].yaw_rate_rps);
+        mid = h + 0.5 * w * dt;
+        h += w * dt;
+      } else {  // reported heading relative to node k's, halfway between the samples
+        mid = wrap_rad(tr[j].yaw_rad - o.yaw0_rad) +
+              0.5 * wrap_rad(tr[j + 1].yaw_rad - tr[j].yaw_rad);
+      }
       o.body_m += v * dt * Eigen::Vector2d(std::cos(mid), std::sin(mid));
+      o.dt_s += dt;
     }
+    o.gyro_dyaw_rad = h;
     out.push_back(o);
   }
   return out;
@@ -411,8 +438,8 @@ DriveAlignmentResult align_drives(std::span<const AlignmentDrive> drives,
   res.corrections.resize(drives.size());
   std::vector<double> drive_std(drives.size(), 0.0), drive_std_yaw(drives.size(), 0.0);
   std::vector<std::vector<OdometryStep>> steps(drives.size());
-  // Per drive: wheel-odometry scale error (estimated with the corrections).
-  std::vector<double> odo_scale(drives.size(), 0.0);
+  // Per drive: wheel-odometry scale error and yaw-rate bias (estimated with the corrections).
+  std::vector<Eigen::Vector2d> odo_params(drives.size(), Eigen::Vector2d::Zero());
   bool any_consumer = false;
   for (std::size_t d = 0; d < drives.size(); ++d) {
     DriveCorrection& c = res.corrections[d];
@@ -509,11 +536,15 @@ DriveAlignmentResult align_drives(std::span<const AlignmentDrive> drives,
         if (k + 1 < n && !steps[d].empty() && steps[d][k].valid) {
           const OdometryStep& o = steps[d][k];
           const double len = o.body_m.norm();
+          const double yaw_sigma =
+              o.gyro ? cfg.gyro_sigma_rad + cfg.gyro_sigma_per_m * len
+                     : cfg.odometry_yaw_sigma_rad + cfg.odometry_yaw_sigma_per_m * len;
           problem.AddResidualBlock(
-              new ceres::AutoDiffCostFunction<OdometryFactor, 3, 3, 3, 1>(new OdometryFactor{
+              new ceres::AutoDiffCostFunction<OdometryFactor, 3, 3, 3, 2>(new OdometryFactor{
                   o, 1.0 / (cfg.odometry_sigma_m + cfg.odometry_sigma_per_m * len),
-                  1.0 / (cfg.odometry_yaw_sigma_rad + cfg.odometry_yaw_sigma_per_m * len)}),
-              nullptr, c.node_correction[k].data(), c.node_correction[k + 1].data(), &odo_scale[d]);
+                  1.0 / yaw_sigma}),
+              nullptr, c.node_correction[k].data(), c.node_correction[k + 1].data(),
+              odo_params[d].data());
         } else if (k + 1 < n) {
           const double step =
               std::max(1e-3, (c.node_s_m[k + 1] - c.node_s_m[k]) / cfg.node_spacing_m);
@@ -527,9 +558,10 @@ DriveAlignmentResult align_drives(std::span<const AlignmentDrive> drives,
     }
     for (std::size_t d = 0; d < drives.size(); ++d) {
       if (steps[d].empty()) continue;
-      problem.AddResidualBlock(new ceres::AutoDiffCostFunction<ScalePrior, 1, 1>(
-                                   new ScalePrior{1.0 / cfg.odometry_scale_sigma}),
-                               nullptr, &odo_scale[d]);
+      problem.AddResidualBlock(
+          new ceres::AutoDiffCostFunction<OdometryPrior, 2, 2>(
+              new OdometryPrior{1.0 / cfg.odometry_scale_sigma, 1.0 / cfg.gyro_bias_sigma_rps}),
+          nullptr, odo_params[d].data());
     }
     std::vector<Eigen::Vector2d> lm = cl.centre;
     for (std::size_t j = 0; j < cl.members.size(); ++j) {

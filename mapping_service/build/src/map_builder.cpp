@@ -335,6 +335,7 @@ DriveCorrections align_candidates(const MapStore& store, const std::optional<Geo
       // Heading in the build frame: ENU yaw plus the frame's meridian convergence there.
       smp.yaw_rad = s.yaw_enu_rad + frame.convergence_rad(smp.position_m);
       smp.speed_mps = s.speed_mps;
+      smp.yaw_rate_rps = s.yaw_rate_rps;
       a.trajectory.push_back(smp);
     }
     index[d.row] = in.size();

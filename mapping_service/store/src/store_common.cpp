@@ -243,7 +243,7 @@ nlohmann::json decimated_trajectory_json(const std::vector<TrajectorySample>& tr
       keep = dn * dn + de * de >= kTrajectorySpacingM * kTrajectorySpacingM;
     }
     if (!keep) continue;
-    samples.push_back({t.time_s, t.lat_deg, t.lon_deg, t.yaw_enu_rad, t.speed_mps});
+    samples.push_back({t.time_s, t.lat_deg, t.lon_deg, t.yaw_enu_rad, t.speed_mps, t.yaw_rate_rps});
     last = &t;
   }
   return samples;
@@ -258,6 +258,9 @@ std::vector<TrajectorySample> trajectory_from_json(const nlohmann::json& samples
     t.lon_deg = v.at(2).get<double>();
     t.yaw_enu_rad = v.at(3).get<double>();
     t.speed_mps = v.at(4).get<double>();
+    // Drives stored before the yaw rate was kept (2026-12-05): unknown.
+    t.yaw_rate_rps =
+        v.size() > 5 ? v.at(5).get<double>() : std::numeric_limits<double>::quiet_NaN();
     out.push_back(t);
   }
   return out;

@@ -56,6 +56,8 @@ inline DrivePackage make_package(const std::string& drive_id, int n_points, int 
     t.time_s = 10.0 + i;
     t.lat_deg = g.lat_deg;
     t.lon_deg = g.lon_deg;
+    t.speed_mps = 10.0;
+    t.yaw_rate_rps = 0.001 * (i % 3);  // distinct values for the store's round trip
     p.trajectory.push_back(t);
   }
   return p;

@@ -71,6 +71,13 @@ TEST_P(StoreDrives, PutDriveRoundTripsRowsCandidatesAndFiles) {
   ASSERT_EQ(traj.size(), 10U);  // 10 m apart: all kept
   EXPECT_DOUBLE_EQ(traj[3].time_s, 13.0);
   EXPECT_DOUBLE_EQ(traj[3].lat_deg, pkg.trajectory[3].lat_deg);
+  // What map builds read as the vehicle's odometry (drive alignment): heading, speed and
+  // yaw rate, as validated.
+  for (std::size_t k = 0; k < traj.size(); ++k) {
+    EXPECT_DOUBLE_EQ(traj[k].yaw_enu_rad, pkg.trajectory[k].yaw_enu_rad);
+    EXPECT_DOUBLE_EQ(traj[k].speed_mps, pkg.trajectory[k].speed_mps);
+    EXPECT_DOUBLE_EQ(traj[k].yaw_rate_rps, pkg.trajectory[k].yaw_rate_rps);
+  }
   EXPECT_THROW((void)s.drive_trajectory("nope"), NotFoundError);
   const auto st = s.stats();
   EXPECT_EQ(st.drives, 1);

@@ -25,12 +25,14 @@ struct AlignmentSample {
   double std_m = 0.0;
   /// Reported 1-sigma heading accuracy, radians.
   double std_yaw_rad = 0.0;
-  /// The navigation solution's heading in the build frame (x axis = 0, counter-clockwise)
-  /// and the wheel speed: the vehicle's odometry, relative motion that is accurate over
-  /// tens of metres where the GNSS position error is not (the heading's error changes over
-  /// tens of seconds). NaN: unknown (no odometry factors for the drive).
+  /// The navigation solution's heading in the build frame (x axis = 0, counter-clockwise),
+  /// the wheel speed and the yaw rate: the vehicle's odometry, relative motion that is
+  /// accurate over tens of metres where the GNSS position error is not. NaN: unknown (no
+  /// heading or speed: no odometry factors for the drive; no yaw rate: the step's heading
+  /// comes from the reported heading, whose slow error then bends the map).
   double yaw_rad = std::numeric_limits<double>::quiet_NaN();
   double speed_mps = std::numeric_limits<double>::quiet_NaN();
+  double yaw_rate_rps = std::numeric_limits<double>::quiet_NaN();
 };
 
 /// A drive as the alignment sees it: its trajectory (time order) and point candidates.
@@ -58,11 +60,11 @@ struct DriveAlignmentConfig {
   double smoothness_yaw_sigma_rad = 0.002;
   /// Odometry factors between neighbouring nodes (drives whose samples carry heading and
   /// speed): the corrected displacement from node k to k+1 must equal the wheel speed
-  /// integrated along the corrected heading, and the heading correction changes slowly.
-  /// The store keeps one trajectory sample per metre with heading and speed, not the yaw
-  /// rate, so the heading is the navigation solution's. Canyon multipath repeats at the same place
-  /// in every drive, so only the vehicle's own motion can tell it from the road's shape (without
-  /// odometry the map inherits it: simulated urban route, 200 m windows 0.16 m RMS).
+  /// integrated along the corrected heading, and the corrected heading must change as the
+  /// gyro says (yaw rate known) or the heading correction slowly (not). Canyon multipath
+  /// repeats at the same place in every drive, so only the vehicle's own motion can tell it
+  /// from the road's shape (without odometry the map inherits it: simulated urban route,
+  /// 200 m windows 0.16 m RMS).
   bool use_odometry = true;
   /// Samples of a moving vehicle further apart than this break the odometry (the drive gets
   /// the smoothness prior instead); the store keeps one per metre travelled.
@@ -76,8 +78,14 @@ struct DriveAlignmentConfig {
   /// 10 m at 10 m/s).
   double odometry_yaw_sigma_rad = 0.0005;
   double odometry_yaw_sigma_per_m = 0.0001;
-  /// Per drive: wheel-odometry scale error (1 sigma, relative), estimated.
+  /// With the yaw rate: the integrated gyro's heading-change noise per step,
+  /// sigma_rad + sigma_per_m x step length (white rate noise; its bias is estimated).
+  double gyro_sigma_rad = 0.0003;
+  double gyro_sigma_per_m = 0.00002;
+  /// Per drive: wheel-odometry scale error (1 sigma, relative) and yaw-rate bias (rad/s,
+  /// an automotive MEMS gyro after the car's standstill calibration: ~0.1 deg/s), estimated.
   double odometry_scale_sigma = 0.003;
+  double gyro_bias_sigma_rps = 0.002;
   /// Length over which the GNSS error of one drive is correlated: the reported sigma is
   /// applied once per this length, not once per node (the priors are not independent).
   double gnss_correlation_length_m = 300.0;

@@ -442,7 +442,8 @@ class MapStore {
       std::string_view content_hash) const = 0;
   /// The drive's trajectory, decimated at ingest to one sample per metre
   /// travelled (at least one per 5 s; first and last kept); only time, lat/lon,
-  /// yaw and speed are kept. NotFoundError for unknown drives.
+  /// yaw, speed and yaw rate are kept (yaw rate NaN for drives stored before it was,
+  /// 2026-12-05). NotFoundError for unknown drives.
   [[nodiscard]] virtual std::vector<TrajectorySample> drive_trajectory(
       std::string_view drive_id) const = 0;
   /// The drive's path: its whole trajectory's positions simplified by Douglas–Peucker to

@@ -238,6 +238,31 @@ TEST(DriveAlignment, OdometryScaleErrorIsEstimated) {
   EXPECT_LT(inter_drive_rms(w, f, r), 0.06);
 }
 
+TEST(DriveAlignment, StepsAcrossASampleGapOfAMovingCarAreNotOdometry) {
+  // The store keeps a sample per metre and at least one per 5 s: after a stop, the next
+  // sample may come seconds later at speed. Integrating speed across such a gap (here
+  // 3 s, from 0.5 to 10 m/s: 16 m instead of 30 m) is no odometry; the step is skipped.
+  std::mt19937_64 rng(41);
+  const World w = make_world(rng);
+  Fleet f = make_fleet(w, 8, 0, rng, 0.5);
+  for (std::size_t d = 0; d < 4; ++d) {
+    auto& tr = f.drives[d].trajectory;
+    std::vector<AlignmentSample> kept;
+    for (const auto& smp : tr) {
+      const double x = smp.time_s * 10.0;
+      if (x > 300.0 && x < 330.0) continue;
+      kept.push_back(smp);
+      if (x <= 300.0 && x > 299.0) kept.back().speed_mps = 0.5;
+    }
+    tr = std::move(kept);
+  }
+  const DriveAlignmentResult r = align_drives(f.drives);
+  ASSERT_EQ(r.status, DriveAlignmentResult::Status::Aligned);
+  EXPECT_EQ(r.odometry_drives, 8);
+  EXPECT_LT(landmark_rms(w, f, &r).first, 0.06);
+  EXPECT_LT(inter_drive_rms(w, f, r), 0.06);
+}
+
 TEST(DriveAlignment, SurveyGradeDrivesAnchorTheAbsolutePosition) {
   std::mt19937_64 rng(12);
   const World w = make_world(rng);

@@ -166,6 +166,10 @@ struct OdometryStep {
   bool gyro = false;
   double gyro_dyaw_rad = 0.0;  // integrated yaw rate (gyro mode)
   double dt_s = 0.0;
+  // Bound of the gyro integration's error over samples a simplified trajectory kept:
+  // sum over intervals of |change of yaw rate| x dt / 2 (the trapezoid is exact for a yaw
+  // rate linear between samples, off by up to this when it is not, as in turns).
+  double gyro_integration_rad = 0.0;
   bool valid = true;
 };
 
@@ -242,6 +246,7 @@ std::vector<OdometryStep> odometry_steps(const std::vector<AlignmentSample>& tr,
         const double w = 0.5 * (tr[j].yaw_rate_rps + tr[j + 1].yaw_rate_rps);
         mid = h + 0.5 * w * dt;
         h += w * dt;
+        o.gyro_integration_rad += 0.5 * std::abs(tr[j + 1].yaw_rate_rps - tr[j].yaw_rate_rps) * dt;
       } else {  // reported heading relative to node k's, halfway between the samples
         mid = wrap_rad(tr[j].yaw_rad - o.yaw0_rad) +
               0.5 * wrap_rad(tr[j + 1].yaw_rad - tr[j].yaw_rad);
@@ -537,7 +542,7 @@ DriveAlignmentResult align_drives(std::span<const AlignmentDrive> drives,
           const OdometryStep& o = steps[d][k];
           const double len = o.body_m.norm();
           const double yaw_sigma =
-              o.gyro ? cfg.gyro_sigma_rad + cfg.gyro_sigma_per_m * len
+              o.gyro ? cfg.gyro_sigma_rad + cfg.gyro_sigma_per_m * len + o.gyro_integration_rad
                      : cfg.odometry_yaw_sigma_rad + cfg.odometry_yaw_sigma_per_m * len;
           problem.AddResidualBlock(
               new ceres::AutoDiffCostFunction<OdometryFactor, 3, 3, 3, 2>(new OdometryFactor{

@@ -227,7 +227,8 @@ Eigen::VectorXd MountCalibrator::solve(Eigen::MatrixXd* covariance) const {
   // Gauge: mean time offset = 0. The common yaw is always a parameter here (observed by the
   // zero-slip blocks; without it, a common yaw or a constant slip angle in those blocks would
   // be forced into the yaw-rate nuisance and from there into the left/right time offsets);
-  // result() reports and applies only the relative part unless estimate_common_yaw. Without
+  // result() reports and applies only the relative part unless estimate_common_yaw (and the
+  // common part stands out of its noise by common_yaw_min_sigmas). Without
   // any zero-slip block it is held by its prior alone. Solve in the null space Q of the
   // constraints: θ = Q z.
   const Eigen::Index k = 1;
@@ -267,7 +268,9 @@ MountCalibrationResult MountCalibrator::result() const {
   mean_row.head(S).setConstant(1.0 / static_cast<double>(S));
   res.common_yaw_rad = mean_row.dot(theta);
   res.common_yaw_sigma_rad = std::sqrt(std::max((mean_row * cov * mean_row.transpose())(0), 0.0));
-  const bool relative = cfg_.side_slip_nuisance && !cfg_.estimate_common_yaw;
+  const bool significant =
+      std::abs(res.common_yaw_rad) >= cfg_.common_yaw_min_sigmas * res.common_yaw_sigma_rad;
+  const bool relative = cfg_.side_slip_nuisance && (!cfg_.estimate_common_yaw || !significant);
   if (relative) {
     Eigen::MatrixXd J = Eigen::MatrixXd::Identity(2 * S, 2 * S);
     J.topLeftCorner(S, S).array() -= 1.0 / static_cast<double>(S);

@@ -262,5 +262,24 @@ TEST(MountCalibration, CommonYawOnlyUnderZeroSlipAssumption) {
   EXPECT_NEAR(relative.calibration.common_yaw_rad / kDeg, common_deg, 0.1);
 }
 
+// Exact mounts: the common yaw estimate is noise around zero and is not applied (only the
+// relative part, whose mean is zero by its gauge); a real common error of 0.3° is applied.
+TEST(MountCalibration, CommonYawIsAppliedOnlyWhenItStandsOutOfItsNoise) {
+  const Drive& d = urban_drive();
+  const RunResult exact = run(d, false, true, 0.0, true);
+  const auto& c = exact.calibration;
+  ASSERT_GT(c.common_yaw_sigma_rad, 0.0);
+  EXPECT_LT(std::abs(c.common_yaw_rad), 3.0 * c.common_yaw_sigma_rad);
+  double mean = 0.0;
+  for (const auto& s : c.sensors) mean += s.yaw_offset_rad / static_cast<double>(c.sensors.size());
+  EXPECT_NEAR(mean, 0.0, 1e-9);
+  const RunResult wrong = run(d, false, true, 0.3, true);
+  double mean_wrong = 0.0;
+  for (const auto& s : wrong.calibration.sensors) {
+    mean_wrong += s.yaw_offset_rad / static_cast<double>(wrong.calibration.sensors.size());
+  }
+  EXPECT_NEAR(mean_wrong / kDeg, 0.3, 0.1);
+}
+
 }  // namespace
 }  // namespace polmap::radar

@@ -231,20 +231,51 @@ std::vector<GeoPoint> unpack_path(std::string_view blob) {
 
 nlohmann::json decimated_trajectory_json(const std::vector<TrajectorySample>& trajectory) {
   nlohmann::json samples = nlohmann::json::array();
-  const TrajectorySample* last = nullptr;
+  const auto push = [&](const TrajectorySample& t) {
+    samples.push_back({t.time_s, t.lat_deg, t.lon_deg, t.yaw_enu_rad, t.speed_mps, t.yaw_rate_rps});
+  };
+  // Full-rate odometry integrals (trapezoid): the kept samples must reproduce them, since
+  // map builds align consumer-grade drives with this odometry (drive_alignment.hpp).
+  std::vector<double> yaw_int(trajectory.size(), 0.0), dist_int(trajectory.size(), 0.0);
+  for (std::size_t i = 1; i < trajectory.size(); ++i) {
+    const auto& a = trajectory[i - 1];
+    const auto& b = trajectory[i];
+    const double dt = b.time_s - a.time_s;
+    yaw_int[i] = yaw_int[i - 1] + 0.5 * (a.yaw_rate_rps + b.yaw_rate_rps) * dt;
+    dist_int[i] = dist_int[i - 1] + 0.5 * (a.speed_mps + b.speed_mps) * dt;
+  }
+  const auto odometry_kept = [&](std::size_t a, std::size_t b) {
+    const auto& x = trajectory[a];
+    const auto& y = trajectory[b];
+    const double span = y.time_s - x.time_s;
+    return std::abs(0.5 * (x.yaw_rate_rps + y.yaw_rate_rps) * span - (yaw_int[b] - yaw_int[a])) <=
+               kTrajectoryMaxYawIntegralErrorRad &&
+           std::abs(0.5 * (x.speed_mps + y.speed_mps) * span - (dist_int[b] - dist_int[a])) <=
+               kTrajectoryMaxDistanceErrorM;
+  };
+  std::size_t last = 0;
   for (std::size_t i = 0; i < trajectory.size(); ++i) {
     const auto& t = trajectory[i];
-    bool keep = last == nullptr || i + 1 == trajectory.size() ||
-                t.time_s - last->time_s >= kTrajectoryMaxGapS;
+    if (i == 0) {
+      push(t);
+      continue;
+    }
+    // Keep the previous sample when skipping it would lose odometry.
+    if (i - 1 > last && !odometry_kept(last, i)) {
+      push(trajectory[i - 1]);
+      last = i - 1;
+    }
+    const auto& l = trajectory[last];
+    bool keep = i + 1 == trajectory.size() || t.time_s - l.time_s >= kTrajectoryMaxGapS;
     if (!keep) {
-      const double dn = (t.lat_deg - last->lat_deg) * 111320.0;
+      const double dn = (t.lat_deg - l.lat_deg) * 111320.0;
       const double de =
-          (t.lon_deg - last->lon_deg) * 111320.0 * std::cos(t.lat_deg * 3.14159265358979 / 180.0);
+          (t.lon_deg - l.lon_deg) * 111320.0 * std::cos(t.lat_deg * 3.14159265358979 / 180.0);
       keep = dn * dn + de * de >= kTrajectorySpacingM * kTrajectorySpacingM;
     }
     if (!keep) continue;
-    samples.push_back({t.time_s, t.lat_deg, t.lon_deg, t.yaw_enu_rad, t.speed_mps, t.yaw_rate_rps});
-    last = &t;
+    push(t);
+    last = i;
   }
   return samples;
 }

@@ -23,6 +23,10 @@ namespace polmap::mapping::store_detail {
 /// Trajectory decimation for drive_trajectories: a sample is kept when it is
 /// this far from the last kept one (or kTrajectoryMaxGapS later).
 inline constexpr double kTrajectorySpacingM = 1.0;
+/// The decimated trajectory also keeps a sample where skipping it would change the
+/// trapezoid integral of yaw rate or speed by more than these (drive alignment odometry).
+inline constexpr double kTrajectoryMaxYawIntegralErrorRad = 0.0005;
+inline constexpr double kTrajectoryMaxDistanceErrorM = 0.02;
 inline constexpr double kTrajectoryMaxGapS = 5.0;
 
 /// UTC now as ISO 8601 ("2024-05-01T12:00:00Z").

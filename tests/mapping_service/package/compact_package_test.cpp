@@ -3,6 +3,7 @@
 #include <gdal_priv.h>
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <filesystem>
 
 #include "mapping_service/package_fixture.hpp"
@@ -143,6 +144,46 @@ TEST_F(CompactPackageTest, TrajectoryIsSimplifiedWithinItsErrorBound) {
               o.trajectory_max_error_m + 0.005);
     EXPECT_LE(b.time_s - a.time_s, o.trajectory_max_gap_s + 1e-9);
   }
+}
+
+TEST_F(CompactPackageTest, SimplifiedTrajectoryKeepsTheOdometry) {
+  // A turn with a yaw rate that is not linear in time and a speed that changes: between
+  // every two kept samples, the trapezoid of yaw rate and of speed over those two alone
+  // reproduces the full-rate integral within its bound (the map builder's drive alignment
+  // integrates this odometry).
+  auto d = drive();
+  for (std::size_t i = 0; i < d.pkg.trajectory.size(); ++i) {
+    auto& s = d.pkg.trajectory[i];
+    const double t = s.time_s - d.pkg.trajectory.front().time_s;
+    s.yaw_rate_rps = 0.3 * std::pow(std::sin(0.2 * t), 4);
+    s.speed_mps = 8.0 + 2.0 * std::sin(0.3 * t);
+  }
+  PackageWriteOptions o = v2(true);
+  write_drive_package(d.pkg, d.raster, root_ / "p", o);
+  const DrivePackage back = read_and_validate_package(root_ / "p");
+  const auto& full = d.pkg.trajectory;
+  std::size_t j = 0;
+  double worst_yaw = 0.0, worst_dist = 0.0;
+  for (std::size_t k = 0; k + 1 < back.trajectory.size(); ++k) {
+    const auto& a = back.trajectory[k];
+    const auto& b = back.trajectory[k + 1];
+    double yaw = 0.0, dist = 0.0;
+    while (j + 1 < full.size() && full[j + 1].time_s <= b.time_s + 1e-9) {
+      if (full[j].time_s >= a.time_s - 1e-9) {
+        const double dt = full[j + 1].time_s - full[j].time_s;
+        yaw += 0.5 * (full[j].yaw_rate_rps + full[j + 1].yaw_rate_rps) * dt;
+        dist += 0.5 * (full[j].speed_mps + full[j + 1].speed_mps) * dt;
+      }
+      ++j;
+    }
+    const double span = b.time_s - a.time_s;
+    worst_yaw = std::max(worst_yaw, std::abs(0.5 * (a.yaw_rate_rps + b.yaw_rate_rps) * span - yaw));
+    worst_dist = std::max(worst_dist, std::abs(0.5 * (a.speed_mps + b.speed_mps) * span - dist));
+  }
+  // Stored yaw rate is quantized to 1 urad/s, speed to 1 mm/s.
+  EXPECT_LE(worst_yaw, o.trajectory_max_yaw_integral_error_rad + 1e-5);
+  EXPECT_LE(worst_dist, o.trajectory_max_distance_error_m + 0.005);
+  EXPECT_LT(back.trajectory.size(), full.size());
 }
 
 TEST_F(CompactPackageTest, FormatOneIsStillWrittenAndRead) {

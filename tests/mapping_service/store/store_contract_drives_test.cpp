@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <atomic>
+#include <cmath>
 #include <fstream>
 #include <random>
 #include <set>
@@ -111,6 +112,50 @@ TEST_P(StoreDrives, StoredManifestCarriesThePositioningOfTheValidatedTrajectory)
     EXPECT_FLOAT_EQ(p.at("median_std_yaw_rad").get<float>(), 0.005F);
     EXPECT_EQ(p.at("solution"), "standalone");
   }
+}
+
+TEST_P(StoreDrives, DecimatedTrajectoryKeepsTheOdometry) {
+  // 100 Hz through slalom-like steering whose yaw rate is not linear within a metre, at
+  // 1 m/s (a car manoeuvring in a car park or after a stop): the store keeps
+  // about one sample per metre, and more where skipping one would change the integrated
+  // yaw rate or speed (what map builds align consumer-grade drives with).
+  MapStore& s = store();
+  auto pkg = make_package("drive_turn", 10, 2, 1);
+  const tiles::LocalFrame frame(pkg.manifest.origin);
+  pkg.trajectory.clear();
+  double yaw = 0.0;
+  Eigen::Vector2d p = Eigen::Vector2d::Zero();
+  for (int i = 0; i <= 2000; ++i) {
+    TrajectorySample t;
+    t.time_s = 10.0 + 0.01 * i;
+    t.speed_mps = 1.0;
+    t.yaw_rate_rps = 0.3 * std::sin(2.0 * 0.01 * i);
+    t.yaw_enu_rad = yaw;
+    const GeoPoint g = frame.to_geo(p);
+    t.lat_deg = g.lat_deg;
+    t.lon_deg = g.lon_deg;
+    pkg.trajectory.push_back(t);
+    yaw += t.yaw_rate_rps * 0.01;
+    p += 0.01 * Eigen::Vector2d(std::cos(yaw), std::sin(yaw));
+  }
+  const auto [tar, hash] = write_archive(tmp(), "t", "package bytes T");
+  (void)s.put_drive(pkg, tar, hash);
+  const auto traj = s.drive_trajectory("drive_turn");
+  ASSERT_LT(traj.size(), pkg.trajectory.size() / 4);
+  ASSERT_GT(traj.size(), 20U);  // more than one per metre
+  double full = 0.0, kept = 0.0;
+  for (std::size_t i = 1; i < pkg.trajectory.size(); ++i) {
+    const auto& a = pkg.trajectory[i - 1];
+    const auto& b = pkg.trajectory[i];
+    full += 0.5 * (a.yaw_rate_rps + b.yaw_rate_rps) * (b.time_s - a.time_s);
+  }
+  for (std::size_t i = 1; i < traj.size(); ++i) {
+    kept += 0.5 * (traj[i - 1].yaw_rate_rps + traj[i].yaw_rate_rps) *
+            (traj[i].time_s - traj[i - 1].time_s);
+  }
+  // Each kept interval is within 0.0005 rad of the full-rate integral.
+  EXPECT_NEAR(kept, full, 0.0005 * static_cast<double>(traj.size()));
+  EXPECT_NEAR(kept, full, 0.01);
 }
 
 TEST_P(StoreDrives, PutDriveCopiesPackageDirectories) {

@@ -62,6 +62,12 @@ struct PackageWriteOptions {
   double trajectory_max_error_m = 0.05;
   double trajectory_max_yaw_error_rad = 0.005;
   double trajectory_max_gap_s = 2.0;
+  /// ... and while the vehicle's odometry integrated over the kept samples alone (trapezoid
+  /// of yaw rate and of speed) stays within these of the full-rate integrals: the map
+  /// builder aligns consumer-grade drives with that odometry (drive_alignment.hpp). Without
+  /// the bound, a 90° turn lost ~0.3° of integrated yaw per 10 m.
+  double trajectory_max_yaw_integral_error_rad = 0.0005;
+  double trajectory_max_distance_error_m = 0.02;
   /// Re-read and fully validate the written package before it replaces `dir`, so a writer
   /// bug can never produce a package the server would reject.
   bool validate_after_write = true;

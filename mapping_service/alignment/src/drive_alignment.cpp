@@ -214,10 +214,12 @@ double wrap_rad(double a) { return std::remainder(a, 2.0 * M_PI); }
 // speed along the heading (from the yaw rate when every sample has one, else the reported
 // heading), midpoint rule. Empty when a sample lacks heading or speed; a step is not valid
 // when two samples of a moving vehicle in it are further apart than max_gap_s (a standing
-// vehicle's samples may be sparse: it does not move in between).
+// vehicle's samples may be sparse: it does not move in between) or its length disagrees
+// with the GNSS displacement beyond the mismatch bound.
 std::vector<OdometryStep> odometry_steps(const std::vector<AlignmentSample>& tr,
                                          const std::vector<std::size_t>& node_sample,
-                                         double max_gap_s) {
+                                         double max_gap_s, double max_length_mismatch_m,
+                                         double max_length_mismatch_share) {
   std::vector<OdometryStep> out;
   bool gyro = true;
   for (const auto& smp : tr) {
@@ -255,6 +257,12 @@ std::vector<OdometryStep> odometry_steps(const std::vector<AlignmentSample>& tr,
       o.dt_s += dt;
     }
     o.gyro_dyaw_rad = h;
+    // The step's length must agree with the GNSS displacement (whose error changes little
+    // over a step); integrating across a gap that hides an acceleration does not.
+    const double mismatch = std::abs(o.body_m.norm() - (o.p1 - o.p0).norm());
+    if (mismatch > max_length_mismatch_m + max_length_mismatch_share * o.body_m.norm()) {
+      o.valid = false;
+    }
     out.push_back(o);
   }
   return out;
@@ -483,7 +491,10 @@ DriveAlignmentResult align_drives(std::span<const AlignmentDrive> drives,
       }
     }
     c.node_correction.assign(c.node_s_m.size(), Eigen::Vector3d::Zero());
-    if (cfg.use_odometry) steps[d] = odometry_steps(tr, node_sample, cfg.odometry_max_gap_s);
+    if (cfg.use_odometry)
+      steps[d] = odometry_steps(tr, node_sample, cfg.odometry_max_gap_s,
+                                cfg.odometry_max_length_mismatch_m,
+                                cfg.odometry_max_length_mismatch_share);
     if (!c.survey_grade && !steps[d].empty()) ++res.odometry_drives;
   }
   if (!any_consumer) {

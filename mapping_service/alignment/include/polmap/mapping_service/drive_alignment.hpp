@@ -66,13 +66,18 @@ struct DriveAlignmentConfig {
   /// from the road's shape (without odometry the map inherits it: simulated urban route,
   /// 200 m windows 0.16 m RMS).
   bool use_odometry = true;
-  /// Samples of a moving vehicle further apart than this make the step's odometry
-  /// unreliable (it gets the smoothness prior instead): the store keeps one sample per
-  /// metre travelled and at least one per 5 s, so after a stop the next sample may come
-  /// seconds later at speed, and integrating speed across such a gap is off by metres
-  /// (simulated urban drives: 5 % of the 10 m steps off by > 2.7 m with 2.5 s; with
-  /// 0.5 s the remaining steps agree with the true motion within 0.06 m at p95).
-  double odometry_max_gap_s = 0.5;
+  /// A step is not odometry (it gets the smoothness prior instead) when samples of a moving
+  /// vehicle in it are further apart than odometry_max_gap_s (packages keep one at least
+  /// every 2 s, the store every 5 s), or when its integrated length and the GNSS
+  /// displacement differ by more than mismatch_m + mismatch_share x length: integrating
+  /// speed across a gap that hides an acceleration is off by metres (drives stored before
+  /// 2026-12-05, whose trajectories were simplified without keeping the odometry: 5 % of
+  /// the urban 10 m steps off by > 2.7 m), while the consumer GNSS error changes by
+  /// centimetres over a step. (A fixed 0.5 s gap rule also dropped a third of the good
+  /// steps: compact packages keep samples up to 2 s apart on straight roads.)
+  double odometry_max_gap_s = 2.5;
+  double odometry_max_length_mismatch_m = 0.5;
+  double odometry_max_length_mismatch_share = 0.05;
   /// Displacement noise per step: sigma_m + sigma_per_m x step length (wheel-speed noise
   /// and slip; the scale error is a parameter of its own below).
   double odometry_sigma_m = 0.02;

@@ -64,7 +64,7 @@ struct LinePeakRule {
 /// it in view than a free-standing object must. Even-bounce points on a wall (recesses,
 /// dihedrals) and points near a line's vertices (facade corners, line ends) are judged
 /// by the support rule alone. At 16 drives this removed 1 false and no true landmark;
-/// requiring 0.75 instead removed 2 true ones as well.
+/// requiring 0.75 instead would remove 3 true ones as well.
 struct SurfacePeakRule {
   bool enabled = true;
   /// Examined: odd-bounce point landmarks within this distance of a line landmark (d_p)

@@ -16,6 +16,7 @@
 
 #include "package_internal.hpp"
 #include "polmap/mapping_service/candidates_codec.hpp"
+#include "polmap/mapping_service/trajectory_odometry.hpp"
 #include "polmap/mapping_service/ustar.hpp"
 #include "polmap/schema/json.hpp"
 
@@ -104,21 +105,13 @@ std::vector<TrajectorySample> simplify_trajectory(const std::vector<TrajectorySa
   if (t.size() <= 2 || o.trajectory_max_gap_s <= 0.0) return t;
   std::vector<Eigen::Vector2d> xy(t.size());
   for (std::size_t i = 0; i < t.size(); ++i) xy[i] = frame.to_local(t[i].lat_deg, t[i].lon_deg);
-  // Full-rate odometry integrals (trapezoid) from the first sample: yaw and distance.
-  std::vector<double> yaw_int(t.size(), 0.0), dist_int(t.size(), 0.0);
-  for (std::size_t i = 1; i < t.size(); ++i) {
-    const double dt = t[i].time_s - t[i - 1].time_s;
-    yaw_int[i] = yaw_int[i - 1] + 0.5 * (t[i].yaw_rate_rps + t[i - 1].yaw_rate_rps) * dt;
-    dist_int[i] = dist_int[i - 1] + 0.5 * (t[i].speed_mps + t[i - 1].speed_mps) * dt;
-  }
+  const TrajectoryOdometry odometry(t);
   const auto fits = [&](std::size_t a, std::size_t b) {
     const double span = t[b].time_s - t[a].time_s;
     if (span > o.trajectory_max_gap_s) return false;
     // The odometry over the kept pair alone must match the full-rate one.
-    if (std::abs(0.5 * (t[a].yaw_rate_rps + t[b].yaw_rate_rps) * span - (yaw_int[b] - yaw_int[a])) >
-            o.trajectory_max_yaw_integral_error_rad ||
-        std::abs(0.5 * (t[a].speed_mps + t[b].speed_mps) * span - (dist_int[b] - dist_int[a])) >
-            o.trajectory_max_distance_error_m) {
+    if (!odometry.kept_by(a, b, o.trajectory_max_yaw_integral_error_rad,
+                          o.trajectory_max_distance_error_m)) {
       return false;
     }
     double dyaw = std::remainder(t[b].yaw_enu_rad - t[a].yaw_enu_rad, 2.0 * M_PI);

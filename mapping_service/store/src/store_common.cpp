@@ -16,6 +16,7 @@
 #include <limits>
 
 #include "polmap/mapping_service/drive_package_io.hpp"
+#include "polmap/mapping_service/trajectory_odometry.hpp"
 #include "polmap/schema/json.hpp"
 #include "polmap/tiles/local_frame.hpp"
 #include "polmap/tiles/polyline_simplify.hpp"
@@ -234,25 +235,9 @@ nlohmann::json decimated_trajectory_json(const std::vector<TrajectorySample>& tr
   const auto push = [&](const TrajectorySample& t) {
     samples.push_back({t.time_s, t.lat_deg, t.lon_deg, t.yaw_enu_rad, t.speed_mps, t.yaw_rate_rps});
   };
-  // Full-rate odometry integrals (trapezoid): the kept samples must reproduce them, since
-  // map builds align consumer-grade drives with this odometry (drive_alignment.hpp).
-  std::vector<double> yaw_int(trajectory.size(), 0.0), dist_int(trajectory.size(), 0.0);
-  for (std::size_t i = 1; i < trajectory.size(); ++i) {
-    const auto& a = trajectory[i - 1];
-    const auto& b = trajectory[i];
-    const double dt = b.time_s - a.time_s;
-    yaw_int[i] = yaw_int[i - 1] + 0.5 * (a.yaw_rate_rps + b.yaw_rate_rps) * dt;
-    dist_int[i] = dist_int[i - 1] + 0.5 * (a.speed_mps + b.speed_mps) * dt;
-  }
-  const auto odometry_kept = [&](std::size_t a, std::size_t b) {
-    const auto& x = trajectory[a];
-    const auto& y = trajectory[b];
-    const double span = y.time_s - x.time_s;
-    return std::abs(0.5 * (x.yaw_rate_rps + y.yaw_rate_rps) * span - (yaw_int[b] - yaw_int[a])) <=
-               kTrajectoryMaxYawIntegralErrorRad &&
-           std::abs(0.5 * (x.speed_mps + y.speed_mps) * span - (dist_int[b] - dist_int[a])) <=
-               kTrajectoryMaxDistanceErrorM;
-  };
+  // The kept samples must reproduce the full-rate odometry: map builds align consumer-grade
+  // drives with it (drive_alignment.hpp).
+  const TrajectoryOdometry odometry(trajectory);
   std::size_t last = 0;
   for (std::size_t i = 0; i < trajectory.size(); ++i) {
     const auto& t = trajectory[i];
@@ -261,7 +246,8 @@ nlohmann::json decimated_trajectory_json(const std::vector<TrajectorySample>& tr
       continue;
     }
     // Keep the previous sample when skipping it would lose odometry.
-    if (i - 1 > last && !odometry_kept(last, i)) {
+    if (i - 1 > last && !odometry.kept_by(last, i, kTrajectoryMaxYawIntegralErrorRad,
+                                          kTrajectoryMaxDistanceErrorM)) {
       push(trajectory[i - 1]);
       last = i - 1;
     }

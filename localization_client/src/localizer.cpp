@@ -96,7 +96,11 @@ struct Localizer::Impl {
         [](const auto& a, const auto& b) { return a.trigger_offset_s < b.trigger_offset_s; });
     last_sensor_id = last->sensor_id;
     for (const auto& mt : mounts) mount_by_id[mt.sensor_id] = mt;
-    if (cfg.online_mount_calibration) calibrator.emplace(mounts, cfg.mount_calibration);
+    if (cfg.online_mount_calibration) {
+      radar::MountCalibrationConfig calibration = cfg.mount_calibration;
+      calibration.side_slip_gradient_rad_per_mps2 = cfg.egomotion.side_slip_gradient_rad_per_mps2;
+      calibrator.emplace(mounts, calibration);
+    }
   }
 
   LocalizerConfig cfg;

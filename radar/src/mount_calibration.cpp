@@ -127,9 +127,12 @@ void MountCalibrator::process_block(std::size_t n_frames) {
     const double dt = f.stamp_s - tc;
     const double v = v_c + a * dt, om = w_c + alpha * dt;
     const double vua = mount.spec.v_unambiguous_mps;
+    // Side slip the vehicle model predicts (zero with a zero gradient); the block nuisance
+    // takes what it does not explain in curves.
+    const double v_lat = -cfg_.side_slip_gradient_rad_per_mps2 * v * v * om;
     for (const Detection& d : f.detections) {
       const MountDopplerJacobian j = mount_doppler_jacobian(
-          mount.T_vehicle_sensor, static_cast<double>(d.azimuth_rad), v, om, 0.0, a, alpha);
+          mount.T_vehicle_sensor, static_cast<double>(d.azimuth_rad), v, om, v_lat, a, alpha);
       double vr = d.radial_velocity_mps;
       if (vua > 0) vr += 2.0 * vua * std::round((j.v_r_mps - vr) / (2.0 * vua));
       r.push_back(vr - j.v_r_mps);

@@ -62,25 +62,34 @@ struct Drive {
   std::vector<sim::ExactState> truth;
 };
 
+Drive simulate_drive(const char* world_name, bool side_slip) {
+  sim::SimConfig cfg;
+  cfg.seed = 11;
+  cfg.duration_s = 65.0;
+  cfg.realism.slip.enabled = side_slip;
+  auto world = sim::load_world(world_name, 1500.0, cfg.seed, cfg);
+  sim::DriveSimulator simulator(world, cfg, 0);
+  Drive out;
+  out.mounts = simulator.header().sensors;
+  while (auto rec = simulator.next()) {
+    if (auto* f = std::get_if<SensorFrame>(&*rec)) {
+      f->spectrum.cells.clear();
+      out.frames.push_back(std::move(*f));
+    }
+  }
+  out.truth = simulator.exact_trajectory();
+  return out;
+}
+
 /// A 65 s urban drive of the ideal simulator (exact mounts and stamps), cached.
 const Drive& urban_drive() {
-  static const Drive d = [] {
-    sim::SimConfig cfg;
-    cfg.seed = 11;
-    cfg.duration_s = 65.0;
-    auto world = sim::load_world("urban", 1500.0, cfg.seed, cfg);
-    sim::DriveSimulator simulator(world, cfg, 0);
-    Drive out;
-    out.mounts = simulator.header().sensors;
-    while (auto rec = simulator.next()) {
-      if (auto* f = std::get_if<SensorFrame>(&*rec)) {
-        f->spectrum.cells.clear();
-        out.frames.push_back(std::move(*f));
-      }
-    }
-    out.truth = simulator.exact_trajectory();
-    return out;
-  }();
+  static const Drive d = simulate_drive("urban", false);
+  return d;
+}
+
+/// A 65 s rural drive (up to ~18 m/s, long sweeping curves) with the vehicle's side slip.
+const Drive& rural_slip_drive() {
+  static const Drive d = simulate_drive("rural", true);
   return d;
 }
 
@@ -117,15 +126,18 @@ sim::ExactState truth_at(const std::vector<sim::ExactState>& tr, double t) {
 }
 
 RunResult run(const Drive& d, bool wrong, bool calibrate, double common_yaw_error_deg = 0.0,
-              bool estimate_common_yaw = false) {
+              bool estimate_common_yaw = false, double slip_gradient_rad_per_mps2 = 0.0,
+              bool calibrator_models_slip = true) {
   std::vector<SensorMount> mounts = d.mounts;
   for (std::size_t i = 0; i < mounts.size(); ++i) {
     mounts[i].T_vehicle_sensor.yaw_rad -=
         ((wrong ? kYawErrorDeg[i] : 0.0) + common_yaw_error_deg) * kDeg;
   }
   EgoMotionConfig ecfg;
+  ecfg.side_slip_gradient_rad_per_mps2 = slip_gradient_rad_per_mps2;
   EgoMotionEstimator estimator(mounts, ecfg);
   MountCalibrationConfig ccfg;
+  ccfg.side_slip_gradient_rad_per_mps2 = calibrator_models_slip ? slip_gradient_rad_per_mps2 : 0.0;
   ccfg.calibrate_mounts = calibrate;
   ccfg.estimate_common_yaw = estimate_common_yaw;
   ccfg.vr_sigma_mps = ecfg.vr_sigma_mps;
@@ -279,6 +291,28 @@ TEST(MountCalibration, CommonYawIsAppliedOnlyWhenItStandsOutOfItsNoise) {
     mean_wrong += s.yaw_offset_rad / static_cast<double>(wrong.calibration.sensors.size());
   }
   EXPECT_NEAR(mean_wrong / kDeg, 0.3, 0.1);
+}
+
+// With side slip, the blocks below side_slip_min_lateral_accel_mps2 still carry slip of one
+// sign through a long curve; under a zero-slip assumption the common yaw absorbs it, and at
+// rural speeds a few hundredths of a degree of common yaw are a yaw-rate bias of tenths of a
+// degree per second. Linearized at the slip the vehicle model predicts, they do not bias it.
+TEST(MountCalibration, CommonYawIsNotBiasedByTheSlipOfGentleCurves) {
+  const Drive& d = rural_slip_drive();
+  const double gradient = sim::SlipRealism{}.side_slip_gradient_deg_per_mps2 * kDeg;
+  const double common_deg = 0.3;
+  const RunResult modelled = run(d, false, true, common_deg, true, gradient, true);
+  const RunResult zero_slip = run(d, false, true, common_deg, true, gradient, false);
+  print("slip modelled", modelled);
+  print("zero-slip blocks", zero_slip);
+  const double err_modelled = std::abs(modelled.calibration.common_yaw_rad / kDeg - common_deg);
+  const double err_zero = std::abs(zero_slip.calibration.common_yaw_rad / kDeg - common_deg);
+  std::printf("common yaw error: modelled %.4f deg, zero-slip %.4f deg\n", err_modelled, err_zero);
+  // Measured: 0.011° against 0.019° (3.7 of the reported σ of 0.005°); the rest is noise.
+  EXPECT_LT(err_modelled, 0.75 * err_zero);
+  EXPECT_LT(err_modelled, 3.0 * modelled.calibration.common_yaw_sigma_rad / kDeg);
+  EXPECT_GT(err_zero, 3.0 * zero_slip.calibration.common_yaw_sigma_rad / kDeg);
+  EXPECT_LT(modelled.heading_error_deg, zero_slip.heading_error_deg);
 }
 
 }  // namespace

@@ -133,6 +133,9 @@ void run(const StudyOptions& o) {
   text << eval::format_uncertainty_table(r) << '\n';
   text << eval::format_map_geometry_table(r) << '\n';
   text << eval::format_speed_table(r) << '\n';
+  if (const std::string cal = eval::format_calibration_table(r); !cal.empty()) {
+    text << cal << '\n';
+  }
   if (cfg.diagnose) text << eval::format_diagnosis_table(r) << '\n';
   text << "figures: ";
   for (std::size_t i = 0; i < r.figures.size(); ++i) {

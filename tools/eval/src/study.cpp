@@ -140,6 +140,42 @@ GeoPose perturbed_initial_pose(const TrajectorySample& s, const tiles::LocalFram
   return g;
 }
 
+/// The calibration's estimates against the simulator's true mounts and time offsets.
+StudyDriveResult::Calibration calibration_against_truth(const radar::MountCalibrationResult& cal,
+                                                        const std::vector<SensorMount>& nominal,
+                                                        const std::vector<SensorMount>& truth,
+                                                        const std::vector<double>& time_offsets_s,
+                                                        bool common_yaw_enabled) {
+  POLMAP_EXPECT(nominal.size() == truth.size() && cal.sensors.size() == nominal.size());
+  const std::size_t n = nominal.size();
+  std::vector<double> dyaw(n), dt(n, 0.0);
+  double mean_yaw = 0.0, mean_t = 0.0, mean_est = 0.0;
+  for (std::size_t i = 0; i < n; ++i) {
+    dyaw[i] =
+        wrap_angle_rad(truth[i].T_vehicle_sensor.yaw_rad - nominal[i].T_vehicle_sensor.yaw_rad);
+    if (i < time_offsets_s.size()) dt[i] = time_offsets_s[i];
+    mean_yaw += dyaw[i] / static_cast<double>(n);
+    mean_t += dt[i] / static_cast<double>(n);
+    mean_est += cal.sensors[i].yaw_offset_rad / static_cast<double>(n);
+  }
+  StudyDriveResult::Calibration c;
+  c.common_yaw_deg = cal.common_yaw_rad / kDeg;
+  c.common_yaw_sigma_deg = cal.common_yaw_sigma_rad / kDeg;
+  c.common_yaw_true_deg = mean_yaw / kDeg;
+  // The reported offsets carry the common yaw exactly when it was applied.
+  c.common_yaw_applied = common_yaw_enabled && std::abs(mean_est) > 0.0;
+  for (std::size_t i = 0; i < n; ++i) {
+    const auto& e = cal.sensors[i];
+    const double rel_yaw_err = (e.yaw_offset_rad - mean_est) - (dyaw[i] - mean_yaw);
+    const double rel_t_err = e.time_offset_s - (dt[i] - mean_t);
+    c.relative_yaw_max_error_deg =
+        std::max(c.relative_yaw_max_error_deg, std::abs(rel_yaw_err) / kDeg);
+    c.relative_time_max_error_ms =
+        std::max(c.relative_time_max_error_ms, 1e3 * std::abs(rel_t_err));
+  }
+  return c;
+}
+
 }  // namespace
 
 StudyDriveResult localize_simulated_drive(const std::shared_ptr<const sim::World>& world,
@@ -170,6 +206,7 @@ StudyDriveResult localize_simulated_drive(const std::shared_ptr<const sim::World
   double first_frame_t = std::numeric_limits<double>::quiet_NaN();
   double last_t = 0.0;
   std::int64_t matched_sum = 0;
+  double calibration_converged_s = -1.0;
   const double fetcher_cpu0_s = opt.fetcher != nullptr ? opt.fetcher->stats().worker_cpu_s : 0.0;
 
   auto handle = [&](const SensorFrame& f) {
@@ -194,6 +231,12 @@ StudyDriveResult localize_simulated_drive(const std::shared_ptr<const sim::World
     if (out.extracted) {
       extract_ms.push_back(1e3 * out.extraction_time_s);
       match_ms.push_back(1e3 * out.matching_time_s);
+    }
+    if (calibration_converged_s < 0.0 && out.extracted) {
+      const auto cal = localizer.mount_calibration();
+      if (cal && cal->status == radar::MountCalibrationResult::Status::Converged) {
+        calibration_converged_s = f.time_s - first_frame_t;
+      }
     }
     if (!out.has_pose) return;
     const TrajectoryRow row = to_trajectory_row(out);
@@ -231,6 +274,12 @@ StudyDriveResult localize_simulated_drive(const std::shared_ptr<const sim::World
     }
   }
   if (csv) csv->close();
+  if (const auto cal = localizer.mount_calibration()) {
+    r.calibration = calibration_against_truth(*cal, simulator.header().sensors,
+                                              simulator.true_mounts(), simulator.time_offsets_s(),
+                                              lcfg.mount_calibration.estimate_common_yaw);
+    r.calibration->converged_after_s = calibration_converged_s;
+  }
 
   // Reference: the simulator's exact poses, carrier-phase flags of the drive's GNSS.
   std::vector<ReferenceSample> ref;
@@ -1028,6 +1077,39 @@ std::string format_speed_table(const StudyResult& r) {
   return o.str();
 }
 
+std::string format_calibration_table(const StudyResult& r) {
+  bool any = false;
+  for (const auto& d : r.results) any = any || d.calibration.has_value();
+  if (!any) return {};
+  std::ostringstream o;
+  o << "Online mount calibration at the end of each drive against the simulator's true mounts "
+       "(common yaw: estimated +- 1 sigma, true; relative yaws and time offsets: largest error "
+       "over the sensors)\n";
+  char buf[320];
+  std::snprintf(buf, sizeof buf, "%-6s %-5s %-5s | %22s %9s %8s | %12s %11s | %s\n", "level",
+                "seed", "drive", "common yaw est. [deg]", "true", "applied", "rel. yaw err",
+                "rel. dt err", "converged after");
+  o << buf;
+  for (const auto& d : r.results) {
+    if (!d.calibration) continue;
+    const auto& c = *d.calibration;
+    char conv[32];
+    if (c.converged_after_s >= 0.0) {
+      std::snprintf(conv, sizeof conv, "%.1f s", c.converged_after_s);
+    } else {
+      std::snprintf(conv, sizeof conv, "not converged");
+    }
+    std::snprintf(buf, sizeof buf,
+                  "%-6s %-5llu #%-4d | %+9.3f +- %-9.3f %+9.3f %8s | %9.3f deg %8.2f ms | %s\n",
+                  std::string(to_string(d.level)).c_str(), static_cast<unsigned long long>(d.seed),
+                  d.drive + 1, c.common_yaw_deg, c.common_yaw_sigma_deg, c.common_yaw_true_deg,
+                  c.common_yaw_applied ? "yes" : "no", c.relative_yaw_max_error_deg,
+                  c.relative_time_max_error_ms, conv);
+    o << buf;
+  }
+  return o.str();
+}
+
 std::string format_diagnosis_table(const StudyResult& r) {
   std::ostringstream o;
   bool any = false;
@@ -1188,6 +1270,18 @@ nlohmann::json to_json(const StudyResult& r) {
          {"tile_bytes", d.tile_bytes},
          {"tile_bytes_per_km", d.tile_bytes_per_km},
          {"simulate_process_s", d.simulate_process_s},
+         {"calibration",
+          d.calibration
+              ? nlohmann::json{{"common_yaw_deg", d.calibration->common_yaw_deg},
+                               {"common_yaw_sigma_deg", d.calibration->common_yaw_sigma_deg},
+                               {"common_yaw_true_deg", d.calibration->common_yaw_true_deg},
+                               {"common_yaw_applied", d.calibration->common_yaw_applied},
+                               {"relative_yaw_max_error_deg",
+                                d.calibration->relative_yaw_max_error_deg},
+                               {"relative_time_max_error_ms",
+                                d.calibration->relative_time_max_error_ms},
+                               {"converged_after_s", d.calibration->converged_after_s}}
+              : nlohmann::json()},
          {"diagnosis", d.diagnosis ? to_json(*d.diagnosis) : nlohmann::json()}});
   }
   for (const auto& f : r.figures) j["figures"].push_back(f.string());

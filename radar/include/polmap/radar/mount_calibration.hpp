@@ -88,6 +88,14 @@ struct MountCalibrationConfig {
   /// braking looks like a yaw rate (longitudinal differential over the track): its σ grows
   /// about 5x. 0 = lateral nuisance in every block.
   double side_slip_min_lateral_accel_mps2 = 0.5;
+  /// The vehicle's rear-axle side-slip gradient (EgoMotionConfig's, same sign): every block is
+  /// linearized at the slip it predicts, v_y = −gradient · v² · ω, instead of zero. Why: the
+  /// blocks below side_slip_min_lateral_accel_mps2 still carry up to gradient · 0.5 m/s² of
+  /// slip (0.12° on a passenger car), mostly of one sign on a winding road, and a common yaw
+  /// that absorbs it becomes a yaw-rate bias of v · δψ̄ / x_sensor: at 18 m/s, 0.08° of common
+  /// yaw is 0.4°/s (a rural study drive with slip diverged by 3.6° in 15 s; polmap study
+  /// --realism realistic --realism-sources slip). The Localizer copies its ego-motion's value.
+  double side_slip_gradient_rad_per_mps2 = 0.0;
   /// Also estimate the COMMON mount yaw (absolute yaws), from the blocks below
   /// side_slip_min_lateral_accel_mps2 only, under their zero-side-slip assumption: there a
   /// common yaw shows as a lateral velocity that the yaw rate must explain, and the yaw rate

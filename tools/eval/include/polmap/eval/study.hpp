@@ -233,6 +233,18 @@ struct StudyDriveResult {
   std::uint64_t tile_bytes = 0;  ///< encoded tile bytes fetched (distinct tiles)
   double tile_bytes_per_km = 0.0;
   double simulate_process_s = 0.0;  ///< wall time of simulation + mapping-mode processing
+  /// Online mount calibration at the end of the drive against the simulator's true mounts
+  /// (offsets true − nominal; relative = minus the mean over the sensors).
+  struct Calibration {
+    double common_yaw_deg = 0.0;              ///< estimated common yaw (reported always)
+    double common_yaw_sigma_deg = 0.0;        ///< its 1-σ
+    double common_yaw_true_deg = 0.0;         ///< mean true yaw offset
+    bool common_yaw_applied = false;          ///< the localizer applied it (significant, enabled)
+    double relative_yaw_max_error_deg = 0.0;  ///< max over sensors |estimated − true|
+    double relative_time_max_error_ms = 0.0;  ///< same for the relative time offsets
+    double converged_after_s = -1.0;          ///< first Converged, drive time; −1 never
+  };
+  std::optional<Calibration> calibration;
   /// Stage diagnosis (StudyConfig::diagnose).
   std::optional<DriveDiagnosis> diagnosis;
   // --- per included sample (for CCDFs)
@@ -355,6 +367,8 @@ std::string format_uncertainty_table(const StudyResult& r);
 /// 200 m window RMS) and whether its errors are in the map's frame.
 std::string format_map_geometry_table(const StudyResult& r);
 /// Stage diagnosis per drive (drives without diagnosis are skipped).
+/// Online mount calibration per drive against the simulator's truth (empty without one).
+std::string format_calibration_table(const StudyResult& r);
 std::string format_diagnosis_table(const StudyResult& r);
 
 /// Writes OUT/ccdf_lat.svg, ccdf_long.svg, ccdf_rot.svg (one series per level,

@@ -96,6 +96,12 @@ struct Localizer::Impl {
         [](const auto& a, const auto& b) { return a.trigger_offset_s < b.trigger_offset_s; });
     last_sensor_id = last->sensor_id;
     for (const auto& mt : mounts) mount_by_id[mt.sensor_id] = mt;
+    double x_sum = 0.0;
+    for (const auto& mt : mounts) x_sum += mt.T_vehicle_sensor.x_m;
+    sensor_lever_m = std::max(1.0, std::abs(x_sum) / static_cast<double>(mounts.size()));
+    // Without online calibration the stored mounts are taken as exact (as before it existed).
+    common_yaw_uncertainty_rad =
+        cfg.online_mount_calibration ? cfg.mount_common_yaw_tolerance_rad : 0.0;
     if (cfg.online_mount_calibration) {
       radar::MountCalibrationConfig calibration = cfg.mount_calibration;
       calibration.side_slip_gradient_rad_per_mps2 = cfg.egomotion.side_slip_gradient_rad_per_mps2;
@@ -110,6 +116,10 @@ struct Localizer::Impl {
   std::optional<radar::MountCalibrator> calibrator;
   /// Lateral acceleration at the last graph pose (odometry), for the slip-aware factor.
   double last_lateral_accel_mps2 = 0.0;
+  /// What may be left of the common mount yaw (LocalizerConfig::mount_common_yaw_tolerance_rad)
+  /// and the sensors' mean distance ahead of the rear axle it acts through.
+  double common_yaw_uncertainty_rad = 0.0;
+  double sensor_lever_m = 1.0;
   /// Time offset (true − stamp) per sensor from the calibration, for the gridmap's poses.
   std::map<std::uint8_t, double> time_offset_s;
   radar::Odometry odo;
@@ -180,6 +190,10 @@ struct Localizer::Impl {
   /// (nominal yaw + offset) and measurement times.
   void apply_calibration(const radar::MountCalibrationResult& c) {
     radar::apply_mount_calibration(ego, c);
+    common_yaw_uncertainty_rad =
+        c.common_yaw_applies_early
+            ? std::min(cfg.mount_common_yaw_tolerance_rad, 3.0 * c.common_yaw_sigma_rad)
+            : cfg.mount_common_yaw_tolerance_rad;
     for (const auto& s : c.sensors) {
       const auto nominal = std::find_if(mounts.begin(), mounts.end(), [&](const SensorMount& x) {
         return x.sensor_id == s.sensor_id;
@@ -188,6 +202,8 @@ struct Localizer::Impl {
       SensorMount corrected = *nominal;
       if (s.yaw_status == radar::MountCalibrationResult::Status::Converged) {
         corrected.T_vehicle_sensor.yaw_rad += s.yaw_offset_rad;
+      } else if (c.common_yaw_applies_early) {
+        corrected.T_vehicle_sensor.yaw_rad += c.common_yaw_rad;
       }
       mount_by_id[s.sensor_id] = corrected;
       time_offset_s[s.sensor_id] =
@@ -473,7 +489,9 @@ struct Localizer::Impl {
       const double dist_m = delta->translation().norm();
       const double a_y = (dist_m / dt) * (delta->yaw_rad / dt);  // v · ω
       const double k = cfg.odometry_slip_gradient_rad_per_mps2;
-      slip_sigma = {0.0, k * std::abs(a_y) * dist_m, k * std::abs(a_y - last_lateral_accel_mps2)};
+      slip_sigma = {0.0, k * std::abs(a_y) * dist_m,
+                    std::hypot(k * std::abs(a_y - last_lateral_accel_mps2),
+                               dist_m * common_yaw_uncertainty_rad / sensor_lever_m)};
       last_lateral_accel_mps2 = a_y;
     }
     const auto key = graph.add_pose(graph_time_s(time_s), guess, delta, slip_sigma);

@@ -95,7 +95,8 @@ DriveProcessingResult process_drive(RecordSource& source, const DriveProcessingC
                             {},
                             {},
                             {},
-                            {}};
+                            {},
+                            std::nullopt};
   DriveProcessingStats& st = res.stats;
   std::map<std::uint8_t, SensorMount> mounts;
   for (const SensorMount& m : res.header.sensors) mounts[m.sensor_id] = m;
@@ -105,19 +106,30 @@ DriveProcessingResult process_drive(RecordSource& source, const DriveProcessingC
   Eigen::Vector2d last_xy = Eigen::Vector2d::Zero();
   bool have_xy = false;
 
+  // Calibration against the trajectory (config comment): frames wait in `held` until it
+  // freezes; then `mounts` and `time_offset_s` hold the calibrated values.
+  std::optional<ReferenceMountCalibrator> calibrator;
+  if (cfg.mount_calibration.enabled) calibrator.emplace(res.header.sensors, cfg.mount_calibration);
+  bool frozen = !calibrator.has_value();
+  std::map<std::uint8_t, double> time_offset_s;
+  std::deque<SensorFrame> held;
+  const double h = cfg.motion_difference_s;
+
   auto map_frame = [&](const SensorFrame& f) {
     const auto mit = mounts.find(f.sensor_id);
     if (mit == mounts.end()) {
       ++st.frames_unknown_sensor;
       return;
     }
-    const std::optional<Pose2> T = traj.T_frame_vehicle(f.time_s);
+    const auto dt_it = time_offset_s.find(f.sensor_id);
+    const double t_true = f.time_s + (dt_it == time_offset_s.end() ? 0.0 : dt_it->second);
+    const std::optional<Pose2> T = traj.T_frame_vehicle(t_true);
     if (!T) {
       ++st.frames_without_pose;
       return;
     }
     const Pose2 T_frame_sensor = *T * mit->second.T_vehicle_sensor;
-    const auto vw = traj.motion(f.time_s);
+    const auto vw = traj.motion(t_true);
     if (vw && std::abs(vw->first) < cfg.min_speed_mps) {
       ++st.frames_standstill;
       return;
@@ -142,13 +154,64 @@ DriveProcessingResult process_drive(RecordSource& source, const DriveProcessingC
     ++st.frames_mapped;
     if (progress) progress(f.time_s);
   };
-  // Maps queued frames whose pose is decided: a trajectory sample at or after their time exists.
-  auto drain = [&](bool at_end) {
-    while (!pending.empty() && (at_end || pending.front().time_s <= traj.last_time_s())) {
-      map_frame(pending.front());
-      pending.pop_front();
+  // The vehicle's motion at t from the trajectory (vehicle frame of the heading at t).
+  auto reference_motion = [&](double t) -> std::optional<ReferenceMotion> {
+    const auto p0 = traj.T_frame_vehicle(t - 2 * h), p1 = traj.T_frame_vehicle(t - h),
+               p2 = traj.T_frame_vehicle(t), p3 = traj.T_frame_vehicle(t + h),
+               p4 = traj.T_frame_vehicle(t + 2 * h);
+    if (!p0 || !p1 || !p2 || !p3 || !p4) return std::nullopt;
+    auto velocity = [&](const Pose2& a, const Pose2& b, double yaw_rad) {
+      const Eigen::Vector2d v_frame = (b.translation() - a.translation()) / (2 * h);
+      return Eigen::Vector2d(Pose2{0.0, 0.0, yaw_rad}.rotation().transpose() * v_frame);
+    };
+    const Eigen::Vector2d v = velocity(*p1, *p3, p2->yaw_rad);
+    const Eigen::Vector2d v_before = velocity(*p0, *p2, p1->yaw_rad);
+    const Eigen::Vector2d v_after = velocity(*p2, *p4, p3->yaw_rad);
+    const double w = wrap_angle_rad(p3->yaw_rad - p1->yaw_rad) / (2 * h);
+    const double w_before = wrap_angle_rad(p2->yaw_rad - p0->yaw_rad) / (2 * h);
+    const double w_after = wrap_angle_rad(p4->yaw_rad - p2->yaw_rad) / (2 * h);
+    ReferenceMotion m;
+    m.v_x_mps = v.x();
+    m.v_y_mps = v.y();
+    m.yaw_rate_rps = w;
+    m.a_x_mps2 = (v_after.x() - v_before.x()) / (2 * h);
+    m.a_y_mps2 = (v_after.y() - v_before.y()) / (2 * h);
+    m.yaw_accel_rps2 = (w_after - w_before) / (2 * h);
+    return m;
+  };
+  auto freeze = [&] {
+    frozen = true;
+    const ReferenceMountCalibration c = calibrator->result();
+    for (const auto& e : c.sensors) time_offset_s[e.sensor_id] = e.time_offset_s;
+    for (const SensorMount& m : calibrator->calibrated_mounts()) mounts[m.sensor_id] = m;
+    res.mount_calibration = c;
+    while (!held.empty()) {
+      map_frame(held.front());
+      held.pop_front();
     }
-    if (!pending.empty()) traj.forget_before(pending.front().time_s - 1.0);
+  };
+  // Frames whose pose is decided (a trajectory sample 2h after their time exists) enter the
+  // calibration while it runs and wait in `held`, or are mapped.
+  auto drain = [&](bool at_end) {
+    while (!pending.empty() && (at_end || pending.front().time_s + 2 * h <= traj.last_time_s())) {
+      SensorFrame f = std::move(pending.front());
+      pending.pop_front();
+      if (frozen) {
+        map_frame(f);
+        continue;
+      }
+      if (const auto m = reference_motion(f.time_s)) calibrator->add_frame(f, *m);
+      held.push_back(std::move(f));
+      ++st.frames_held_for_calibration;
+      if (calibrator->result().status == ReferenceMountCalibration::Status::Converged ||
+          held.back().time_s - held.front().time_s > cfg.max_calibration_hold_s) {
+        freeze();
+      }
+    }
+    if (at_end && !frozen) freeze();
+    double oldest = pending.empty() ? traj.last_time_s() : pending.front().time_s;
+    if (!held.empty()) oldest = std::min(oldest, held.front().time_s);
+    if (!pending.empty() || !held.empty()) traj.forget_before(oldest - 1.0 - 2 * h);
   };
 
   while (auto rec = source.next()) {

@@ -274,6 +274,10 @@ MountCalibrationResult MountCalibrator::result() const {
   const bool significant =
       std::abs(res.common_yaw_rad) >= cfg_.common_yaw_min_sigmas * res.common_yaw_sigma_rad;
   const bool relative = cfg_.side_slip_nuisance && (!cfg_.estimate_common_yaw || !significant);
+  res.common_yaw_applied = !relative;
+  res.common_yaw_applies_early = res.common_yaw_applied &&
+                                 res.common_yaw_sigma_rad <= cfg_.common_yaw_early_sigma_rad &&
+                                 observed_s_ >= cfg_.common_yaw_early_min_observed_s;
   if (relative) {
     Eigen::MatrixXd J = Eigen::MatrixXd::Identity(2 * S, 2 * S);
     J.topLeftCorner(S, S).array() -= 1.0 / static_cast<double>(S);
@@ -315,7 +319,11 @@ void apply_mount_calibration(EgoMotionEstimator& estimator, const MountCalibrati
   for (std::size_t i = 0; i < mounts.size(); ++i) {
     for (const auto& s : result.sensors) {
       if (s.sensor_id != mounts[i].sensor_id) continue;
-      if (s.yaw_status == MountCalibrationResult::Status::Converged) yaw[i] = s.yaw_offset_rad;
+      if (s.yaw_status == MountCalibrationResult::Status::Converged) {
+        yaw[i] = s.yaw_offset_rad;
+      } else if (result.common_yaw_applies_early) {
+        yaw[i] = result.common_yaw_rad;
+      }
       if (s.time_status == MountCalibrationResult::Status::Converged) dt[i] = s.time_offset_s;
     }
   }

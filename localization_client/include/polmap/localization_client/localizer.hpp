@@ -99,6 +99,14 @@ struct LocalizerConfig {
   /// sigmas, so landmarks, not the odometry, decide the pose in curves. 0.5°/(m/s²): a
   /// conservative passenger-car value (typical rear-axle slip gradients 0.2–0.4°/(m/s²)).
   double odometry_slip_gradient_rad_per_mps2 = 0.5 * 3.14159265358979323846 / 180.0;
+  /// The yaw common to all mounts that the calibration has not yet removed reads as a
+  /// yaw-rate bias of v·δψ̄/x (x: the sensors' mean distance ahead of the rear axle), so the
+  /// odometry factor gets σ_yaw += distance · u / x, with u this tolerance until the
+  /// calibration has a common-yaw estimate, then 3 of its σ (once converged ~0.015°, which
+  /// adds 0.0004 rad per 5 m factor). 0.3°: the σ of corner-radar mounts after end-of-line
+  /// alignment (tools/sim/README.md "Realism"). Not applied without online_mount_calibration
+  /// (the stored mounts are then taken as exact).
+  double mount_common_yaw_tolerance_rad = 0.3 * 3.14159265358979323846 / 180.0;
   radar::MountCalibrationConfig mount_calibration = [] {
     radar::MountCalibrationConfig c;
     c.estimate_common_yaw = true;

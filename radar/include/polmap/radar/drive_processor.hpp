@@ -22,6 +22,7 @@
 #include "polmap/radar/covariance_gridmap.hpp"
 #include "polmap/radar/line_extractor.hpp"
 #include "polmap/radar/point_extractor.hpp"
+#include "polmap/radar/reference_mount_calibration.hpp"
 #include "polmap/radar/static_reduction.hpp"
 #include "polmap/schema/recording.hpp"
 #include "polmap/tiles/local_frame.hpp"
@@ -52,6 +53,17 @@ struct DriveProcessingConfig {
   /// spectrum; frames without a cube use the logged spectrum.
   bool use_cube = false;
   StaticReductionConfig static_reduction;
+  /// Mount yaws and time offsets calibrated against the trajectory
+  /// (reference_mount_calibration.hpp): frames are held (not mapped) until the calibration
+  /// converged or they span max_calibration_hold_s of drive time, then every frame is mapped
+  /// with the calibrated mounts and stamps (frozen for the rest of the drive, so the whole
+  /// gridmap shares one calibration). 60 s of frames are ~16 MB of recording.
+  ReferenceMountCalibrationConfig mount_calibration;
+  double max_calibration_hold_s = 60.0;
+  /// The vehicle's motion for the calibration: central differences of the trajectory's
+  /// positions and headings over ±motion_difference_s (velocity with side slip; the
+  /// acceleration from two such velocities).
+  double motion_difference_s = 0.2;
 };
 
 struct DriveProcessingStats {
@@ -61,15 +73,16 @@ struct DriveProcessingStats {
   std::size_t frames_from_cube = 0;     ///< of which re-reduced from a data cube
   std::size_t frames_without_pose = 0;  ///< skipped: no pose (see file comment)
   std::size_t frames_unknown_sensor = 0;
-  std::size_t frames_without_spectrum = 0;  ///< fewer than 2 beams and no usable cube
-  std::size_t frames_standstill = 0;        ///< skipped: slower than min_speed_mps
-  double start_time_s = 0.0;                ///< first trajectory sample
-  double end_time_s = 0.0;                  ///< last trajectory sample
-  double distance_m = 0.0;                  ///< path length of the trajectory (drive frame)
-  double gridmap_seconds = 0.0;             ///< wall time spent in gridmap updates
-  double points_seconds = 0.0;              ///< wall time of point extraction
-  double lines_seconds = 0.0;               ///< wall time of line extraction
-  double total_seconds = 0.0;               ///< wall time of process_drive
+  std::size_t frames_without_spectrum = 0;      ///< fewer than 2 beams and no usable cube
+  std::size_t frames_standstill = 0;            ///< skipped: slower than min_speed_mps
+  std::size_t frames_held_for_calibration = 0;  ///< mapped only once the calibration froze
+  double start_time_s = 0.0;                    ///< first trajectory sample
+  double end_time_s = 0.0;                      ///< last trajectory sample
+  double distance_m = 0.0;                      ///< path length of the trajectory (drive frame)
+  double gridmap_seconds = 0.0;                 ///< wall time spent in gridmap updates
+  double points_seconds = 0.0;                  ///< wall time of point extraction
+  double lines_seconds = 0.0;                   ///< wall time of line extraction
+  double total_seconds = 0.0;                   ///< wall time of process_drive
 };
 
 struct DriveProcessingResult {
@@ -80,6 +93,8 @@ struct DriveProcessingResult {
   std::vector<LineCandidate> lines;    ///< metres in `frame`
   std::vector<TrajectorySample> trajectory;
   DriveProcessingStats stats;
+  /// The calibration the frames were mapped with (nullopt when disabled).
+  std::optional<ReferenceMountCalibration> mount_calibration;
 };
 
 /// Poses of a georeferenced trajectory in a local frame, interpolated at any time.

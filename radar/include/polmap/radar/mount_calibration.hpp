@@ -109,6 +109,14 @@ struct MountCalibrationConfig {
   /// exact mounts: applying it cost one urban drive half its lateral accuracy, 0.047 ->
   /// 0.092 m); a real common misalignment of tenths of a degree is tens of sigmas.
   double common_yaw_min_sigmas = 3.0;
+  /// The common yaw is applied to every sensor as soon as it is significant, its 1-σ is at
+  /// most common_yaw_early_sigma_rad and common_yaw_early_min_observed_s of driving entered,
+  /// before the relative yaws converge (a sensor's own offset replaces it once converged).
+  /// Why: a common yaw δψ̄ is a yaw-rate bias of v·δψ̄/x_sensor, 1.5°/s for 0.38° at 14 m/s
+  /// (a realistic-preset vehicle), which lost 14 of 30 urban study drives in their first
+  /// seconds while the relative yaws took 25-50 s to converge.
+  double common_yaw_early_sigma_rad = 0.05 * std::numbers::pi / 180.0;
+  double common_yaw_early_min_observed_s = 3.0;
   /// Noise model of one detection: σ_i² = σ_vr² + σ_φ²·(g·m)² (as EgoMotionConfig).
   double vr_sigma_mps = 0.07;
   double azimuth_sigma_rad = 0.4 * std::numbers::pi / 180.0;
@@ -159,6 +167,11 @@ struct MountCalibrationResult {
   /// indistinguishable from a constant side-slip angle, see the file comment).
   double common_yaw_rad = 0.0;
   double common_yaw_sigma_rad = 0.0;
+  /// The common yaw is in the yaw offsets (estimate_common_yaw and significant).
+  bool common_yaw_applied = false;
+  /// ... and good enough to apply to sensors whose own yaw has not converged yet
+  /// (MountCalibrationConfig::common_yaw_early_sigma_rad).
+  bool common_yaw_applies_early = false;
   /// Covariance of the reported (δψ_1..S, δt_1..S), residual variance factor included.
   Eigen::MatrixXd covariance;
 };
@@ -223,8 +236,9 @@ class MountCalibrator {
   int blocks_ = 0;
 };
 
-/// Applies a calibration to the ego-motion estimator: converged yaw offsets to the mounts,
-/// converged time offsets to the stamps (not-converged ones are left at zero).
+/// Applies a calibration to the ego-motion estimator: converged yaw offsets to the mounts (the
+/// common yaw to the others when it applies early), converged time offsets to the stamps
+/// (not-converged ones are left at zero).
 void apply_mount_calibration(EgoMotionEstimator& estimator, const MountCalibrationResult& result);
 
 }  // namespace polmap::radar

@@ -190,9 +190,16 @@ struct Localizer::Impl {
   /// (nominal yaw + offset) and measurement times.
   void apply_calibration(const radar::MountCalibrationResult& c) {
     radar::apply_mount_calibration(ego, c);
+    // What may be left of the common yaw: 3σ once it is in every sensor's yaw; while it is
+    // not (too small to apply early, or not significant) the estimate itself plus 3σ; the
+    // tolerance until the calibration has seen enough driving.
+    const bool in_all =
+        c.common_yaw_applies_early ||
+        (c.common_yaw_applied && c.status == radar::MountCalibrationResult::Status::Converged);
+    const double left = (in_all ? 0.0 : std::abs(c.common_yaw_rad)) + 3.0 * c.common_yaw_sigma_rad;
     common_yaw_uncertainty_rad =
-        c.common_yaw_applies_early
-            ? std::min(cfg.mount_common_yaw_tolerance_rad, 3.0 * c.common_yaw_sigma_rad)
+        c.observed_s >= cfg.mount_calibration.common_yaw_early_min_observed_s
+            ? std::min(cfg.mount_common_yaw_tolerance_rad, left)
             : cfg.mount_common_yaw_tolerance_rad;
     for (const auto& s : c.sensors) {
       const auto nominal = std::find_if(mounts.begin(), mounts.end(), [&](const SensorMount& x) {

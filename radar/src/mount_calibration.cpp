@@ -276,6 +276,7 @@ MountCalibrationResult MountCalibrator::result() const {
   const bool relative = cfg_.side_slip_nuisance && (!cfg_.estimate_common_yaw || !significant);
   res.common_yaw_applied = !relative;
   res.common_yaw_applies_early = res.common_yaw_applied &&
+                                 std::abs(res.common_yaw_rad) >= cfg_.common_yaw_early_min_rad &&
                                  res.common_yaw_sigma_rad <= cfg_.common_yaw_early_sigma_rad &&
                                  observed_s_ >= cfg_.common_yaw_early_min_observed_s;
   if (relative) {

@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <memory>
 #include <nlohmann/json.hpp>
+#include <numbers>
 #include <string>
 
 #include "command.hpp"
@@ -133,6 +134,17 @@ void run(const ProcessOptions& o) {
                      {"package_bytes", package_bytes},
                      {"package_bytes_per_km", per_km},
                      {"seconds", st.total_seconds}};
+    if (result.mount_calibration) {
+      nlohmann::json& c = j["mount_calibration"];
+      c["status"] = radar::to_string(result.mount_calibration->status);
+      for (const auto& e : result.mount_calibration->sensors) {
+        c["sensors"].push_back({{"sensor_id", e.sensor_id},
+                                {"yaw_offset_deg", e.yaw_offset_rad * 180.0 / std::numbers::pi},
+                                {"yaw_sigma_deg", e.yaw_sigma_rad * 180.0 / std::numbers::pi},
+                                {"time_offset_ms", 1e3 * e.time_offset_s},
+                                {"time_sigma_ms", 1e3 * e.time_sigma_s}});
+      }
+    }
     std::printf("%s\n", j.dump(2).c_str());
     return;
   }
@@ -150,6 +162,16 @@ void run(const ProcessOptions& o) {
               gridmap_bytes / 1e6, candidates_name.c_str(), candidates_bytes / 1e6);
   if (km > 0) std::printf(", %.3f MB/km (%.1f kB/km)", per_km / 1e6, per_km / 1e3);
   std::printf("; processing %.1f s\n", st.total_seconds);
+  if (result.mount_calibration) {
+    std::printf("mounts calibrated against the trajectory (%s):",
+                radar::to_string(result.mount_calibration->status));
+    for (const auto& e : result.mount_calibration->sensors) {
+      std::printf(" sensor %d yaw %+.3f +- %.3f deg, time %+.2f ms;", e.sensor_id,
+                  e.yaw_offset_rad * 180.0 / std::numbers::pi,
+                  e.yaw_sigma_rad * 180.0 / std::numbers::pi, 1e3 * e.time_offset_s);
+    }
+    std::printf("\n");
+  }
 }
 
 void setup(CLI::App& app) {

@@ -163,7 +163,7 @@ StudyDriveResult::Calibration calibration_against_truth(const radar::MountCalibr
   c.common_yaw_sigma_deg = cal.common_yaw_sigma_rad / kDeg;
   c.common_yaw_true_deg = mean_yaw / kDeg;
   // The reported offsets carry the common yaw exactly when it was applied.
-  c.common_yaw_applied = common_yaw_enabled && std::abs(mean_est) > 0.0;
+  c.common_yaw_applied = common_yaw_enabled && cal.common_yaw_applied;
   for (std::size_t i = 0; i < n; ++i) {
     const auto& e = cal.sensors[i];
     const double rel_yaw_err = (e.yaw_offset_rad - mean_est) - (dyaw[i] - mean_yaw);

@@ -20,11 +20,15 @@ ReferenceMountCalibrator::ReferenceMountCalibrator(std::vector<SensorMount> moun
                 cfg_.gate_sigmas > 0.0 && cfg_.sigma_inflation >= 1.0);
 }
 
-Eigen::Vector2d ReferenceMountCalibrator::solve(std::size_t s) const {
+Eigen::Matrix2d ReferenceMountCalibrator::information(std::size_t s) const {
   Eigen::Matrix2d L = acc_[s].info;
   L(0, 0) += 1.0 / (cfg_.prior_yaw_sigma_rad * cfg_.prior_yaw_sigma_rad);
   L(1, 1) += 1.0 / (cfg_.prior_time_offset_sigma_s * cfg_.prior_time_offset_sigma_s);
-  return L.ldlt().solve(acc_[s].rhs);
+  return L;
+}
+
+Eigen::Vector2d ReferenceMountCalibrator::solve(std::size_t s) const {
+  return information(s).ldlt().solve(acc_[s].rhs);
 }
 
 void ReferenceMountCalibrator::add_frame(const SensorFrame& frame, const ReferenceMotion& m) {
@@ -84,9 +88,7 @@ ReferenceMountCalibration ReferenceMountCalibrator::result() const {
   bool all = !mounts_.empty();
   for (std::size_t s = 0; s < mounts_.size(); ++s) {
     const Accumulator& a = acc_[s];
-    Eigen::Matrix2d L = a.info;
-    L(0, 0) += 1.0 / (cfg_.prior_yaw_sigma_rad * cfg_.prior_yaw_sigma_rad);
-    L(1, 1) += 1.0 / (cfg_.prior_time_offset_sigma_s * cfg_.prior_time_offset_sigma_s);
+    const Eigen::Matrix2d L = information(s);
     const Eigen::Vector2d x = L.ldlt().solve(a.rhs);
     double s2 = 1.0;
     if (a.n > 2) s2 = std::max((a.rwr - a.rhs.dot(x)) / static_cast<double>(a.n - 2), 1e-6);

@@ -110,6 +110,8 @@ class ReferenceMountCalibrator {
     long long n = 0;
     int frames = 0;
   };
+  /// Accumulated information of sensor s plus the priors, and the estimate it gives.
+  [[nodiscard]] Eigen::Matrix2d information(std::size_t s) const;
   [[nodiscard]] Eigen::Vector2d solve(std::size_t s) const;
   std::vector<SensorMount> mounts_;
   ReferenceMountCalibrationConfig cfg_;

@@ -16,8 +16,12 @@ double since(Clock::time_point t0) {
 }  // namespace
 
 TrajectoryInterpolator::TrajectoryInterpolator(tiles::LocalFrame frame, double max_gap_s,
-                                               double max_extrapolation_s)
-    : frame_(std::move(frame)), max_gap_s_(max_gap_s), max_extrapolation_s_(max_extrapolation_s) {}
+                                               double max_extrapolation_s,
+                                               double max_extrapolation_before_s)
+    : frame_(std::move(frame)),
+      max_gap_s_(max_gap_s),
+      max_extrapolation_s_(max_extrapolation_s),
+      max_extrapolation_before_s_(max_extrapolation_before_s) {}
 
 bool TrajectoryInterpolator::add(const TrajectorySample& s) {
   if (samples_.size() > first_ && !(s.time_s > samples_.back().t)) return false;
@@ -60,6 +64,13 @@ std::optional<Pose2> TrajectoryInterpolator::T_frame_vehicle(double t) const {
     // Constant speed and yaw rate beyond the last sample (arc model, zero side slip).
     return last.T * integrate_motion(last.v, last.w, t - last.t);
   }
+  // Likewise before the first sample: a calibrated time offset moves the drive's first
+  // frames a fraction of a millisecond before the trajectory's start.
+  const Sample& first = samples_[first_];
+  if (t < first.t) {
+    if (first.t - t > max_extrapolation_before_s_) return std::nullopt;
+    return first.T * integrate_motion(first.v, first.w, t - first.t);
+  }
   const auto i = bracket(t);
   if (!i) return std::nullopt;
   const Sample& a = samples_[*i];
@@ -75,6 +86,11 @@ std::optional<std::pair<double, double>> TrajectoryInterpolator::motion(double t
   if (t >= last.t) {
     if (t - last.t > max_extrapolation_s_) return std::nullopt;
     return std::make_pair(last.v, last.w);
+  }
+  const Sample& first = samples_[first_];
+  if (t < first.t) {
+    if (first.t - t > max_extrapolation_before_s_) return std::nullopt;
+    return std::make_pair(first.v, first.w);
   }
   const auto i = bracket(t);
   if (!i) return std::nullopt;
@@ -101,7 +117,8 @@ DriveProcessingResult process_drive(RecordSource& source, const DriveProcessingC
   std::map<std::uint8_t, SensorMount> mounts;
   for (const SensorMount& m : res.header.sensors) mounts[m.sensor_id] = m;
 
-  TrajectoryInterpolator traj(res.frame, cfg.max_interpolation_gap_s, cfg.max_extrapolation_s);
+  TrajectoryInterpolator traj(res.frame, cfg.max_interpolation_gap_s, cfg.max_extrapolation_s,
+                              cfg.max_extrapolation_before_s);
   std::deque<SensorFrame> pending;
   Eigen::Vector2d last_xy = Eigen::Vector2d::Zero();
   bool have_xy = false;

@@ -144,7 +144,19 @@ TEST(DriveProcessor, TrajectoryInterpolatorUsesConvergenceAndRespectsGaps) {
   EXPECT_NEAR(p->x_m, 20000.0, 1e-6);
   EXPECT_FALSE(traj.T_frame_vehicle(1.0).has_value());   // inside the gap
   EXPECT_FALSE(traj.T_frame_vehicle(-0.1).has_value());  // before the first sample
-  EXPECT_TRUE(traj.T_frame_vehicle(1.85).has_value());   // short extrapolation
+  // A few milliseconds before it (a calibrated time offset): the first sample's motion
+  // extrapolated backwards.
+  const auto p_before = traj.T_frame_vehicle(-0.004);
+  const auto p_first = traj.T_frame_vehicle(0.0);
+  ASSERT_TRUE(p_before.has_value() && p_first.has_value());
+  const auto vw_first = traj.motion(0.0);
+  ASSERT_TRUE(vw_first.has_value());
+  const Pose2 expected = *p_first * integrate_motion(vw_first->first, vw_first->second, -0.004);
+  EXPECT_NEAR(p_before->x_m, expected.x_m, 1e-9);
+  EXPECT_NEAR(p_before->y_m, expected.y_m, 1e-9);
+  EXPECT_NEAR(p_before->yaw_rad, expected.yaw_rad, 1e-12);
+  EXPECT_FALSE(traj.T_frame_vehicle(-0.006).has_value());
+  EXPECT_TRUE(traj.T_frame_vehicle(1.85).has_value());  // short extrapolation
   EXPECT_FALSE(traj.T_frame_vehicle(2.0).has_value());
 }
 

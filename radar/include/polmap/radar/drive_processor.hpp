@@ -12,9 +12,9 @@
 /// Sensor frames wait in a short queue until a trajectory sample at or after their
 /// time arrives (records are time-ordered, trajectory ≥ 50 Hz, so the queue holds
 /// a few frames). Frames are skipped (and counted) when no pose can be interpolated:
-/// before the first sample, across a trajectory gap longer than
-/// max_interpolation_gap_s, more than max_extrapolation_s after the last sample, or
-/// from a sensor the header does not declare.
+/// more than max_extrapolation_before_s before the first sample, across a trajectory gap longer
+/// than max_interpolation_gap_s, more than max_extrapolation_s after the last sample, or from a
+/// sensor the header does not declare.
 #include <functional>
 #include <optional>
 #include <vector>
@@ -42,6 +42,10 @@ struct DriveProcessingConfig {
   /// Frames after the last trajectory sample are posed by constant-velocity
   /// extrapolation up to this long.
   double max_extrapolation_s = 0.1;
+  /// Frames up to this long before the first trajectory sample are posed by
+  /// extrapolating backwards: the calibrated time offset (mount_calibration) moves a
+  /// drive's first frame up to a few milliseconds before the trajectory's start.
+  double max_extrapolation_before_s = 0.005;
   /// Frames taken while the vehicle is slower than this (|v| from the trajectory) are
   /// not mapped. At standstill the static Doppler is 0 for every beam, so crossing
   /// traffic (radial velocity ≈ 0) and traffic whose radial velocity aliases onto 0
@@ -101,12 +105,13 @@ struct DriveProcessingResult {
 class TrajectoryInterpolator {
  public:
   explicit TrajectoryInterpolator(tiles::LocalFrame frame, double max_gap_s = 0.5,
-                                  double max_extrapolation_s = 0.1);
+                                  double max_extrapolation_s = 0.1,
+                                  double max_extrapolation_before_s = 0.005);
   /// Appends a sample; samples must come in increasing time (others are ignored,
   /// returns false).
   bool add(const TrajectorySample& s);
-  /// T_frame_vehicle at time t, or nullopt (before the first sample, across a gap,
-  /// beyond the extrapolation limit).
+  /// T_frame_vehicle at time t, or nullopt (more than max_extrapolation_before_s before
+  /// the first sample, across a gap, beyond the extrapolation limit).
   [[nodiscard]] std::optional<Pose2> T_frame_vehicle(double time_s) const;
   /// Interpolated speed and yaw rate at time t (same validity as the pose).
   [[nodiscard]] std::optional<std::pair<double, double>> motion(double time_s) const;
@@ -128,6 +133,7 @@ class TrajectoryInterpolator {
   tiles::LocalFrame frame_;
   double max_gap_s_;
   double max_extrapolation_s_;
+  double max_extrapolation_before_s_;
   std::vector<Sample> samples_;
   std::size_t first_ = 0;  ///< samples before this index are forgotten
 };

@@ -72,11 +72,6 @@ function(polmap_add_test name)
   # into one ("fast:radar"); ctest -L takes a regular expression, so `-L fast` and
   # `-L radar` both select it.
   string(REPLACE ";" ":" _labels "${ARG_LABELS}")
-  # Collected for the aggregate target polmap_fast_tests (tests/CMakeLists.txt), which is
-  # what tools/sanitize-test builds: the unit tests only, not the CLI or the benchmarks.
-  if("fast" IN_LIST ARG_LABELS)
-    set_property(GLOBAL APPEND PROPERTY POLMAP_FAST_TESTS ${name})
-  endif()
   gtest_discover_tests(${name} DISCOVERY_TIMEOUT 60
     PROPERTIES TIMEOUT ${ARG_TIMEOUT} LABELS "${_labels}")
 endfunction()

@@ -260,4 +260,10 @@ int SlidingWindowGraph::num_point_landmarks_since(double time_s) const {
   return static_cast<int>(ids.size());
 }
 
+int SlidingWindowGraph::num_line_observations_since(double time_s) const {
+  return static_cast<int>(std::count_if(line_obs_.begin(), line_obs_.end(), [&](const auto& o) {
+    return poses_.at(o->pose).time_s >= time_s;
+  }));
+}
+
 }  // namespace polmap::loc

@@ -560,8 +560,11 @@ struct Localizer::Impl {
     if (n_points > 0 || n_lines > 0) last_assoc_time_s = time_s;
 
     graph.truncate_before(graph_time_s(time_s) - cfg.graph.window_s);
-    const double constraint =
-        graph.num_point_landmarks() + 0.5 * std::min(graph.num_line_observations(), 6);
+    // Landmarks seen recently hold the newest poses; the pose prior (which carries what
+    // the truncated poses knew) stays until they do (LocalizerConfig).
+    const double recent_s = graph_time_s(time_s) - cfg.pose_prior_recent_s;
+    const double constraint = graph.num_point_landmarks_since(recent_s) +
+                              0.5 * std::min(graph.num_line_observations_since(recent_s), 6);
     if (constraint < cfg.min_landmarks_without_pose_prior) {
       graph.clear_pose_priors();
       graph.add_pose_prior(key, guess, predicted_cov());

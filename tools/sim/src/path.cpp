@@ -49,16 +49,24 @@ Path Path::from_polyline(const std::vector<Eigen::Vector2d>& in, double step_m, 
     const double t = len > 0 ? std::clamp((s - cum[seg]) / len, 0.0, 1.0) : 0.0;
     res.push_back(in[seg] + t * (in[seg + 1] - in[seg]));
   }
-  // Smooth positions (moving average) so polyline corners become arcs; keep ends.
+  // Smooth positions (moving average) so polyline corners become arcs; keep ends. Beyond
+  // an end the curve continues as its point reflection through the end point, so the
+  // full window applies up to the end, the end point stays where it is and the curve is
+  // straight there (a window shrinking to nothing at the ends left the last metres'
+  // corners in the path: heading kinks a vehicle cannot drive, whose heading then
+  // disagreed with the yaw rate from the curvature).
   const int half = std::max(1, static_cast<int>(std::lround(0.5 * smooth_m / step_m)));
+  const int last = static_cast<int>(res.size()) - 1;
+  const auto extended = [&](int j) -> Eigen::Vector2d {
+    if (j < 0) return 2.0 * res.front() - res[std::min(-j, last)];
+    if (j > last) return 2.0 * res.back() - res[std::max(2 * last - j, 0)];
+    return res[j];
+  };
   std::vector<Eigen::Vector2d> sm(res.size());
-  for (std::size_t i = 0; i < res.size(); ++i) {
-    const int lo = std::max(0, static_cast<int>(i) - half);
-    const int hi = std::min(static_cast<int>(res.size()) - 1, static_cast<int>(i) + half);
-    const int w = std::min(static_cast<int>(i) - lo, hi - static_cast<int>(i));
+  for (int i = 0; i <= last; ++i) {
     Eigen::Vector2d acc = Eigen::Vector2d::Zero();
-    for (int j = static_cast<int>(i) - w; j <= static_cast<int>(i) + w; ++j) acc += res[j];
-    sm[i] = acc / (2 * w + 1);
+    for (int j = i - half; j <= i + half; ++j) acc += extended(j);
+    sm[i] = acc / (2 * half + 1);
   }
   // Re-parameterise the smoothed curve by arc length (the smoothing shortens corners).
   std::vector<double> c2(sm.size(), 0.0);

@@ -140,6 +140,8 @@ class SlidingWindowGraph {
   [[nodiscard]] int num_line_observations() const;
   /// Distinct point landmarks observed from poses at or after time_s.
   [[nodiscard]] int num_point_landmarks_since(double time_s) const;
+  /// Line observations from poses at or after time_s.
+  [[nodiscard]] int num_line_observations_since(double time_s) const;
   [[nodiscard]] const GraphConfig& config() const { return cfg_; }
 
  private:

@@ -157,10 +157,14 @@ struct LocalizerConfig {
   double map_radius_m = 120.0;
   /// Tiles around the position predicted this far ahead are prefetched.
   double prefetch_lookahead_s = 20.0;
-  /// Below this many distinct point landmarks in the graph window (lines
-  /// count half) the last pose gets a prior (paper: PriorFactorPose2 when
-  /// under-constrained).
+  /// Below this many distinct point landmarks observed in the newest
+  /// pose_prior_recent_s of the graph window (lines count half) the last pose gets a
+  /// prior from the prediction (paper: PriorFactorPose2 when under-constrained).
   double min_landmarks_without_pose_prior = 3.0;
+  /// Only landmarks observed this recently count for min_landmarks_without_pose_prior:
+  /// a few seen from older poses alone fix the newest poses poorly (three points seen 5 s
+  /// earlier turned an HD-map world's window by 14° once the last prior had left it).
+  double pose_prior_recent_s = 2.0;
   /// Standstill hold: while the odometry has moved less than these since the
   /// last graph pose, the graph is not extended and the estimate is held. A
   /// standing car does not move; re-solving the same view every extraction

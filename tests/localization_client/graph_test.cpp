@@ -183,6 +183,28 @@ TEST(SlidingWindowGraph, TruncationDropsOldPosesAndOrphanLandmarks) {
   EXPECT_EQ(graph.num_point_landmarks_since(0.0), 1);
 }
 
+TEST(SlidingWindowGraph, CountsLandmarksObservedSinceATime) {
+  // What the localizer asks before it lets the pose prior go: landmarks of recent poses.
+  SlidingWindowGraph graph;
+  const Pose2 T{0, 0, 0};
+  const Segment2 map_line{{-20.0, 5.0}, {40.0, 5.0}};
+  const auto k0 = graph.add_pose(0.0, T, std::nullopt);
+  graph.add_point_observation(k0, 1, {10, 0}, {10, 0});
+  graph.add_point_observation(k0, 2, {10, 5}, {10, 5});
+  graph.add_line_observation(k0, 7, {{5.0, 5.0}, {25.0, 5.0}}, map_line);
+  const auto k1 = graph.add_pose(3.0, T * Pose2{30, 0, 0}, Pose2{30, 0, 0});
+  graph.add_point_observation(k1, 2, {-20, 5}, {10, 5});
+  graph.add_line_observation(k1, 7, {{-25.0, 5.0}, {5.0, 5.0}}, map_line);
+  graph.add_line_observation(k1, 8, {{-5.0, -5.0}, {5.0, -5.0}}, {{20.0, -5.0}, {40.0, -5.0}});
+  EXPECT_EQ(graph.num_point_landmarks(), 2);
+  EXPECT_EQ(graph.num_point_landmarks_since(0.0), 2);
+  EXPECT_EQ(graph.num_point_landmarks_since(1.0), 1);  // landmark 2, seen again at 3 s
+  EXPECT_EQ(graph.num_point_landmarks_since(3.5), 0);
+  EXPECT_EQ(graph.num_line_observations(), 3);
+  EXPECT_EQ(graph.num_line_observations_since(1.0), 2);
+  EXPECT_EQ(graph.num_line_observations_since(3.5), 0);
+}
+
 }  // namespace
 }  // namespace polmap::loc
 

@@ -237,6 +237,17 @@ struct Localizer::Impl {
     return c;
   }
 
+  /// Whether T_map_vehicle lies beyond max_unobserved_move_chi2 of the prediction.
+  [[nodiscard]] bool moved_beyond_prediction(const Pose2& T_map_vehicle,
+                                             const Pose2& predicted) const {
+    const Eigen::Vector3d e(T_map_vehicle.x_m - predicted.x_m, T_map_vehicle.y_m - predicted.y_m,
+                            wrap_angle_rad(T_map_vehicle.yaw_rad - predicted.yaw_rad));
+    const Eigen::Matrix3d P = predicted_cov();
+    const Eigen::LDLT<Eigen::Matrix3d> ldlt(P);
+    if (ldlt.info() != Eigen::Success || !ldlt.isPositive()) return false;
+    return e.dot(ldlt.solve(e)) > cfg.max_unobserved_move_chi2;
+  }
+
   void anchor(const Pose2& T_map_vehicle, const Pose2& T_odom_vehicle, const Eigen::Matrix3d& cov) {
     T_map_odom = T_map_vehicle * T_odom_vehicle.inverse();
     anchor_cov = cov;
@@ -560,20 +571,36 @@ struct Localizer::Impl {
     if (n_points > 0 || n_lines > 0) last_assoc_time_s = time_s;
 
     graph.truncate_before(graph_time_s(time_s) - cfg.graph.window_s);
-    // Landmarks seen recently hold the newest poses; the pose prior (which carries what
-    // the truncated poses knew) stays until they do (LocalizerConfig).
-    const double recent_s = graph_time_s(time_s) - cfg.pose_prior_recent_s;
-    const double constraint = graph.num_point_landmarks_since(recent_s) +
-                              0.5 * std::min(graph.num_line_observations_since(recent_s), 6);
-    if (constraint < cfg.min_landmarks_without_pose_prior) {
+    const double constraint =
+        graph.num_point_landmarks() + 0.5 * std::min(graph.num_line_observations(), 6);
+    // Degraded (no association for degraded_after_s): the window's landmarks are old, and
+    // the prior that held them must not drop out with the truncated poses.
+    const bool stale = time_s - last_assoc_time_s > cfg.degraded_after_s;
+    if (constraint < cfg.min_landmarks_without_pose_prior || stale) {
       graph.clear_pose_priors();
       graph.add_pose_prior(key, guess, predicted_cov());
     }
     out.cpu.smoothing_s += lap.lap();
-    const GraphSolution sol = graph.solve();
+    GraphSolution sol = graph.solve();
+    double solve_time_s = sol.solve_time_s;
+    const double recent_s = graph_time_s(time_s) - cfg.pose_prior_recent_s;
+    if (sol.status == GraphSolution::Status::Ok && cfg.max_unobserved_move_chi2 > 0.0 &&
+        graph.num_point_landmarks_since(recent_s) +
+                0.5 * std::min(graph.num_line_observations_since(recent_s), 6) <
+            cfg.min_landmarks_without_pose_prior &&
+        moved_beyond_prediction(sol.T_map_vehicle, guess)) {
+      // Too few landmarks were seen lately to move the newest pose that far
+      // (LocalizerConfig::max_unobserved_move_chi2): keep it near the prediction, with the
+      // prediction's uncertainty.
+      graph.clear_pose_priors();
+      graph.add_pose_prior(key, guess, predicted_cov());
+      sol = graph.solve();
+      solve_time_s += sol.solve_time_s;
+      out.held_unobserved_move = true;
+    }
     out.cpu.graph_s += lap.lap();
     out.graph_updated = true;
-    out.graph_update_time_s = sol.solve_time_s;
+    out.graph_update_time_s = solve_time_s;
     if (sol.status != GraphSolution::Status::Ok) return std::nullopt;
     anchor(sol.T_map_vehicle, T_odom_vehicle,
            sol.covariance_valid ? sol.covariance : predicted_cov());

@@ -157,14 +157,19 @@ struct LocalizerConfig {
   double map_radius_m = 120.0;
   /// Tiles around the position predicted this far ahead are prefetched.
   double prefetch_lookahead_s = 20.0;
-  /// Below this many distinct point landmarks observed in the newest
-  /// pose_prior_recent_s of the graph window (lines count half) the last pose gets a
-  /// prior from the prediction (paper: PriorFactorPose2 when under-constrained).
+  /// Below this many distinct point landmarks in the graph window (lines
+  /// count half) the last pose gets a prior (paper: PriorFactorPose2 when
+  /// under-constrained).
   double min_landmarks_without_pose_prior = 3.0;
-  /// Only landmarks observed this recently count for min_landmarks_without_pose_prior:
-  /// a few seen from older poses alone fix the newest poses poorly (three points seen 5 s
-  /// earlier turned an HD-map world's window by 14° once the last prior had left it).
-  double pose_prior_recent_s = 2.0;
+  /// A solution that moves the newest pose further from the prediction than this squared
+  /// Mahalanobis distance (under the predicted covariance; 16.27 = χ²₃ at 99.9 %) while
+  /// fewer than min_landmarks_without_pose_prior landmarks were observed in the newest
+  /// pose_prior_recent_s is solved again with a prior from the prediction on that pose.
+  /// A few landmarks seen from older poses fix the newest ones poorly: three points seen
+  /// 5 s earlier turned an HD-map world's window by 14° and 9 m once the last pose prior
+  /// had left the window. 0 disables the check.
+  double max_unobserved_move_chi2 = 16.27;
+  double pose_prior_recent_s = 2.0;  ///< "observed lately" for max_unobserved_move_chi2
   /// Standstill hold: while the odometry has moved less than these since the
   /// last graph pose, the graph is not extended and the estimate is held. A
   /// standing car does not move; re-solving the same view every extraction
@@ -269,7 +274,10 @@ struct LocalizationOutput {
   bool extracted = false;      ///< candidates were extracted at this frame
   bool graph_updated = false;  ///< the graph was solved at this frame
   bool relocalized = false;    ///< the relocalization check re-anchored at this frame
-  int matched_points = 0;      ///< point observations entered into the graph at this frame
+  /// The graph's solution moved the newest pose beyond the prediction with few recent
+  /// landmarks and was re-solved with the prediction's prior (max_unobserved_move_chi2).
+  bool held_unobserved_move = false;
+  int matched_points = 0;  ///< point observations entered into the graph at this frame
   int matched_lines = 0;
   double graph_update_time_s = 0.0;  ///< Ceres solve + covariance (wall time), if updated
   double processing_time_s = 0.0;    ///< whole process() call (wall time)

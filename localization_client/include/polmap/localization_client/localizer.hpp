@@ -162,13 +162,14 @@ struct LocalizerConfig {
   /// under-constrained).
   double min_landmarks_without_pose_prior = 3.0;
   /// A solution that moves the newest pose further from the prediction than this squared
-  /// Mahalanobis distance (under the predicted covariance; 16.27 = χ²₃ at 99.9 %) while
+  /// Mahalanobis distance (under the predicted covariance; 7.81 = χ²₃ at 95 %; at 99.9 %
+  /// an HD-map world still lost a drive to a 0.86 m, 1.3° move at 3.4 σ) while
   /// fewer than min_landmarks_without_pose_prior landmarks were observed in the newest
   /// pose_prior_recent_s is solved again with a prior from the prediction on that pose.
   /// A few landmarks seen from older poses fix the newest ones poorly: three points seen
   /// 5 s earlier turned an HD-map world's window by 14° and 9 m once the last pose prior
   /// had left the window. 0 disables the check.
-  double max_unobserved_move_chi2 = 16.27;
+  double max_unobserved_move_chi2 = 7.81;
   double pose_prior_recent_s = 2.0;  ///< "observed lately" for max_unobserved_move_chi2
   /// Standstill hold: while the odometry has moved less than these since the
   /// last graph pose, the graph is not extended and the estimate is held. A

@@ -576,10 +576,11 @@ struct Localizer::Impl {
     // Degraded (no association for degraded_after_s): the window's landmarks are old, and
     // the prior that held them must not drop out with the truncated poses.
     const bool stale = time_s - last_assoc_time_s > cfg.degraded_after_s;
-    if (constraint < cfg.min_landmarks_without_pose_prior || stale) {
+    const auto prior_at_prediction = [&] {
       graph.clear_pose_priors();
       graph.add_pose_prior(key, guess, predicted_cov());
-    }
+    };
+    if (constraint < cfg.min_landmarks_without_pose_prior || stale) prior_at_prediction();
     out.cpu.smoothing_s += lap.lap();
     GraphSolution sol = graph.solve();
     double solve_time_s = sol.solve_time_s;
@@ -592,8 +593,7 @@ struct Localizer::Impl {
       // Too few landmarks were seen lately to move the newest pose that far
       // (LocalizerConfig::max_unobserved_move_chi2): keep it near the prediction, with the
       // prediction's uncertainty.
-      graph.clear_pose_priors();
-      graph.add_pose_prior(key, guess, predicted_cov());
+      prior_at_prediction();
       sol = graph.solve();
       solve_time_s += sol.solve_time_s;
       out.held_unobserved_move = true;

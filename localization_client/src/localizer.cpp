@@ -83,7 +83,8 @@ struct Localizer::Impl {
         local_map(cfg.local_map),
         point_smoother(cfg.smoothing),
         line_smoother(cfg.smoothing),
-        graph(cfg.graph) {
+        graph(cfg.graph),
+        init_streak(cfg.initialization) {
     POLMAP_EXPECT(!mounts.empty());
     POLMAP_EXPECT(cfg.gridmap.window_s > 0.0);
     POLMAP_EXPECT(cfg.extract_every_n_cycles >= 1);
@@ -145,10 +146,7 @@ struct Localizer::Impl {
   Status status = Status::Initializing;
   bool searching = true;  ///< Initializing or Lost: wide-gate matching, no graph
 
-  // Initialization confirmations.
-  int init_streak = 0;
-  double init_streak_start_m = 0.0;  ///< odometry distance when the streak began
-  Pose2 init_last_T_map_odom;
+  InitializationStreak init_streak;
   int reloc_streak = 0;
   Pose2 reloc_last_T_map_odom;
   /// A relocalization check due at the next frame (see process()).
@@ -336,7 +334,7 @@ struct Localizer::Impl {
     point_smoother.clear();
     line_smoother.clear();
     last_key.reset();
-    init_streak = 0;
+    init_streak.reset();
   }
 
   void go_lost() {
@@ -366,39 +364,19 @@ struct Localizer::Impl {
   }
 
   /// Whether two transforms agree at the current vehicle pose.
-  [[nodiscard]] bool agree(const Pose2& T_map_odom_a, const Pose2& T_map_odom_b,
-                           const Pose2& T_odom_vehicle) const {
-    const Pose2 a = T_map_odom_a * T_odom_vehicle;
-    const Pose2 b = T_map_odom_b * T_odom_vehicle;
-    return (a.translation() - b.translation()).norm() < cfg.init_agreement_xy_m &&
-           std::abs(wrap_angle_rad(a.yaw_rad - b.yaw_rad)) < cfg.init_agreement_yaw_rad;
-  }
-
   /// Initialization / recovery: wide-gate matching until confident.
   void search(const MatchResult& match, double time_s, const Pose2& T_odom_vehicle) {
-    const bool confident = match.status == MatchResult::Status::Ok &&
-                           static_cast<int>(match.points.size()) >= cfg.init_min_point_matches;
-    if (!confident) {
-      init_streak = 0;
+    const auto step = init_streak.add(match, T_odom_vehicle, odo.distance_m());
+    if (step == InitializationStreak::Step::Ended || step == InitializationStreak::Step::Started) {
       point_smoother.clear();
-      return;
     }
-    const bool agrees =
-        init_streak > 0 && agree(match.T_map_odom, init_last_T_map_odom, T_odom_vehicle);
-    if (!agrees) {
-      point_smoother.clear();
-      init_streak_start_m = odo.distance_m();
-    }
-    init_streak = agrees ? init_streak + 1 : 1;
-    init_last_T_map_odom = match.T_map_odom;
+    if (step == InitializationStreak::Step::Ended) return;
     std::vector<std::pair<std::uint64_t, std::int64_t>> votes;
     for (const auto& m : match.points) votes.emplace_back(m.cluster_id, m.landmark_id);
     point_smoother.add_votes(votes);
-    if (init_streak < cfg.init_confirmations ||
-        odo.distance_m() - init_streak_start_m < cfg.init_min_travel_m) {
-      return;
+    if (const auto T = init_streak.ready(odo.distance_m())) {
+      start_tracking(*T * T_odom_vehicle, T_odom_vehicle, time_s);
     }
-    start_tracking(match.T_map_odom * T_odom_vehicle, T_odom_vehicle, time_s);
   }
 
   /// Relocalization check (LocalizerConfig): returns true if it re-anchored.
@@ -422,8 +400,7 @@ struct Localizer::Impl {
     const double dxy = (alt.translation() - now.translation()).norm();
     const double dyaw = std::abs(wrap_angle_rad(alt.yaw_rad - now.yaw_rad));
     const bool better =
-        r.status == MatchResult::Status::Ok &&
-        static_cast<int>(r.points.size()) >= cfg.init_min_point_matches &&
+        counts_for_initialization(r, cfg.initialization) &&
         r.points.size() >=
             tracking_point_matches + static_cast<std::size_t>(cfg.relocalization_extra_matches);
     const bool distinct = dxy > std::max(1.0, 3.0 * position_sigma_m(pred)) ||
@@ -432,7 +409,8 @@ struct Localizer::Impl {
       reloc_streak = 0;
       return false;
     }
-    reloc_streak = reloc_streak > 0 && agree(r.T_map_odom, reloc_last_T_map_odom, T_odom_vehicle)
+    reloc_streak = reloc_streak > 0 && poses_agree(r.T_map_odom, reloc_last_T_map_odom,
+                                                   T_odom_vehicle, cfg.initialization)
                        ? reloc_streak + 1
                        : 1;
     reloc_last_T_map_odom = r.T_map_odom;

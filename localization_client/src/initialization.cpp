@@ -1,0 +1,58 @@
+#include "polmap/localization_client/initialization.hpp"
+
+#include <cmath>
+#include <limits>
+
+namespace polmap::loc {
+
+double clear_margin(const MatchResult& m) {
+  return m.runner_up_cost ? *m.runner_up_cost - m.cost : std::numeric_limits<double>::infinity();
+}
+
+bool counts_for_initialization(const MatchResult& m, const InitializationConfig& cfg) {
+  return m.status == MatchResult::Status::Ok &&
+         static_cast<int>(m.points.size()) >= cfg.min_point_matches &&
+         clear_margin(m) >= cfg.min_margin;
+}
+
+bool poses_agree(const Pose2& T_map_odom_a, const Pose2& T_map_odom_b, const Pose2& T_odom_vehicle,
+                 const InitializationConfig& cfg) {
+  const Pose2 a = T_map_odom_a * T_odom_vehicle;
+  const Pose2 b = T_map_odom_b * T_odom_vehicle;
+  return (a.translation() - b.translation()).norm() < cfg.agreement_xy_m &&
+         std::abs(wrap_angle_rad(a.yaw_rad - b.yaw_rad)) < cfg.agreement_yaw_rad;
+}
+
+InitializationStreak::Step InitializationStreak::add(const MatchResult& match,
+                                                     const Pose2& T_odom_vehicle,
+                                                     double odometry_distance_m) {
+  // TooFewMatches still carries the best transform; NoCandidate / TooFewClusters do not.
+  const bool has_pose = match.status == MatchResult::Status::Ok ||
+                        match.status == MatchResult::Status::Ambiguous ||
+                        match.status == MatchResult::Status::TooFewMatches;
+  const bool counts = counts_for_initialization(match, cfg_);
+  const bool agrees =
+      count_ > 0 && has_pose && poses_agree(match.T_map_odom, T_map_odom_, T_odom_vehicle, cfg_);
+  if (counts) {
+    const Step step = agrees ? Step::Confirmed : Step::Started;
+    if (!agrees) {
+      count_ = 0;
+      start_m_ = odometry_distance_m;
+    }
+    ++count_;
+    T_map_odom_ = match.T_map_odom;
+    return step;
+  }
+  if (agrees) return Step::Continued;
+  count_ = 0;
+  return Step::Ended;
+}
+
+std::optional<Pose2> InitializationStreak::ready(double odometry_distance_m) const {
+  if (count_ < cfg_.confirmations || odometry_distance_m - start_m_ < cfg_.min_travel_m) {
+    return std::nullopt;
+  }
+  return T_map_odom_;
+}
+
+}  // namespace polmap::loc

@@ -34,6 +34,7 @@ struct EgoMotionOptions {
   bool json = false;
   std::string calibrate = "on";
   radar::EgoMotionConfig cfg;
+  double slip_gradient_deg = 0.0;
   radar::MountCalibrationConfig calib;
 };
 
@@ -305,6 +306,10 @@ void setup(CLI::App& app) {
                   "combine frames of other sensors at most this much older (0 = per frame)")
       ->capture_default_str();
   cmd->add_option("--seed", opts->cfg.seed, "RANSAC seed")->capture_default_str();
+  cmd->add_option("--slip-gradient-deg", opts->slip_gradient_deg,
+                  "the vehicle's rear-axle side-slip gradient, deg per m/s^2 (0: kinematic "
+                  "model; the simulator's realistic preset: 0.23)")
+      ->capture_default_str();
   cmd->add_option("--calibrate", opts->calibrate,
                   "online mount calibration (relative mount yaws, time offsets): on = estimate "
                   "and apply once converged, off = estimate and report only")
@@ -318,6 +323,8 @@ void setup(CLI::App& app) {
       throw ValidationError("egomotion: give --recording R or --detections CSV --mounts JSON");
     }
     opts->calib.calibrate_mounts = opts->calibrate == "on";
+    opts->cfg.side_slip_gradient_rad_per_mps2 = opts->slip_gradient_deg * std::numbers::pi / 180.0;
+    opts->calib.side_slip_gradient_rad_per_mps2 = opts->cfg.side_slip_gradient_rad_per_mps2;
     // The calibrator's noise model follows the estimator's.
     opts->calib.vr_sigma_mps = opts->cfg.vr_sigma_mps;
     opts->calib.azimuth_sigma_rad = opts->cfg.azimuth_sigma_rad;

@@ -55,4 +55,26 @@ std::optional<Pose2> InitializationStreak::ready(double odometry_distance_m) con
   return T_map_odom_;
 }
 
+std::optional<Pose2> RelocalizationConfirmation::add(const MatchResult& wide,
+                                                     std::size_t tracking_point_matches,
+                                                     bool distinct, const Pose2& T_odom_vehicle) {
+  const bool better =
+      counts_for_initialization(wide, init_) &&
+      wide.points.size() >= tracking_point_matches + static_cast<std::size_t>(cfg_.extra_matches);
+  if (!better || !distinct) {
+    count_ = 0;
+    return std::nullopt;
+  }
+  InitializationConfig agreement = init_;
+  agreement.agreement_xy_m = cfg_.agreement_xy_m;
+  agreement.agreement_yaw_rad = cfg_.agreement_yaw_rad;
+  const bool agrees =
+      count_ > 0 && poses_agree(wide.T_map_odom, T_map_odom_, T_odom_vehicle, agreement);
+  count_ = agrees ? count_ + 1 : 1;
+  T_map_odom_ = wide.T_map_odom;
+  if (count_ < 2) return std::nullopt;
+  count_ = 0;
+  return T_map_odom_;
+}
+
 }  // namespace polmap::loc

@@ -84,7 +84,10 @@ struct Localizer::Impl {
         point_smoother(cfg.smoothing),
         line_smoother(cfg.smoothing),
         graph(cfg.graph),
-        init_streak(cfg.initialization) {
+        init_streak(cfg.initialization),
+        reloc(cfg.initialization, RelocalizationConfig{cfg.relocalization_extra_matches,
+                                                       cfg.relocalization_agreement_xy_m,
+                                                       cfg.relocalization_agreement_yaw_rad}) {
     POLMAP_EXPECT(!mounts.empty());
     POLMAP_EXPECT(cfg.gridmap.window_s > 0.0);
     POLMAP_EXPECT(cfg.extract_every_n_cycles >= 1);
@@ -147,8 +150,7 @@ struct Localizer::Impl {
   bool searching = true;  ///< Initializing or Lost: wide-gate matching, no graph
 
   InitializationStreak init_streak;
-  int reloc_streak = 0;
-  Pose2 reloc_last_T_map_odom;
+  RelocalizationConfirmation reloc;
   /// A relocalization check due at the next frame (see process()).
   struct PendingRelocalization {
     std::size_t tracking_point_matches = 0;
@@ -360,7 +362,7 @@ struct Localizer::Impl {
     last_key = key;
     last_key_time_s = time_s;
     last_assoc_time_s = time_s;
-    reloc_streak = 0;
+    reloc.reset();
   }
 
   /// Whether two transforms agree at the current vehicle pose.
@@ -388,33 +390,20 @@ struct Localizer::Impl {
     const Eigen::Matrix3d pred = predicted_cov();
     wide.covariance = pred;
     for (int i = 0; i < 3; ++i) wide.covariance(i, i) = std::max(pred(i, i), initial_cov(i, i));
-    MatcherConfig reloc = mcfg;
-    reloc.max_anchor_clusters =
-        std::min(reloc.max_anchor_clusters, cfg.relocalization_max_anchor_clusters);
-    reloc.max_yaw_hypotheses =
-        std::min(reloc.max_yaw_hypotheses, cfg.relocalization_max_yaw_hypotheses);
+    MatcherConfig wide_cfg = mcfg;
+    wide_cfg.max_anchor_clusters =
+        std::min(wide_cfg.max_anchor_clusters, cfg.relocalization_max_anchor_clusters);
+    wide_cfg.max_yaw_hypotheses =
+        std::min(wide_cfg.max_yaw_hypotheses, cfg.relocalization_max_yaw_hypotheses);
     const MatchResult r =
-        match_local_map(local_map.point_clusters(), local_map.line_clusters(), map, wide, reloc);
+        match_local_map(local_map.point_clusters(), local_map.line_clusters(), map, wide, wide_cfg);
     const Pose2 now = T_map_odom * T_odom_vehicle;
     const Pose2 alt = r.T_map_odom * T_odom_vehicle;
     const double dxy = (alt.translation() - now.translation()).norm();
     const double dyaw = std::abs(wrap_angle_rad(alt.yaw_rad - now.yaw_rad));
-    const bool better =
-        counts_for_initialization(r, cfg.initialization) &&
-        r.points.size() >=
-            tracking_point_matches + static_cast<std::size_t>(cfg.relocalization_extra_matches);
     const bool distinct = dxy > std::max(1.0, 3.0 * position_sigma_m(pred)) ||
                           dyaw > std::max(0.026, 3.0 * std::sqrt(pred(2, 2)));
-    if (!better || !distinct) {
-      reloc_streak = 0;
-      return false;
-    }
-    reloc_streak = reloc_streak > 0 && poses_agree(r.T_map_odom, reloc_last_T_map_odom,
-                                                   T_odom_vehicle, cfg.initialization)
-                       ? reloc_streak + 1
-                       : 1;
-    reloc_last_T_map_odom = r.T_map_odom;
-    if (reloc_streak < 2) return false;
+    if (!reloc.add(r, tracking_point_matches, distinct, T_odom_vehicle)) return false;
     reset_tracking();
     start_tracking(alt, T_odom_vehicle, time_s);
     return true;
@@ -706,8 +695,10 @@ struct Localizer::Impl {
         track(match, f.time_s, *T_odom_vehicle, use_lines, out, lap);
         // The relocalization check (a wide-gate match, as expensive as an extraction)
         // runs at the next frame, so that no frame carries both.
+        // A check that found a clearly better pose is confirmed at the next extraction
+        // (4 s later the odometry has drifted beyond the agreement tolerance in curves).
         if (cfg.relocalization_every_n_extractions > 0 &&
-            extractions % cfg.relocalization_every_n_extractions == 0) {
+            (extractions % cfg.relocalization_every_n_extractions == 0 || reloc.pending())) {
           pending_reloc = PendingRelocalization{match.points.size(), mcfg};
         }
         status = f.time_s - last_assoc_time_s <= cfg.degraded_after_s ? Status::Tracking

@@ -2,7 +2,8 @@
 // streak starts, continues, ends, and when it is ready to start tracking. The sequences
 // replay what `polmap study --world rural --realism realistic` showed on a guardrail
 // (candidates one post spacing apart within 1-3 cost units, flipping) and on a
-// landmark-poor stretch (counting matches separated by matches of 4-5 associations).
+// landmark-poor stretch (counting matches separated by matches of 4-5 associations); the
+// relocalization check's confirmation on the checks that re-anchored or failed to.
 #include "polmap/localization_client/initialization.hpp"
 
 #include <gtest/gtest.h>
@@ -157,6 +158,72 @@ TEST(Initialization, ACountingMatchThatDisagreesStartsANewStreak) {
   const auto T = s.ready(35.0);
   ASSERT_TRUE(T);
   EXPECT_DOUBLE_EQ(T->y_m, other.y_m);
+}
+
+TEST(Relocalization, ReAnchorsOnTwoAgreeingChecksThatClearlyBeatTracking) {
+  RelocalizationConfirmation r;
+  const Pose2 T_odom_vehicle = vehicle_at(300.0);
+  // 45 wide against 33 tracking associations, margin 5 (rural seed 6 drive 3 at 19.7 s).
+  EXPECT_FALSE(r.add(strong(kTruth), 5, true, T_odom_vehicle)) << "one check is not enough";
+  EXPECT_TRUE(r.pending());
+  // The confirming check 0.4 s later: 2 m and 1.4 deg from the first (a bent local map
+  // moves the wide match that much in a curve; the initialization's 1 m / 1 deg would
+  // reject it, the relocalization's 2.5 m / 2 deg accepts).
+  const Pose2 T_map_vehicle = kTruth * vehicle_at(308.0);
+  const Pose2 second =
+      Pose2{T_map_vehicle.x_m + 2.0, T_map_vehicle.y_m, T_map_vehicle.yaw_rad + 1.4 * kDeg} *
+      vehicle_at(308.0).inverse();
+  InitializationConfig init;
+  EXPECT_FALSE(poses_agree(second, kTruth, vehicle_at(308.0), init));
+  const auto T = r.add(strong(second), 5, true, vehicle_at(308.0));
+  ASSERT_TRUE(T);
+  EXPECT_DOUBLE_EQ(T->x_m, second.x_m) << "re-anchors at the confirming check's transform";
+  EXPECT_FALSE(r.pending());
+}
+
+TEST(Relocalization, IgnoresChecksThatDoNotClearlyBeatTrackingOrAreNotAway) {
+  const Pose2 T_odom_vehicle = vehicle_at(100.0);
+  {
+    // Margins of 1.2 and 1.5 with 6 associations against 2 (urban seed 10 drive 1, out of a
+    // degraded stretch): Ok for the matcher, but they do not count.
+    RelocalizationConfirmation r;
+    EXPECT_FALSE(
+        r.add(match(MatchResult::Status::Ok, 6, 65.5, 66.7, kTruth), 2, true, T_odom_vehicle));
+    EXPECT_FALSE(r.pending());
+    EXPECT_FALSE(
+        r.add(match(MatchResult::Status::Ok, 6, 128.5, 130.0, kTruth), 2, true, T_odom_vehicle));
+  }
+  {
+    // Clearly better but fewer than 3 more associations than tracking.
+    RelocalizationConfirmation r;
+    EXPECT_FALSE(r.add(strong(kTruth), 10, true, T_odom_vehicle));
+    EXPECT_FALSE(r.pending());
+  }
+  {
+    // Clearly better but where the estimate already is: nothing to re-anchor.
+    RelocalizationConfirmation r;
+    EXPECT_FALSE(r.add(strong(kTruth), 2, false, T_odom_vehicle));
+    EXPECT_FALSE(r.pending());
+  }
+  {
+    // Two candidates 5 m apart do not confirm each other; the second becomes the candidate.
+    RelocalizationConfirmation r;
+    EXPECT_FALSE(r.add(strong(kTruth), 2, true, T_odom_vehicle));
+    const Pose2 other{kTruth.x_m, kTruth.y_m + 5.0, kTruth.yaw_rad};
+    EXPECT_FALSE(r.add(strong(other), 2, true, T_odom_vehicle));
+    EXPECT_TRUE(r.pending());
+    const auto T = r.add(strong(other), 2, true, T_odom_vehicle);
+    ASSERT_TRUE(T);
+    EXPECT_DOUBLE_EQ(T->y_m, other.y_m);
+  }
+  {
+    // A failed check in between clears the candidate.
+    RelocalizationConfirmation r;
+    EXPECT_FALSE(r.add(strong(kTruth), 2, true, T_odom_vehicle));
+    EXPECT_FALSE(r.add(match(MatchResult::Status::Ambiguous, 30, 100, 100.5, kTruth), 2, true,
+                       T_odom_vehicle));
+    EXPECT_FALSE(r.pending());
+  }
 }
 
 }  // namespace

@@ -84,4 +84,38 @@ class InitializationStreak {
   Pose2 T_map_odom_;      ///< the last counting match's transform
 };
 
+/// Parameters of the relocalization check's confirmation (LocalizerConfig relocalization_*).
+struct RelocalizationConfig {
+  /// The wide match has at least this many more associations than the tracking match.
+  int extra_matches = 3;
+  /// Two checks agree when they put the vehicle within these of each other.
+  double agreement_xy_m = 2.5;
+  double agreement_yaw_rad = 0.035;
+};
+
+/// The relocalization check's decision: a wide-gate match that counts for initialization,
+/// has extra_matches more associations than tracking and lies away from the estimate is a
+/// candidate; a second such check that agrees with it confirms it. The Localizer runs the
+/// confirming check at the next extraction while one is pending().
+class RelocalizationConfirmation {
+ public:
+  RelocalizationConfirmation(InitializationConfig init = {}, RelocalizationConfig cfg = {})
+      : init_(init), cfg_(cfg) {}
+
+  /// One check: `wide` the wide-gate match, `tracking_point_matches` the tracking match's
+  /// associations, `distinct` whether wide's vehicle pose is away from the estimate. Returns
+  /// the T_map_odom to re-anchor to when this check confirms the previous one.
+  std::optional<Pose2> add(const MatchResult& wide, std::size_t tracking_point_matches,
+                           bool distinct, const Pose2& T_odom_vehicle);
+
+  [[nodiscard]] bool pending() const { return count_ > 0; }
+  void reset() { count_ = 0; }
+
+ private:
+  InitializationConfig init_;
+  RelocalizationConfig cfg_;
+  int count_ = 0;
+  Pose2 T_map_odom_;
+};
+
 }  // namespace polmap::loc

@@ -695,10 +695,8 @@ struct Localizer::Impl {
         track(match, f.time_s, *T_odom_vehicle, use_lines, out, lap);
         // The relocalization check (a wide-gate match, as expensive as an extraction)
         // runs at the next frame, so that no frame carries both.
-        // A check that found a clearly better pose is confirmed at the next extraction
-        // (4 s later the odometry has drifted beyond the agreement tolerance in curves).
         if (cfg.relocalization_every_n_extractions > 0 &&
-            (extractions % cfg.relocalization_every_n_extractions == 0 || reloc.pending())) {
+            extractions % cfg.relocalization_every_n_extractions == 0) {
           pending_reloc = PendingRelocalization{match.points.size(), mcfg};
         }
         status = f.time_s - last_assoc_time_s <= cfg.degraded_after_s ? Status::Tracking

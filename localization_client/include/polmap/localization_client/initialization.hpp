@@ -89,14 +89,14 @@ struct RelocalizationConfig {
   /// The wide match has at least this many more associations than the tracking match.
   int extra_matches = 3;
   /// Two checks agree when they put the vehicle within these of each other.
-  double agreement_xy_m = 2.5;
-  double agreement_yaw_rad = 0.035;
+  double agreement_xy_m = 1.0;
+  double agreement_yaw_rad = 0.0175;
 };
 
 /// The relocalization check's decision: a wide-gate match that counts for initialization,
 /// has extra_matches more associations than tracking and lies away from the estimate is a
-/// candidate; a second such check that agrees with it confirms it. The Localizer runs the
-/// confirming check at the next extraction while one is pending().
+/// candidate; the next check, if it is one too and agrees with it, confirms it (the
+/// Localizer's checks are relocalization_every_n_extractions apart).
 class RelocalizationConfirmation {
  public:
   RelocalizationConfirmation(InitializationConfig init = {}, RelocalizationConfig cfg = {})

@@ -241,4 +241,53 @@ void LocalMap::recluster() {
   }
 }
 
+LocalMap::View LocalMap::recent(double since_s) const {
+  View v;
+  const double s0 = cfg_.centroid_sigma0_m * cfg_.centroid_sigma0_m;
+  const double saz = cfg_.centroid_sigma_azimuth_rad * cfg_.centroid_sigma_azimuth_rad;
+  for (const PointCluster& full : point_clusters_) {
+    PointCluster c;
+    c.id = full.id;
+    c.observed_latest = full.observed_latest;
+    double wsum = 0.0;
+    Eigen::Vector2d sum = Eigen::Vector2d::Zero();
+    for (std::size_t i : full.members) {
+      const PointObservation& o = points_[i];
+      if (o.time_s < since_s) continue;
+      if (c.members.empty()) c.first_time_s = c.last_time_s = o.time_s;
+      c.members.push_back(i);
+      const double w = 1.0 / (s0 + saz * o.range_m * o.range_m);
+      sum += w * o.position_odom_m;
+      wsum += w;
+      c.first_time_s = std::min(c.first_time_s, o.time_s);
+      c.last_time_s = std::max(c.last_time_s, o.time_s);
+    }
+    if (c.members.empty()) continue;
+    c.num_observations = static_cast<int>(c.members.size());
+    c.centroid_odom_m = sum / wsum;
+    v.points.push_back(std::move(c));
+  }
+  std::vector<Segment2> segs;
+  for (const LineCluster& full : line_clusters_) {
+    LineCluster c;
+    c.id = full.id;
+    c.observed_latest = full.observed_latest;
+    segs.clear();
+    for (std::size_t i : full.members) {
+      const LineObservation& o = lines_[i];
+      if (o.time_s < since_s) continue;
+      if (c.members.empty()) c.first_time_s = c.last_time_s = o.time_s;
+      c.members.push_back(i);
+      segs.push_back(o.segment_odom_m);
+      c.first_time_s = std::min(c.first_time_s, o.time_s);
+      c.last_time_s = std::max(c.last_time_s, o.time_s);
+    }
+    if (c.members.empty()) continue;
+    c.num_observations = static_cast<int>(c.members.size());
+    c.segment_odom_m = merge_segments(segs);
+    v.lines.push_back(std::move(c));
+  }
+  return v;
+}
+
 }  // namespace polmap::loc

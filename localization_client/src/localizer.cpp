@@ -90,6 +90,7 @@ struct Localizer::Impl {
                                                        cfg.relocalization_agreement_yaw_rad}) {
     POLMAP_EXPECT(!mounts.empty());
     POLMAP_EXPECT(cfg.gridmap.window_s > 0.0);
+    POLMAP_EXPECT(cfg.tracking_max_heading_span_rad >= 0.0 && cfg.tracking_min_window_s >= 0.0);
     POLMAP_EXPECT(cfg.extract_every_n_cycles >= 1);
     POLMAP_EXPECT(cfg.reported_covariance_scale > 0.0 && cfg.reported_sigma_floor_xy_m >= 0.0 &&
                   cfg.reported_sigma_floor_yaw_rad >= 0.0 && cfg.protection_level_k > 0.0);
@@ -427,6 +428,26 @@ struct Localizer::Impl {
     return best.value_or(c.centroid_odom_m);
   }
 
+  /// Start of the part of the local map that tracking matches
+  /// (LocalizerConfig::tracking_max_heading_span_rad): the earliest time, stepping back
+  /// from time_s in 0.1 s steps, before which the odometry heading differs from the
+  /// current one by more than the span; never later than time_s - tracking_min_window_s.
+  [[nodiscard]] double tracking_window_start_s(double time_s, const Pose2& T_odom_vehicle) const {
+    const double window_s = cfg.local_map.window_s;
+    if (cfg.tracking_max_heading_span_rad <= 0.0) return time_s - window_s;
+    constexpr double step_s = 0.1;
+    double since_s = time_s;
+    for (double back_s = step_s; back_s <= window_s + 1e-9; back_s += step_s) {
+      const auto T = odo.try_T_odom_vehicle(time_s - back_s);
+      if (!T) break;
+      const double dyaw =
+          std::remainder(T_odom_vehicle.yaw_rad - T->yaw_rad, 2.0 * std::numbers::pi);
+      if (std::abs(dyaw) > cfg.tracking_max_heading_span_rad) break;
+      since_s = time_s - back_s;
+    }
+    return std::min(since_s, time_s - cfg.tracking_min_window_s);
+  }
+
   /// Tracking: smoothing + graph update. Returns the solution if solved.
   std::optional<GraphSolution> track(const MatchResult& match, double time_s,
                                      const Pose2& T_odom_vehicle, bool use_lines,
@@ -681,8 +702,16 @@ struct Localizer::Impl {
       }
       MatcherConfig mcfg = cfg.matcher;
       mcfg.use_lines = mcfg.use_lines && use_lines;
-      const MatchResult match =
-          match_local_map(local_map.point_clusters(), local_map.line_clusters(), map, prior, mcfg);
+      const MatchResult match = [&] {
+        const double since_s = searching ? -std::numeric_limits<double>::infinity()
+                                         : tracking_window_start_s(f.time_s, *T_odom_vehicle);
+        if (since_s <= f.time_s - cfg.local_map.window_s) {
+          return match_local_map(local_map.point_clusters(), local_map.line_clusters(), map, prior,
+                                 mcfg);
+        }
+        const LocalMap::View view = local_map.recent(since_s);
+        return match_local_map(view.points, view.lines, map, prior, mcfg);
+      }();
       out.match_status = match.status;
       out.match_point_associations = static_cast<int>(match.points.size());
       out.match_line_associations = static_cast<int>(match.lines.size());

@@ -1,10 +1,12 @@
 // Local-map clustering: the k-d tree connected components equal a brute-force
 // all-pairs reference; the windowed LocalMap keeps stable cluster ids and
-// truncates old observations.
+// truncates old observations; its recent() view equals clusters rebuilt from the recent
+// observations alone.
 #include "polmap/localization_client/local_map.hpp"
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <functional>
 #include <numeric>
 #include <random>
@@ -170,6 +172,68 @@ TEST(LocalMap, SplitClusterKeepsIdOnLargerPart) {
   EXPECT_EQ(bigger.id, id);
   EXPECT_NE(smaller.id, id);
   EXPECT_FALSE(bigger.observed_latest);
+}
+
+TEST(LocalMap, RecentViewKeepsOnlyObservationsSinceItsStart) {
+  // A landmark whose observations drift 0.1 m per extraction (a local map bent by the
+  // odometry), a second one seen only early, and a line that drifts too.
+  LocalMapConfig cfg;
+  cfg.window_s = 10.0;
+  LocalMap map(cfg);
+  for (int step = 0; step < 7; ++step) {
+    const double t = 0.5 * step;
+    std::vector<PointCandidate> pts(1);
+    pts[0].position_m = {0.05 * step, 0.0};
+    if (step < 2) {
+      pts.emplace_back();
+      pts.back().position_m = {8.0, 3.0};
+    }
+    const LineCandidate line{{0, -3 + 0.02 * step}, {10, -3 + 0.02 * step}, 1.0};
+    map.add(t, pts, std::span<const LineCandidate>(&line, 1));
+  }
+  ASSERT_EQ(map.point_clusters().size(), 2U);
+  ASSERT_EQ(map.line_clusters().size(), 1U);
+
+  // A view from before the window's start is the full map, to the bit.
+  const LocalMap::View all = map.recent(-1.0);
+  ASSERT_EQ(all.points.size(), 2U);
+  for (std::size_t i = 0; i < all.points.size(); ++i) {
+    EXPECT_EQ(all.points[i].id, map.point_clusters()[i].id);
+    EXPECT_EQ(all.points[i].centroid_odom_m, map.point_clusters()[i].centroid_odom_m);
+    EXPECT_EQ(all.points[i].members, map.point_clusters()[i].members);
+  }
+  ASSERT_EQ(all.lines.size(), 1U);
+  EXPECT_EQ(all.lines[0].segment_odom_m.a_m, map.line_clusters()[0].segment_odom_m.a_m);
+  EXPECT_EQ(all.lines[0].segment_odom_m.b_m, map.line_clusters()[0].segment_odom_m.b_m);
+
+  // From t = 2 s: extractions 4, 5, 6 only; the early landmark is gone.
+  const LocalMap::View recent = map.recent(2.0);
+  ASSERT_EQ(recent.points.size(), 1U);
+  const PointCluster& c = recent.points[0];
+  const auto full = std::find_if(map.point_clusters().begin(), map.point_clusters().end(),
+                                 [&](const PointCluster& f) { return f.id == c.id; });
+  ASSERT_NE(full, map.point_clusters().end());
+  EXPECT_LT(full->centroid_odom_m.norm(), 1.0) << "the drifting landmark keeps its id";
+  EXPECT_EQ(c.num_observations, 3);
+  EXPECT_DOUBLE_EQ(c.first_time_s, 2.0);
+  EXPECT_DOUBLE_EQ(c.last_time_s, 3.0);
+  EXPECT_TRUE(c.observed_latest);
+  // Equal weights (no vehicle pose): the mean of 0.20, 0.25, 0.30.
+  EXPECT_NEAR(c.centroid_odom_m.x(), 0.25, 1e-12);
+  EXPECT_NEAR(full->centroid_odom_m.x(), 0.15, 1e-12);
+  for (std::size_t i : c.members) EXPECT_GE(map.point_observations()[i].time_s, 2.0);
+  ASSERT_EQ(recent.lines.size(), 1U);
+  std::vector<Segment2> late;
+  for (int step = 4; step < 7; ++step)
+    late.push_back({{0, -3 + 0.02 * step}, {10, -3 + 0.02 * step}});
+  const Segment2 expected = merge_segments(late);
+  EXPECT_NEAR((recent.lines[0].segment_odom_m.a_m - expected.a_m).norm(), 0.0, 1e-12);
+  EXPECT_NEAR((recent.lines[0].segment_odom_m.b_m - expected.b_m).norm(), 0.0, 1e-12);
+  EXPECT_EQ(recent.lines[0].id, map.line_clusters()[0].id);
+
+  // A start after the latest extraction leaves nothing.
+  EXPECT_TRUE(map.recent(3.5).points.empty());
+  EXPECT_TRUE(map.recent(3.5).lines.empty());
 }
 
 }  // namespace

@@ -137,6 +137,18 @@ class LocalMap {
   [[nodiscard]] std::uint64_t latest_extraction_index() const { return next_extraction_ - 1; }
   [[nodiscard]] const LocalMapConfig& config() const { return cfg_; }
 
+  /// The clusters as seen from observations taken at or after since_s only: point
+  /// centroids (same weights as point_clusters()) and merged segments recomputed from
+  /// those members, clusters without such members dropped, ids, first/last times of the
+  /// kept members and observed_latest kept. Members index point_observations() /
+  /// line_observations() as in the full clusters. A view with since_s at or before the
+  /// window's start equals the full clusters.
+  struct View {
+    std::vector<PointCluster> points;
+    std::vector<LineCluster> lines;
+  };
+  [[nodiscard]] View recent(double since_s) const;
+
  private:
   void add_impl(double time_s, const Pose2* T_odom_vehicle,
                 std::span<const PointCandidate> points_odom,

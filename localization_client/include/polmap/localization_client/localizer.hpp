@@ -183,6 +183,19 @@ struct LocalizerConfig {
   /// covariance can be optimistic, matching must still find its landmarks.
   double tracking_gate_floor_xy_m = 0.5;
   double tracking_gate_floor_yaw_rad = 0.02;
+  /// Tracking matches the local map as seen since the odometry heading last differed
+  /// from the current one by more than this (LocalMap::recent), but at least
+  /// tracking_min_window_s back. The local map lives in the odometry frame, and in a
+  /// curve the odometry's yaw-rate error (side slip beyond the slip model) bends it: the
+  /// rigid match then pivots about the landmarks far behind the vehicle and turns the
+  /// estimate away from the road. 0 disables the limit (the whole window is matched).
+  /// Off by default until a 10-seed campaign under both presets decides: on rural seed 6
+  /// of the realistic preset (`polmap study --world rural --seeds 6 --realism realistic`,
+  /// 2026-12-06) drive 3's lateral RMSE was 18.3 m without the limit and 0.53 / 0.48 /
+  /// 0.81 m with 10° / 5° / 20° (the error still peaks at 2.3 m in the curve, then
+  /// recovers); drives 1 and 2 stayed within 0.02 m.
+  double tracking_max_heading_span_rad = 0.0;
+  double tracking_min_window_s = 2.0;
   /// Initialization (initialization.hpp): a match counts when it is unambiguous with at
   /// least min_point_matches (6) associations and beats its best distinct alternative
   /// by min_margin (3 cost units); tracking starts when consecutive counting matches

@@ -1,6 +1,7 @@
 #include "polmap/localization_client/local_map.hpp"
 
 #include <algorithm>
+#include <limits>
 #include <map>
 #include <numeric>
 
@@ -185,32 +186,22 @@ void LocalMap::add_impl(double time_s, const Pose2* T_odom_vehicle,
 
 void LocalMap::recluster() {
   const std::uint64_t latest = next_extraction_ - 1;
+  constexpr double all = -std::numeric_limits<double>::infinity();
+  const auto members_by_label = [](const std::vector<int>& label) {
+    const int k = label.empty() ? 0 : *std::max_element(label.begin(), label.end()) + 1;
+    std::vector<std::vector<std::size_t>> members(k);
+    for (std::size_t i = 0; i < label.size(); ++i) members[label[i]].push_back(i);
+    return members;
+  };
   {
     std::vector<Eigen::Vector2d> pos;
     pos.reserve(points_.size());
     for (const auto& p : points_) pos.push_back(p.position_odom_m);
     point_label_ = cluster_points(pos, cfg_.point_link_distance_m);
-    const int k =
-        point_label_.empty() ? 0 : *std::max_element(point_label_.begin(), point_label_.end()) + 1;
-    point_clusters_.assign(k, {});
-    std::vector<double> wsum(k, 0.0);
-    const double s0 = cfg_.centroid_sigma0_m * cfg_.centroid_sigma0_m;
-    const double saz = cfg_.centroid_sigma_azimuth_rad * cfg_.centroid_sigma_azimuth_rad;
-    for (std::size_t i = 0; i < points_.size(); ++i) {
-      PointCluster& c = point_clusters_[point_label_[i]];
-      const PointObservation& o = points_[i];
-      if (c.members.empty()) c.first_time_s = c.last_time_s = o.time_s;
-      c.members.push_back(i);
-      const double w = 1.0 / (s0 + saz * o.range_m * o.range_m);
-      c.centroid_odom_m += w * o.position_odom_m;
-      wsum[point_label_[i]] += w;
-      c.first_time_s = std::min(c.first_time_s, o.time_s);
-      c.last_time_s = std::max(c.last_time_s, o.time_s);
-      c.observed_latest = c.observed_latest || o.extraction_index == latest;
-    }
-    for (int c = 0; c < k; ++c) {
-      point_clusters_[c].num_observations = static_cast<int>(point_clusters_[c].members.size());
-      point_clusters_[c].centroid_odom_m /= wsum[c];
+    const auto members = members_by_label(point_label_);
+    point_clusters_.assign(members.size(), {});
+    for (std::size_t c = 0; c < members.size(); ++c) {
+      summarize(members[c], all, latest, point_clusters_[c]);
     }
     assign_stable_ids(point_clusters_, point_prev_id_, next_cluster_id_);
   }
@@ -219,73 +210,69 @@ void LocalMap::recluster() {
     segs.reserve(lines_.size());
     for (const auto& l : lines_) segs.push_back(l.segment_odom_m);
     line_label_ = cluster_segments(segs, cfg_.line_link);
-    const int k =
-        line_label_.empty() ? 0 : *std::max_element(line_label_.begin(), line_label_.end()) + 1;
-    line_clusters_.assign(k, {});
-    std::vector<std::vector<Segment2>> member_segs(k);
-    for (std::size_t i = 0; i < lines_.size(); ++i) {
-      LineCluster& c = line_clusters_[line_label_[i]];
-      const LineObservation& o = lines_[i];
-      if (c.members.empty()) c.first_time_s = c.last_time_s = o.time_s;
-      c.members.push_back(i);
-      member_segs[line_label_[i]].push_back(o.segment_odom_m);
-      c.first_time_s = std::min(c.first_time_s, o.time_s);
-      c.last_time_s = std::max(c.last_time_s, o.time_s);
-      c.observed_latest = c.observed_latest || o.extraction_index == latest;
-    }
-    for (int c = 0; c < k; ++c) {
-      line_clusters_[c].num_observations = static_cast<int>(line_clusters_[c].members.size());
-      line_clusters_[c].segment_odom_m = merge_segments(member_segs[c]);
+    const auto members = members_by_label(line_label_);
+    line_clusters_.assign(members.size(), {});
+    for (std::size_t c = 0; c < members.size(); ++c) {
+      summarize(members[c], all, latest, line_clusters_[c]);
     }
     assign_stable_ids(line_clusters_, line_prev_id_, next_cluster_id_);
   }
 }
 
-LocalMap::View LocalMap::recent(double since_s) const {
-  View v;
+bool LocalMap::summarize(std::span<const std::size_t> members, double since_s, std::uint64_t latest,
+                         PointCluster& c) const {
   const double s0 = cfg_.centroid_sigma0_m * cfg_.centroid_sigma0_m;
   const double saz = cfg_.centroid_sigma_azimuth_rad * cfg_.centroid_sigma_azimuth_rad;
+  double wsum = 0.0;
+  for (std::size_t i : members) {
+    const PointObservation& o = points_[i];
+    if (o.time_s < since_s) continue;
+    if (c.members.empty()) c.first_time_s = c.last_time_s = o.time_s;
+    c.members.push_back(i);
+    const double w = 1.0 / (s0 + saz * o.range_m * o.range_m);
+    c.centroid_odom_m += w * o.position_odom_m;
+    wsum += w;
+    c.first_time_s = std::min(c.first_time_s, o.time_s);
+    c.last_time_s = std::max(c.last_time_s, o.time_s);
+    c.observed_latest = c.observed_latest || o.extraction_index == latest;
+  }
+  if (c.members.empty()) return false;
+  c.num_observations = static_cast<int>(c.members.size());
+  c.centroid_odom_m /= wsum;
+  return true;
+}
+
+bool LocalMap::summarize(std::span<const std::size_t> members, double since_s, std::uint64_t latest,
+                         LineCluster& c) const {
+  std::vector<Segment2> segs;
+  for (std::size_t i : members) {
+    const LineObservation& o = lines_[i];
+    if (o.time_s < since_s) continue;
+    if (c.members.empty()) c.first_time_s = c.last_time_s = o.time_s;
+    c.members.push_back(i);
+    segs.push_back(o.segment_odom_m);
+    c.first_time_s = std::min(c.first_time_s, o.time_s);
+    c.last_time_s = std::max(c.last_time_s, o.time_s);
+    c.observed_latest = c.observed_latest || o.extraction_index == latest;
+  }
+  if (c.members.empty()) return false;
+  c.num_observations = static_cast<int>(c.members.size());
+  c.segment_odom_m = merge_segments(segs);
+  return true;
+}
+
+LocalMap::View LocalMap::recent(double since_s) const {
+  const std::uint64_t latest = next_extraction_ - 1;
+  View v;
   for (const PointCluster& full : point_clusters_) {
     PointCluster c;
     c.id = full.id;
-    c.observed_latest = full.observed_latest;
-    double wsum = 0.0;
-    Eigen::Vector2d sum = Eigen::Vector2d::Zero();
-    for (std::size_t i : full.members) {
-      const PointObservation& o = points_[i];
-      if (o.time_s < since_s) continue;
-      if (c.members.empty()) c.first_time_s = c.last_time_s = o.time_s;
-      c.members.push_back(i);
-      const double w = 1.0 / (s0 + saz * o.range_m * o.range_m);
-      sum += w * o.position_odom_m;
-      wsum += w;
-      c.first_time_s = std::min(c.first_time_s, o.time_s);
-      c.last_time_s = std::max(c.last_time_s, o.time_s);
-    }
-    if (c.members.empty()) continue;
-    c.num_observations = static_cast<int>(c.members.size());
-    c.centroid_odom_m = sum / wsum;
-    v.points.push_back(std::move(c));
+    if (summarize(full.members, since_s, latest, c)) v.points.push_back(std::move(c));
   }
-  std::vector<Segment2> segs;
   for (const LineCluster& full : line_clusters_) {
     LineCluster c;
     c.id = full.id;
-    c.observed_latest = full.observed_latest;
-    segs.clear();
-    for (std::size_t i : full.members) {
-      const LineObservation& o = lines_[i];
-      if (o.time_s < since_s) continue;
-      if (c.members.empty()) c.first_time_s = c.last_time_s = o.time_s;
-      c.members.push_back(i);
-      segs.push_back(o.segment_odom_m);
-      c.first_time_s = std::min(c.first_time_s, o.time_s);
-      c.last_time_s = std::max(c.last_time_s, o.time_s);
-    }
-    if (c.members.empty()) continue;
-    c.num_observations = static_cast<int>(c.members.size());
-    c.segment_odom_m = merge_segments(segs);
-    v.lines.push_back(std::move(c));
+    if (summarize(full.members, since_s, latest, c)) v.lines.push_back(std::move(c));
   }
   return v;
 }

@@ -154,6 +154,13 @@ class LocalMap {
                 std::span<const PointCandidate> points_odom,
                 std::span<const LineCandidate> lines_odom);
   void recluster();
+  /// Fills c (members, times, observed_latest, centroid or merged segment) from the
+  /// observations among `members` taken at or after since_s; false when there are none.
+  /// One rule for the clusters and for recent().
+  bool summarize(std::span<const std::size_t> members, double since_s, std::uint64_t latest,
+                 PointCluster& c) const;
+  bool summarize(std::span<const std::size_t> members, double since_s, std::uint64_t latest,
+                 LineCluster& c) const;
 
   LocalMapConfig cfg_;
   std::vector<PointObservation> points_;

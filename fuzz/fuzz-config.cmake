@@ -13,3 +13,6 @@ set(CMAKE_CXX_FLAGS "-Wno-builtin-macro-redefined -U__cpp_concepts -D__cpp_conce
 set(CMAKE_BUILD_TYPE RelWithDebInfo CACHE STRING "")
 set(POLMAP_FUZZ ON CACHE BOOL "")
 set(POLMAP_WERROR OFF CACHE BOOL "")
+# Precompiled headers are a GCC build-time saving (cmake/PolmapHelpers.cmake); the fuzz
+# build redefines __cpp_concepts on the command line, which a shared PCH would not see.
+set(POLMAP_PCH OFF CACHE BOOL "")

@@ -45,6 +45,7 @@ struct StudyOptions {
   bool diagnose = false;
   double initial_error_m = 3.0;
   double initial_error_deg = 3.0;
+  double tracking_heading_span_deg = -1.0;
 };
 
 std::vector<std::string> split_list(const std::string& s) {
@@ -78,6 +79,10 @@ void run(const StudyOptions& o) {
     cfg.sim.realism = sim::only_sources(cfg.sim.realism, o.realism_sources);
   }
   if (o.no_common_yaw) cfg.localizer.mount_calibration.estimate_common_yaw = false;
+  if (o.tracking_heading_span_deg >= 0.0) {
+    cfg.localizer.tracking_max_heading_span_rad =
+        o.tracking_heading_span_deg * std::numbers::pi / 180.0;
+  }
   // Positioning of the drives' recorded trajectories: survey-grade, or a series car's
   // consumer GNSS (the build aligns those drives; errors are measured in the map's frame,
   // and every sample counts: the simulator's truth is exact, whatever the GNSS fix).
@@ -205,6 +210,11 @@ void setup(CLI::App& app) {
   cmd->add_option("--slip-gradient-deg", opts->slip_gradient_deg,
                   "the localizer's vehicle side-slip gradient, deg per m/s^2 (default: the "
                   "simulated vehicle's, 0 without slip)");
+  cmd->add_option("--tracking-heading-span-deg", opts->tracking_heading_span_deg,
+                  "while tracking, match only the local map taken since the odometry heading "
+                  "was within this many degrees of the current one (LocalizerConfig::"
+                  "tracking_max_heading_span_rad; 0 = the whole window; default: the "
+                  "localizer's)");
   cmd->add_flag("--keep-packages", opts->keep_packages, "keep the drive package directories");
   cmd->add_flag("--diagnose", opts->diagnose,
                 "per drive: odometry drift, truth-posed candidates vs the map (stage diagnosis)");

@@ -12,11 +12,11 @@ namespace {
 
 WorldTruth toy_truth() {
   WorldTruth w;
-  w.objects.push_back({1, "lamp_pole", "odd", true, {}, {{10.0, 5.0}}});
-  w.objects.push_back({2, "guardrail_post", "even", true, {}, {{20.0, 5.0}}});
-  w.objects.push_back({3, "lamp_pole", "odd", true, {}, {{200.0, 5.0}}});       // far from the path
-  w.objects.push_back({4, "parked_car", "mixed", false, {1}, {{30.0, -3.0}}});  // drive 1 only
-  w.objects.push_back({5, "curbstone", "even", true, {}, {{0.0, 4.0}, {40.0, 4.0}}});
+  w.objects.push_back({1, "lamp_pole", "odd", true, {}, {{10.0, 5.0}}, {}});
+  w.objects.push_back({2, "guardrail_post", "even", true, {}, {{20.0, 5.0}}, {}});
+  w.objects.push_back({3, "lamp_pole", "odd", true, {}, {{200.0, 5.0}}, {}});  // far from the path
+  w.objects.push_back({4, "parked_car", "mixed", false, {1}, {{30.0, -3.0}}, {}});  // drive 1 only
+  w.objects.push_back({5, "curbstone", "even", true, {}, {{0.0, 4.0}, {40.0, 4.0}}, {}});
   return w;
 }
 
@@ -68,6 +68,37 @@ TEST(DetectEval, RepeatabilityCountsMutualMatches) {
   const std::vector<PointCandidate> b{pc(10.1, 5.0), pc(20.0, 5.2), pc(33.0, 2.0)};
   // a: 2 of 3 in the common area matched; b: 2 of 3.
   EXPECT_NEAR(point_repeatability(a, path(), b, path()), 2.0 / 3.0, 1e-12);
+}
+
+TEST(DetectEval, TemporaryObjectsAreWhereTheyStoodInThatDrive) {
+  // A parked car 1 m further along in drive 1 than in drive 0: its candidate counts as a
+  // hit in each drive only at that drive's position (world.json "positions_by_drive").
+  const std::string json = R"({"format": "polmap-sim-world-truth", "version": 1,
+    "origin": {"lat_deg": 50.0, "lon_deg": 8.0, "alt_m": 0},
+    "objects": [{"id": 4, "class": "parked_car", "mechanism": "mixed", "permanent": false,
+                 "drives_present": [0, 1],
+                 "position": {"lat_deg": 50.0, "lon_deg": 8.0, "x_m": 0, "y_m": 0},
+                 "positions_by_drive": [{"lat_deg": 50.0, "lon_deg": 8.0},
+                                        {"lat_deg": 50.0, "lon_deg": 8.000014}]}]})";
+  const tiles::LocalFrame frame({50.0, 8.0, 0.0});
+  const WorldTruth w = parse_world_truth(json, frame);
+  ASSERT_EQ(w.objects.size(), 1U);
+  const Eigen::Vector2d at0 = w.objects[0].geometry_in(0)[0];
+  const Eigen::Vector2d at1 = w.objects[0].geometry_in(1)[0];
+  EXPECT_NEAR(at0.norm(), 0.0, 1e-9);
+  EXPECT_NEAR(at1.x(), frame.to_local(50.0, 8.000014).x(), 1e-9);
+  EXPECT_NEAR(at1.x(), 1.0, 0.01);
+  // A drive it was absent from: its nominal place.
+  EXPECT_EQ(w.objects[0].geometry_in(5), w.objects[0].geometry_m);
+  // A position list that does not match drives_present is rejected with the object named.
+  std::string bad = json;
+  bad.replace(bad.find("[0, 1]"), 6, "[0]");
+  try {
+    (void)parse_world_truth(bad, frame, "truth/world.json");
+    FAIL() << "accepted";
+  } catch (const FormatError& e) {
+    EXPECT_NE(std::string(e.what()).find("truth/world.json: object 4"), std::string::npos);
+  }
 }
 
 TEST(DetectEval, TruthJsonIsReprojectedAndValidated) {

@@ -127,6 +127,40 @@ TEST(World, WallOccludesPoleBehindIt) {
   EXPECT_GT(std::norm(pk->s[1]), 3000.0);
 }
 
+TEST(World, TemporaryObjectsStandElsewhereInEachDrive) {
+  // A parked car is a different car in the same space from one drive to the next: the
+  // echo of a temporary centre comes from its place shifted along the object's axis by
+  // the drive's draw, within +-drive_shift_max_m; permanent objects never move.
+  auto w = test::empty_world();
+  const std::uint32_t car =
+      test::add_point(*w, {3.7 + 30.0, 0.0}, odd_bounce(), 10.0, ObjectClass::ParkedCar);
+  w->objects[car].permanent = false;
+  w->objects[car].presence_probability = 1.0;
+  w->objects[car].drive_shift_axis = Eigen::Vector2d::UnitX();
+  w->objects[car].drive_shift_max_m = 1.0;
+  const std::uint32_t pole = test::add_point(*w, {3.7 + 20.0, 0.0}, odd_bounce(), -20.0);
+  w->build_index();
+  const SimConfig cfg = test::noise_free_config();
+  FrameRenderer rend(w, cfg);
+  double lo = 1e9, hi = -1e9;
+  for (int d = 0; d < 8; ++d) {
+    const Eigen::Vector2d shift = w->drive_shift_m(car, d, cfg.seed);
+    EXPECT_LE(std::abs(shift.x()), 1.0);
+    EXPECT_EQ(shift.y(), 0.0);
+    EXPECT_TRUE(w->drive_shift_m(pole, d, cfg.seed).isZero());
+    const DrivePlan plan(*w, cfg, d);
+    EXPECT_EQ(plan.shift_m(car), shift);
+    const SensorFrame f =
+        rend.render(cfg.sensors[0], test::state_at(0, 0, 0, 0.0), &plan, 0, false, 1);
+    const SpectrumCell* pk = test::peak_cell(f.spectrum);
+    ASSERT_NE(pk, nullptr);
+    EXPECT_NEAR(pk->range_bin * 0.075, 30.0 + shift.x(), 0.06) << "drive " << d;
+    lo = std::min(lo, shift.x());
+    hi = std::max(hi, shift.x());
+  }
+  EXPECT_GT(hi - lo, 0.8);  // 8 uniform draws on [-1, 1] spread (fails only if all collide)
+}
+
 TEST(World, SignPlateIsSpecular) {
   // Plate facing the sensor vs turned by 30 deg: >= 18 dB difference.
   double p[2];

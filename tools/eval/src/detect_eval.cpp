@@ -142,6 +142,13 @@ bool TruthObject::present_in(int drive) const {
   return std::find(drives_present.begin(), drives_present.end(), drive) != drives_present.end();
 }
 
+std::vector<Eigen::Vector2d> TruthObject::geometry_in(int drive) const {
+  if (positions_by_drive_m.empty()) return geometry_m;
+  const auto it = std::find(drives_present.begin(), drives_present.end(), drive);
+  if (it == drives_present.end()) return geometry_m;
+  return {positions_by_drive_m[static_cast<std::size_t>(it - drives_present.begin())]};
+}
+
 WorldTruth parse_world_truth(const std::string& text, const tiles::LocalFrame& frame,
                              const std::string& source) {
   nlohmann::json j;
@@ -178,6 +185,15 @@ WorldTruth parse_world_truth(const std::string& text, const tiles::LocalFrame& f
         t.drives_present = o.at("drives_present").get<std::vector<int>>();
       if (o.contains("position")) {
         t.geometry_m.push_back(to_frame(o.at("position")));
+        if (o.contains("positions_by_drive")) {
+          for (const auto& p : o.at("positions_by_drive")) {
+            t.positions_by_drive_m.push_back(to_frame(p));
+          }
+          if (t.positions_by_drive_m.size() != t.drives_present.size()) {
+            throw FormatError(source + ": object " + std::to_string(t.id) +
+                              ": positions_by_drive does not match drives_present");
+          }
+        }
       } else {
         for (const auto& p : o.at("polyline")) t.geometry_m.push_back(to_frame(p));
       }
@@ -198,9 +214,13 @@ WorldTruth read_world_truth(const std::filesystem::path& path, const tiles::Loca
 }
 
 DetectEval evaluate_detections(const std::vector<PointCandidate>& points,
-                               const std::vector<LineCandidate>& lines, const WorldTruth& truth,
-                               int drive, const std::vector<Eigen::Vector2d>& trajectory,
+                               const std::vector<LineCandidate>& lines,
+                               const WorldTruth& world_truth, int drive,
+                               const std::vector<Eigen::Vector2d>& trajectory,
                                const DetectEvalConfig& cfg) {
+  // The truth as it stood in this drive: temporary objects where they were that day.
+  WorldTruth truth = world_truth;
+  for (TruthObject& o : truth.objects) o.geometry_m = o.geometry_in(drive);
   DetectEval ev;
   const PointIndex path = path_index(trajectory, cfg.max_distance_from_path_m);
   const double cos_bearing = std::cos(cfg.max_bearing_deg * 3.14159265358979323846 / 180.0);

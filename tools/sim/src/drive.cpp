@@ -86,8 +86,10 @@ DrivePlan::DrivePlan(const World& world, const SimConfig& cfg, int drive_index)
 
   // Temporary objects of this drive.
   present_.resize(world.objects.size());
+  shift_.assign(world.objects.size(), Eigen::Vector2d::Zero());
   for (std::uint32_t id = 0; id < world.objects.size(); ++id) {
     present_[id] = world.present(id, drive_index, cfg.seed) ? 1 : 0;
+    shift_[id] = world.drive_shift_m(id, drive_index, cfg.seed);
   }
 
   // Moving traffic along the world route.

@@ -136,6 +136,11 @@ SensorFrame FrameRenderer::render(const SensorMount& mount, const ExactState& st
     return Eigen::Vector2d(cps * d.x() + sps * d.y(), -sps * d.x() + cps * d.y());
   };
   auto is_present = [&](std::uint32_t id) { return plan == nullptr || plan->present(id); };
+  // Temporary objects stand somewhere else in each drive (DrivePlan::shift_m).
+  const Eigen::Vector2d no_shift = Eigen::Vector2d::Zero();
+  auto shift_of = [&](std::uint32_t id) -> const Eigen::Vector2d& {
+    return plan == nullptr ? no_shift : plan->shift_m(id);
+  };
 
   // Speckle (distributed targets, ground, bark) is a function of the exact sensor pose:
   // frozen while standing, independent once the sensor moved a few millimetres.
@@ -165,7 +170,9 @@ SensorFrame FrameRenderer::render(const SensorMount& mount, const ExactState& st
   }
   for (std::uint32_t i : q_occ_) {
     const OccluderSegment& o = w.occluders[i];
-    if (is_present(o.object)) add_occluder(to_sensor(o.p0_m), to_sensor(o.p1_m), o.vegetation);
+    if (!is_present(o.object)) continue;
+    const Eigen::Vector2d& sh = shift_of(o.object);
+    add_occluder(to_sensor(o.p0_m + sh), to_sensor(o.p1_m + sh), o.vegetation);
   }
   struct MoverNow {
     const Mover* m;
@@ -228,7 +235,8 @@ SensorFrame FrameRenderer::render(const SensorMount& mount, const ExactState& st
   for (std::uint32_t i : q_points_) {
     const PointScatterer& p = w.points[i];
     if (!is_present(p.object)) continue;
-    const Eigen::Vector2d q = to_sensor(p.pos_m);
+    const Eigen::Vector2d pos_m = p.pos_m + shift_of(p.object);
+    const Eigen::Vector2d q = to_sensor(pos_m);
     const double r = q.norm();
     if (r < rc.min_range_m || r > rmax) continue;
     const double az = std::atan2(q.y(), q.x());
@@ -236,7 +244,7 @@ SensorFrame FrameRenderer::render(const SensorMount& mount, const ExactState& st
     double gain = occlusion_loss(r, az);
     if (gain <= 0) continue;
     if (p.aspect != Aspect::Isotropic) {
-      const double beta = std::atan2(ps.y() - p.pos_m.y(), ps.x() - p.pos_m.x());
+      const double beta = std::atan2(ps.y() - pos_m.y(), ps.x() - pos_m.x());
       double a = std::abs(wrap_angle_rad(beta - p.normal_rad));
       const double back = std::pow(10.0, p.back_gain_db / 10.0);
       if (p.aspect == Aspect::Specular) {
@@ -249,7 +257,7 @@ SensorFrame FrameRenderer::render(const SensorMount& mount, const ExactState& st
     if (bounce) gain *= bounce_gain(r, i);
     if (ghosts && p.aspect == Aspect::Isotropic && p.rcs_dbsm >= mp.min_target_rcs_dbsm) {
       ghost_targets.push_back(
-          {p.pos_m, Eigen::Vector2d::Zero(), p.rcs_dbsm, p.phase_rad, p.omega, i});
+          {pos_m, Eigen::Vector2d::Zero(), p.rcs_dbsm, p.phase_rad, p.omega, i});
     }
     const double amp = noise * std::sqrt(synth_.snr_linear(p.rcs_dbsm, r) * gain);
     const double ph = -k4pi * r + p.phase_rad;

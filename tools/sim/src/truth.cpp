@@ -53,6 +53,12 @@ std::string world_truth_json(const World& w, int num_drives, std::uint64_t seed)
     jo["source"] = o.source;
     if (o.geometry_m.size() == 1) {
       jo["position"] = geo_xy(w, o.geometry_m.front());
+      if (!o.permanent && o.drive_shift_max_m > 0.0) {
+        nlohmann::json pd = nlohmann::json::array();
+        for (int d : dp)
+          pd.push_back(geo_xy(w, o.geometry_m.front() + w.drive_shift_m(o.id, d, seed)));
+        jo["positions_by_drive"] = pd;
+      }
     } else {
       nlohmann::json pl = nlohmann::json::array();
       for (const auto& p : o.geometry_m) pl.push_back(geo_xy(w, p));

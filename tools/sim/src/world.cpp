@@ -150,6 +150,14 @@ bool World::present(std::uint32_t id, int drive, std::uint64_t seed) const {
          o.presence_probability;
 }
 
+Eigen::Vector2d World::drive_shift_m(std::uint32_t id, int drive, std::uint64_t seed) const {
+  const WorldObject& o = objects[id];
+  if (o.permanent || o.drive_shift_max_m <= 0.0) return Eigen::Vector2d::Zero();
+  const double u =
+      hash_uniform(seed_of(seed, 0x7368696674ULL, id, static_cast<std::uint64_t>(drive)));
+  return (2.0 * u - 1.0) * o.drive_shift_max_m * o.drive_shift_axis;
+}
+
 // ---------------------------------------------------------------------------
 // Procedural presets
 // ---------------------------------------------------------------------------
@@ -298,13 +306,13 @@ void build_urban(World& w, WorldBuilder& b, Rng& rng, double length, const SimCo
       const double zone = std::min(rng.uniform(20.0, 60.0), e - s);
       if (rng.bernoulli(0.6)) {
         for (double c = s + 3.0; c < s + zone - 3.0; c += rng.uniform(5.6, 7.0)) {
-          b.parked_car(c, -2.65, cfg.traffic.parked_presence);
+          b.parked_car(c, -2.65, cfg.traffic.parked_presence, cfg.traffic.parked_shift_m);
         }
       }
       s += zone + rng.uniform(5.0, 15.0);
     }
     for (double t = a + rng.uniform(5, 30); t < e; t += rng.uniform(20, 60)) {
-      b.bin(t, curb_r - 0.7, cfg.traffic.bin_presence);
+      b.bin(t, curb_r - 0.7, cfg.traffic.bin_presence, cfg.traffic.bin_shift_m);
     }
   });
 }
@@ -342,7 +350,7 @@ void build_industrial(World& w, WorldBuilder& b, Rng& rng, double length, const 
       b.sign(s, curb_r - 0.5, +1);
     }
     for (double s = a + rng.uniform(10, 60); s < e; s += rng.uniform(40, 120)) {
-      b.parked_car(s, curb_r - 1.2, cfg.traffic.parked_presence * 0.8);
+      b.parked_car(s, curb_r - 1.2, cfg.traffic.parked_presence * 0.8, cfg.traffic.parked_shift_m);
     }
   });
 }

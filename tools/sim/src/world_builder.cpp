@@ -311,10 +311,12 @@ void WorldBuilder::vegetation(double s0, double s1, double d, bool permanent, do
 
 void WorldBuilder::car_like(ObjectClass cls, const Eigen::Vector2d& c, double yaw_rad,
                             double length, double width, double rcs_min, double rcs_max,
-                            int centres, double presence) {
+                            int centres, double presence, double shift_m) {
   const double total = rng_.uniform(rcs_min, rcs_max);
   const std::uint32_t id = object(cls, Mechanism::Mixed, {c}, total, false, presence);
   const Eigen::Vector2d ex(std::cos(yaw_rad), std::sin(yaw_rad)), ey(-ex.y(), ex.x());
+  w_.objects[id].drive_shift_axis = ex;
+  w_.objects[id].drive_shift_max_m = shift_m;
   const double hl = 0.5 * length, hw = 0.5 * width;
   std::vector<Eigen::Vector2d> local = {{hl, hw}, {hl, -hw}, {-hl, hw}, {-hl, -hw}};
   if (centres > 4) {
@@ -338,14 +340,14 @@ void WorldBuilder::car_like(ObjectClass cls, const Eigen::Vector2d& c, double ya
   for (int i = 0; i < 4; ++i) w_.occluders.push_back({corners[i], corners[(i + 1) % 4], false, id});
 }
 
-void WorldBuilder::parked_car(double s, double d, double presence) {
+void WorldBuilder::parked_car(double s, double d, double presence, double shift_m) {
   car_like(ObjectClass::ParkedCar, at(s, d), yaw(s), rng_.uniform(4.0, 4.9), rng_.uniform(1.7, 1.9),
-           5.0, 20.0, 8, presence);
+           5.0, 20.0, 8, presence, shift_m);
 }
 
-void WorldBuilder::bin(double s, double d, double presence) {
+void WorldBuilder::bin(double s, double d, double presence, double shift_m) {
   car_like(ObjectClass::Bin, at(s, d), yaw(s) + rng_.uniform(-0.3, 0.3), 0.7, 0.6, 0.0, 8.0, 4,
-           presence);
+           presence, shift_m);
 }
 
 void WorldBuilder::lamps_along(const std::vector<Eigen::Vector2d>& poly, double spacing,

@@ -68,8 +68,10 @@ class WorldBuilder {
   void guide_post(double s, double d);
   void tree(double s, double d);
   void vegetation(double s0, double s1, double d, bool permanent, double presence);
-  void parked_car(double s, double d, double presence);
-  void bin(double s, double d, double presence);
+  /// Temporary car / bin at station s, lateral d; present with probability presence,
+  /// standing within +-shift_m along the route of that place in each drive.
+  void parked_car(double s, double d, double presence, double shift_m);
+  void bin(double s, double d, double presence, double shift_m);
 
   // --- world coordinates (HD maps) ---
   /// Point object of a pole-like class at xy (odd, isotropic).
@@ -100,7 +102,7 @@ class WorldBuilder {
   void posts_along(const std::vector<Eigen::Vector2d>& poly, double spacing, ObjectClass cls,
                    double behind_m, const std::string& source);
   void car_like(ObjectClass cls, const Eigen::Vector2d& c, double yaw, double length, double width,
-                double rcs_min, double rcs_max, int centres, double presence);
+                double rcs_min, double rcs_max, int centres, double presence, double shift_m);
   ScatteringVector mixed_omega();
   /// A uniformly drawn fixed phase offset of a scattering centre.
   float random_phase();

@@ -46,7 +46,12 @@ struct TruthObject {
   bool permanent = true;
   std::vector<int> drives_present;
   std::vector<Eigen::Vector2d> geometry_m;  ///< one point or a polyline
+  /// A temporary point object that stands elsewhere in each drive: its position in each
+  /// drive of drives_present (same order); empty when it does not move.
+  std::vector<Eigen::Vector2d> positions_by_drive_m;
   [[nodiscard]] bool present_in(int drive) const;
+  /// The geometry as it was in `drive` (geometry_m, or that drive's position).
+  [[nodiscard]] std::vector<Eigen::Vector2d> geometry_in(int drive) const;
   [[nodiscard]] bool is_point() const { return geometry_m.size() == 1; }
 };
 

@@ -59,6 +59,11 @@ class DrivePlan {
   [[nodiscard]] const std::vector<Mover>& movers() const { return movers_; }
   /// Temporary-object presence in this drive (permanent ones: true).
   [[nodiscard]] bool present(std::uint32_t object_id) const { return present_[object_id] != 0; }
+  /// Where a present temporary object stands in this drive relative to its world place
+  /// (World::drive_shift_m; zero for permanent objects).
+  [[nodiscard]] const Eigen::Vector2d& shift_m(std::uint32_t object_id) const {
+    return shift_[object_id];
+  }
   /// Red lights of this drive: (stop station, dwell seconds).
   [[nodiscard]] const std::vector<std::pair<double, double>>& stops() const { return stops_; }
 
@@ -74,6 +79,7 @@ class DrivePlan {
   std::vector<std::pair<double, double>> stops_;
   std::vector<Mover> movers_;
   std::vector<std::uint8_t> present_;
+  std::vector<Eigen::Vector2d> shift_;
   SlipRealism slip_;
 };
 

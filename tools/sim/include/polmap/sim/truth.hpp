@@ -17,7 +17,9 @@ namespace polmap::sim {
 /// y north, m)", "seed", "num_drives", "route": {"length_m", "xy": [[x,y],...] every 1 m},
 /// "objects": [{id, class, mechanism, permanent, presence_probability, drives_present,
 /// rcs_dbsm, source, and either "position": {lat_deg, lon_deg, x_m, y_m} or "polyline":
-/// [{lat_deg, lon_deg, x_m, y_m}, ...]}]}.
+/// [{lat_deg, lon_deg, x_m, y_m}, ...]}]}. A temporary point object that stands somewhere
+/// else in each drive (WorldObject::drive_shift_max_m) also has "positions_by_drive": its
+/// position in each drive of drives_present, in that order.
 std::string world_truth_json(const World& world, int num_drives, std::uint64_t seed);
 
 /// Writes DIR/truth/world.json (creates DIR/truth). Throws IoError naming the file.

@@ -76,6 +76,12 @@ struct WorldObject {
   bool permanent = true;
   /// For temporary objects: probability to be present in a drive (hash of seed, id, drive).
   double presence_probability = 1.0;
+  /// For temporary objects: where it stands in a drive it is present in varies along this
+  /// unit axis, uniformly within +-drive_shift_max_m of geometry_m (hash of seed, id,
+  /// drive): a parked car is a different car in the same parking space, a bin is put out
+  /// where its owner puts it. 0: the same spot in every drive.
+  Eigen::Vector2d drive_shift_axis = Eigen::Vector2d::UnitX();
+  double drive_shift_max_m = 0.0;
   std::vector<Eigen::Vector2d> geometry_m;
   /// Per object (points) or per metre (extended objects), dBsm.
   double rcs_dbsm = 0.0;
@@ -165,6 +171,10 @@ class World {
 
   /// Whether object id is present in drive (permanent objects always).
   [[nodiscard]] bool present(std::uint32_t id, int drive, std::uint64_t seed) const;
+  /// Where object id stands in drive relative to its geometry_m (WorldObject::
+  /// drive_shift_max_m; zero for permanent objects).
+  [[nodiscard]] Eigen::Vector2d drive_shift_m(std::uint32_t id, int drive,
+                                              std::uint64_t seed) const;
 
  private:
   static constexpr double kCell = 16.0;

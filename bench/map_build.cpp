@@ -23,6 +23,9 @@
 //   bench_map_build [--drives 2,4,8,16] [--length-km 2] [--seed 1] [--keep DIR]
 //                   [--view-fraction F] (default: the builder's; 0 = fixed count only)
 //                   [--world urban [--sim-cache DIR]] (drives from the simulator)
+//                   [--parked-shift-m M] (simulator: parked cars stand within +-M of their
+//                   place in each drive, bins within +-M/2; --explain then names the
+//                   object of the nearest nominal place, up to M away)
 //                   [--explain] [--dump DIR] (simulator: what false landmarks are near; the
 //                   map, line candidates and world objects as CSV for offline analysis)
 #include <sys/resource.h>
@@ -453,9 +456,13 @@ class SimSource final : public DriveSource {
   SimSource(const std::string& world, double length_m, unsigned seed, fs::path cache,
             bool with_gridmap, sim::GnssGrade gnss = sim::GnssGrade::Rtk, int rtk_drives = 0,
             double canyon_multipath_m = -1.0, double heading_sigma_deg = -1.0,
-            double bias_sigma_m = -1.0)
+            double bias_sigma_m = -1.0, double parked_shift_m = -1.0)
       : cache_(std::move(cache)), rtk_drives_(rtk_drives) {
     sim_.seed = seed;
+    if (parked_shift_m >= 0.0) {  // where parked cars (and bins, half of it) stand per drive
+      sim_.traffic.parked_shift_m = parked_shift_m;
+      sim_.traffic.bin_shift_m = 0.5 * parked_shift_m;
+    }
     sim_.gnss.grade = gnss;
     if (canyon_multipath_m >= 0.0) sim_.gnss.consumer.canyon_multipath_m = canyon_multipath_m;
     if (heading_sigma_deg >= 0.0) sim_.gnss.consumer.heading_sigma_deg = heading_sigma_deg;
@@ -705,6 +712,11 @@ int main(int argc, char** argv) {
                  "the simulator's)");
   app.add_option("--consumer-heading-deg", heading_sigma_deg,
                  "with --gnss consumer: heading error sigma (default: the simulator's)");
+  double parked_shift_m = -1.0;
+  app.add_option("--parked-shift-m", parked_shift_m,
+                 "simulator: parked cars stand within +- this of their place in each drive, "
+                 "bins within half of it (TrafficConfig::parked_shift_m; default: the "
+                 "simulator's)");
   CLI11_PARSE(app, argc, argv);
   if (gnss != "rtk" && world.empty()) {
     std::fprintf(stderr, "--gnss needs --world (the synthetic route has no trajectories)\n");
@@ -732,10 +744,11 @@ int main(int argc, char** argv) {
                (heading_sigma_deg >= 0.0 ? "_hd" + std::to_string(heading_sigma_deg) : "") +
                (bias_sigma_m >= 0.0 ? "_b" + std::to_string(bias_sigma_m) : "");
     }
+    if (parked_shift_m >= 0.0) cache /= "parked_shift_" + std::to_string(parked_shift_m);
     source = std::make_unique<SimSource>(
         world, length_km * 1000.0, seed, merged ? cache / "with_gridmap" : cache, merged,
         gnss == "consumer" ? sim::GnssGrade::Consumer : sim::GnssGrade::Rtk, rtk_drives,
-        canyon_multipath_m, heading_sigma_deg, bias_sigma_m);
+        canyon_multipath_m, heading_sigma_deg, bias_sigma_m, parked_shift_m);
   }
 
   std::printf(

@@ -26,6 +26,8 @@
 //                   [--parked-shift-m M] (simulator: parked cars stand within +-M of their
 //                   place in each drive, bins within +-M/2; --explain then names the
 //                   object of the nearest nominal place, up to M away)
+//                   [--sliding 0|1 --sliding-min-along-m M --sliding-ratio R
+//                    --sliding-min-support N] (point_filter.hpp SlidingRule)
 //                   [--explain] [--dump DIR] (simulator: what false landmarks are near; the
 //                   map, line candidates and world objects as CSV for offline analysis)
 #include <sys/resource.h>
@@ -696,6 +698,16 @@ int main(int argc, char** argv) {
   app.add_option("--co-presence-phi", filter.co_presence.min_phi, "co-presence: min phi");
   app.add_option("--co-presence-share", filter.co_presence.max_detection_share,
                  "co-presence: landmarks detected by more than this share are kept");
+  int sliding = 1;
+  app.add_option("--sliding", sliding,
+                 "remove point landmarks whose candidates spread along the road (objects that "
+                 "stand elsewhere in each drive: 1, default) or not (0)");
+  app.add_option("--sliding-min-along-m", filter.sliding.min_along_spread_m,
+                 "sliding: min RMS spread along the road");
+  app.add_option("--sliding-ratio", filter.sliding.min_along_across_ratio,
+                 "sliding: min along/across spread ratio");
+  app.add_option("--sliding-min-support", filter.sliding.min_support_drives,
+                 "sliding: judged from this many supporting drives");
   std::string gnss = "rtk";
   int rtk_drives = 0;
   app.add_option("--gnss", gnss,
@@ -773,6 +785,8 @@ int main(int argc, char** argv) {
     req.points.filter.line_peaks.enabled = line_peaks != 0;
     req.points.filter.surface_peaks.enabled = surface_peaks != 0;
     req.points.filter.co_presence.enabled = co_presence != 0;
+    req.points.filter.sliding = filter.sliding;
+    req.points.filter.sliding.enabled = sliding != 0;
     const MapBuilder builder;
     const auto r = builder.build(store, req);
     if (r.status != MapBuildResult::Status::Published) {

@@ -96,6 +96,12 @@ nlohmann::json request_json(const MapBuildRequest& r, const MapBuilderConfig& c)
                    {"min_passes_for_test", f.co_presence.min_passes_for_test},
                    {"min_shared_misses", f.co_presence.min_shared_misses},
                    {"max_detection_share", f.co_presence.max_detection_share}}},
+                 {"sliding",
+                  {{"enabled", f.sliding.enabled},
+                   {"min_support_drives", f.sliding.min_support_drives},
+                   {"min_along_spread_m", f.sliding.min_along_spread_m},
+                   {"min_along_across_ratio", f.sliding.min_along_across_ratio},
+                   {"max_detection_share", f.sliding.max_detection_share}}},
                  {"out_of_view",
                   {{"enabled", f.out_of_view.enabled},
                    {"min_view_fraction", f.out_of_view.min_view_fraction}}}};
@@ -185,6 +191,7 @@ nlohmann::json to_json(const MapBuildStats& s) {
   j["point_line_peaks"] = s.point_line_peaks;
   j["point_surface_peaks"] = s.point_surface_peaks;
   j["point_temporary"] = s.point_temporary;
+  j["point_sliding"] = s.point_sliding;
   j["point_out_of_view"] = s.point_out_of_view;
   j["tiles_total"] = s.tiles_total;
   j["tiles_written"] = s.tiles_written;
@@ -892,6 +899,7 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version, const MapB
     st.point_line_peaks = static_cast<std::int64_t>(pf.line_peaks);
     st.point_surface_peaks = static_cast<std::int64_t>(pf.surface_peaks);
     st.point_temporary = static_cast<std::int64_t>(pf.temporary);
+    st.point_sliding = static_cast<std::int64_t>(pf.sliding);
     st.point_out_of_view = static_cast<std::int64_t>(pf.out_of_view);
     st.point_consensus = pc.stats;
     st.line_consensus = lc.stats;

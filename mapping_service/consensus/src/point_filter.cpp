@@ -4,7 +4,9 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <optional>
 #include <unordered_map>
+#include <utility>
 
 #include "polmap/mapping_service/consensus.hpp"
 #include "polmap/mapping_service/polyline_distance.hpp"
@@ -248,6 +250,40 @@ PointFilterResult filter_point_landmarks(PointConsensusResult& points,
     }
   }
 
+  // ---------------------------------------------------------------- sliding
+  if (view != nullptr && !view->empty()) {  // measured always, applied when enabled
+    const SlidingRule& rule = cfg.sliding;
+    for (std::size_t i = 0; i < n; ++i) {
+      const Eigen::Vector2d p = points.landmarks[i].position_m;
+      const std::optional<Eigen::Vector2d> road = view->nearest_path_direction(p);
+      if (!road) continue;
+      const Eigen::Vector2d u = *road;
+      const Eigen::Vector2d w(-u.y(), u.x());
+      double sa = 0.0, sc = 0.0;
+      std::size_t m = 0;
+      for (std::int64_t id : points.support[i]) {
+        const auto it = by_id.find(id);
+        if (it == by_id.end()) continue;
+        const Eigen::Vector2d d = it->second->candidate.position_m - p;
+        sa += d.dot(u) * d.dot(u);
+        sc += d.dot(w) * d.dot(w);
+        ++m;
+      }
+      if (m == 0) continue;
+      PointEvidence& ev = out.evidence[i];
+      ev.along_road_spread_m = std::sqrt(sa / static_cast<double>(m));
+      ev.across_road_spread_m = std::sqrt(sc / static_cast<double>(m));
+      if (rule.enabled && ev.verdict == PointEvidence::Verdict::Kept &&
+          std::cmp_greater_equal(support[i].size(), rule.min_support_drives) &&
+          static_cast<double>(support[i].size()) <=
+              rule.max_detection_share * static_cast<double>(in_view[i].size()) &&
+          ev.along_road_spread_m >= rule.min_along_spread_m &&
+          ev.along_road_spread_m >= rule.min_along_across_ratio * ev.across_road_spread_m) {
+        ev.verdict = PointEvidence::Verdict::Sliding;
+      }
+    }
+  }
+
   // ---------------------------------------------------------------- out of view
   if (cfg.out_of_view.enabled && view != nullptr && !view->empty()) {
     const auto& passes = view->passes();
@@ -306,6 +342,9 @@ PointFilterResult filter_point_landmarks(PointConsensusResult& points,
       case PointEvidence::Verdict::Temporary:
         ++out.temporary;
         continue;
+      case PointEvidence::Verdict::Sliding:
+        ++out.sliding;
+        continue;
       case PointEvidence::Verdict::OutOfView:
         ++out.out_of_view;
         continue;
@@ -319,7 +358,7 @@ PointFilterResult filter_point_landmarks(PointConsensusResult& points,
     if (i < points.verdicts.size()) kept_result.verdicts.push_back(points.verdicts[i]);
   }
   kept_result.stats.rejected_groups +=
-      out.line_peaks + out.surface_peaks + out.temporary + out.out_of_view;
+      out.line_peaks + out.surface_peaks + out.temporary + out.sliding + out.out_of_view;
   points = std::move(kept_result);
   return out;
 }

@@ -122,6 +122,25 @@ std::vector<std::size_t> VisibilityIndex::passes_in_view(const Eigen::Vector2d& 
   return out;
 }
 
+std::optional<Eigen::Vector2d> VisibilityIndex::nearest_path_direction(
+    const Eigen::Vector2d& p) const {
+  const auto it = cells_.find(cell_key(static_cast<std::int64_t>(std::floor(p.x() / cell_m_)),
+                                       static_cast<std::int64_t>(std::floor(p.y() / cell_m_))));
+  if (it == cells_.end()) return std::nullopt;
+  double best = std::numeric_limits<double>::infinity();
+  std::optional<Eigen::Vector2d> out;
+  for (const Piece& piece : it->second) {
+    const Eigen::Vector2d ab = piece.b - piece.a;
+    if (ab.squaredNorm() <= 0.0) continue;
+    const double d = point_segment_distance(p, piece.a, piece.b);
+    if (d <= range_m_[piece.pass] && d < best) {
+      best = d;
+      out = ab.normalized();
+    }
+  }
+  return out;
+}
+
 std::vector<std::int64_t> VisibilityIndex::drives_in_view(const Eigen::Vector2d& p) const {
   std::vector<std::int64_t> out;
   for (std::size_t i : passes_in_view(p)) out.push_back(passes_[i].drive);

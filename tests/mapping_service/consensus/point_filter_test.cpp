@@ -351,7 +351,9 @@ TEST(PointFilter, DisabledByDefaultLinePeakRuleKeepsEverything) {
   lines.landmarks.push_back(curb);
   PointConsensusResult pc = consensus_points(in, {}, &view);
   ASSERT_EQ(pc.landmarks.size(), 1U);
-  const PointFilterResult f = filter_point_landmarks(pc, lines, in, &view);
+  PointFilterConfig cfg;  // the defaults, but for the sliding rule, which this group meets
+  cfg.sliding.enabled = false;
+  const PointFilterResult f = filter_point_landmarks(pc, lines, in, &view, cfg);
   EXPECT_EQ(f.line_peaks, 0U);
   EXPECT_EQ(pc.landmarks.size(), 1U);
   EXPECT_GT(f.evidence[0].along_spread_m, 3.0 * f.evidence[0].across_spread_m);
@@ -408,6 +410,73 @@ TEST(PointFilter, SupportBeyondTheModelledViewIsJudgedAgainstPassesAsClose) {
   ASSERT_EQ(pc2.landmarks.size(), 1U);
   EXPECT_EQ(filter_point_landmarks(pc2, LineConsensusResult{}, pair, &two).out_of_view, 0U);
   EXPECT_EQ(pc2.landmarks.size(), 1U);
+}
+
+TEST(PointFilter, ObjectsStandingElsewhereEachDriveSlideAlongTheRoadAndGo) {
+  // 16 passes along the x axis. A bin stands within +-0.25 m of its place along the road in
+  // each drive it is there (12 of 16): its candidates chain into one group of 12 drives
+  // that the support rule accepts, with an RMS spread along the road of ~0.14 m. Poles
+  // with 4 cm and 8 cm of isotropic noise stay, and so does an object sliding ACROSS the
+  // road (the rule judges spread along the direction of travel only).
+  const int n = 16;
+  const VisibilityIndex view = passes_along_x(n);
+  for (unsigned seed : {1U, 2U, 3U, 4U}) {
+    std::mt19937 rng(seed);
+    std::normal_distribution<double> noise(0.0, 1.0);
+    std::vector<TaggedPointCandidate> in;
+    std::int64_t id = 0;
+    auto add = [&](std::int64_t d, Eigen::Vector2d p) {
+      TaggedPointCandidate c;
+      c.candidate_id = id++;
+      c.drive = d;
+      c.candidate.position_m = p;
+      in.push_back(c);
+    };
+    const Eigen::Vector2d bin(10.0, -4.0), across(30.0, 5.0), pole(-20.0, 6.0), wide(45.0, -6.0);
+    for (int d = 1; d <= n; ++d) {
+      // Evenly spread shifts (one per drive, shuffled by the seed) keep the chain joined.
+      const double s_along = -0.25 + 0.5 * ((d * 7 + static_cast<int>(seed)) % 12) / 11.0;
+      if (d <= 12) add(d, bin + Eigen::Vector2d(s_along, 0.01 * noise(rng)));
+      if (d <= 12) add(d, across + Eigen::Vector2d(0.01 * noise(rng), s_along));
+      add(d, pole + 0.04 * Eigen::Vector2d(noise(rng), noise(rng)));
+      add(d, wide + 0.08 * Eigen::Vector2d(noise(rng), noise(rng)));
+    }
+    PointConsensusResult pc = consensus_points(in, {}, &view);
+    ASSERT_EQ(pc.landmarks.size(), 4U) << "seed " << seed;  // all four pass the support rule
+    PointConsensusResult unfiltered = pc;
+    const PointFilterResult f = filter_point_landmarks(pc, LineConsensusResult{}, in, &view);
+    EXPECT_EQ(f.sliding, 1U) << "seed " << seed;
+    EXPECT_FALSE(has_landmark_near(pc, bin));
+    for (const auto& p : {across, pole, wide}) EXPECT_TRUE(has_landmark_near(pc, p));
+    // The evidence: along/across the road (x, y here) against the members' own spread.
+    for (std::size_t i = 0; i < unfiltered.landmarks.size(); ++i) {
+      double sx = 0.0, sy = 0.0;
+      for (std::int64_t cid : unfiltered.support[i]) {
+        const Eigen::Vector2d dd = in[static_cast<std::size_t>(cid)].candidate.position_m -
+                                   unfiltered.landmarks[i].position_m;
+        sx += dd.x() * dd.x();
+        sy += dd.y() * dd.y();
+      }
+      const double m = static_cast<double>(unfiltered.support[i].size());
+      EXPECT_NEAR(f.evidence[i].along_road_spread_m, std::sqrt(sx / m), 1e-12);
+      EXPECT_NEAR(f.evidence[i].across_road_spread_m, std::sqrt(sy / m), 1e-12);
+      const bool is_bin = (unfiltered.landmarks[i].position_m - bin).norm() < 0.2;
+      EXPECT_EQ(f.evidence[i].verdict == PointEvidence::Verdict::Sliding, is_bin);
+    }
+    // Without a view there is no road direction: nothing is judged.
+    PointConsensusResult no_view = unfiltered;
+    EXPECT_EQ(filter_point_landmarks(no_view, LineConsensusResult{}, in, nullptr).sliding, 0U);
+    // Disabled, or with fewer supporting drives than the rule needs: kept.
+    PointFilterConfig off;
+    off.sliding.enabled = false;
+    PointConsensusResult kept = unfiltered;
+    EXPECT_EQ(filter_point_landmarks(kept, LineConsensusResult{}, in, &view, off).sliding, 0U);
+    EXPECT_TRUE(has_landmark_near(kept, bin));
+    PointFilterConfig strict;
+    strict.sliding.min_support_drives = 13;
+    PointConsensusResult few = unfiltered;
+    EXPECT_EQ(filter_point_landmarks(few, LineConsensusResult{}, in, &view, strict).sliding, 0U);
+  }
 }
 
 }  // namespace

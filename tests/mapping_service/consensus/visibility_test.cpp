@@ -83,6 +83,26 @@ TEST(Visibility, MatchesBruteForceOverRandomPassesAndRanges) {
   EXPECT_LT(borderline, 5);
 }
 
+TEST(Visibility, NearestPathDirectionIsThatOfTheNearestPassInView) {
+  // An L: one pass east along y = 0, another north along x = 100; ranges 10 m.
+  const VisibilityIndex view(
+      {straight_pass(1, {0, 0}, {100, 0}, 10.0), straight_pass(2, {100, 0}, {100, 100}, 10.0)});
+  const auto east = view.nearest_path_direction({40, 3});
+  ASSERT_TRUE(east.has_value());
+  EXPECT_NEAR(std::abs(east->x()), 1.0, 1e-9);
+  EXPECT_NEAR(east->norm(), 1.0, 1e-12);
+  const auto north = view.nearest_path_direction({97, 60});
+  ASSERT_TRUE(north.has_value());
+  EXPECT_NEAR(std::abs(north->y()), 1.0, 1e-9);
+  // Near the corner the nearer leg wins: 2 m from the east leg, 4 m from the north one.
+  const auto corner = view.nearest_path_direction({96, 2});
+  ASSERT_TRUE(corner.has_value());
+  EXPECT_NEAR(std::abs(corner->x()), 1.0, 1e-9);
+  // Out of every pass's range: no direction.
+  EXPECT_FALSE(view.nearest_path_direction({40, 30}).has_value());
+  EXPECT_FALSE(view.nearest_path_direction({5000, 5000}).has_value());
+}
+
 TEST(Visibility, LongDiagonalSegmentsAreIndexedAlongTheirLength) {
   DrivePass p;
   p.drive = 1;

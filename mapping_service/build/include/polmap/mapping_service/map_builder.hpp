@@ -158,6 +158,7 @@ struct MapBuildStats {
   std::int64_t point_line_peaks = 0;
   std::int64_t point_surface_peaks = 0;
   std::int64_t point_temporary = 0;
+  std::int64_t point_sliding = 0;
   std::int64_t point_out_of_view = 0;
   std::int64_t tiles_total = 0;     ///< localization tiles of the new version
   std::int64_t tiles_written = 0;   ///< newly encoded (content changed or new)

@@ -22,6 +22,7 @@
 ///   std::vector<std::int64_t> d = view.drives_in_view({12.0, -3.5});
 #include <Eigen/Core>
 #include <cstdint>
+#include <optional>
 #include <span>
 #include <unordered_map>
 #include <vector>
@@ -71,6 +72,10 @@ class VisibilityIndex {
   [[nodiscard]] std::vector<std::int64_t> drives_in_view(const Eigen::Vector2d& p) const;
   /// Indices into passes() of the same drives (ascending = drive-time order).
   [[nodiscard]] std::vector<std::size_t> passes_in_view(const Eigen::Vector2d& p) const;
+  /// Unit direction (sign arbitrary) of the path piece nearest to p among the passes that
+  /// had p in view: the direction of the road there. nullopt when no pass had p in view.
+  [[nodiscard]] std::optional<Eigen::Vector2d> nearest_path_direction(
+      const Eigen::Vector2d& p) const;
   [[nodiscard]] std::size_t count_in_view(const Eigen::Vector2d& p) const {
     return passes_in_view(p).size();
   }

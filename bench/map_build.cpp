@@ -622,10 +622,12 @@ class SimSource final : public DriveSource {
          << c.candidate.strength << '\n';
     }
     std::ofstream pc(dir / "point_candidates.csv");
-    pc << "drive,x,y\n";
+    pc << "drive,x,y,strength,power_db,scattering,num_cells\n";
     for (const auto& c : cands.points) {
       const Eigen::Vector2d a = f.to_local(c.position);
-      pc << c.drive << ',' << a.x() << ',' << a.y() << '\n';
+      pc << c.drive << ',' << a.x() << ',' << a.y() << ',' << c.candidate.strength << ','
+         << c.candidate.power_db << ',' << static_cast<int>(c.candidate.scattering) << ','
+         << c.candidate.num_cells << '\n';
     }
     std::ofstream tr(dir / "route.csv");
     tr << "x,y\n";
@@ -727,7 +729,7 @@ int main(int argc, char** argv) {
   double parked_shift_m = -1.0;
   app.add_option("--parked-shift-m", parked_shift_m,
                  "simulator: parked cars stand within +- this of their place in each drive, "
-                 "bins within half of it (TrafficConfig::parked_shift_m; default: the "
+                 "bins within half of it (TrafficSimConfig::parked_shift_m; default: the "
                  "simulator's)");
   CLI11_PARSE(app, argc, argv);
   if (gnss != "rtk" && world.empty()) {
@@ -756,7 +758,11 @@ int main(int argc, char** argv) {
                (heading_sigma_deg >= 0.0 ? "_hd" + std::to_string(heading_sigma_deg) : "") +
                (bias_sigma_m >= 0.0 ? "_b" + std::to_string(bias_sigma_m) : "");
     }
-    if (parked_shift_m >= 0.0) cache /= "parked_shift_" + std::to_string(parked_shift_m);
+    // Always named by the shift the drives were simulated with: the simulator's default
+    // changed (0 -> 1 m on 2026-12-07), and a cache of one must not serve the other.
+    cache /= "parked_shift_" + std::to_string(parked_shift_m >= 0.0
+                                                  ? parked_shift_m
+                                                  : sim::TrafficSimConfig{}.parked_shift_m);
     source = std::make_unique<SimSource>(
         world, length_km * 1000.0, seed, merged ? cache / "with_gridmap" : cache, merged,
         gnss == "consumer" ? sim::GnssGrade::Consumer : sim::GnssGrade::Rtk, rtk_drives,

@@ -233,9 +233,10 @@ struct TrafficSimConfig {
   /// of its place, along the curb (WorldObject::drive_shift_max_m). A parked car is a
   /// different car in the same space from one drive to the next, a bin is put out where
   /// its owner puts it; 0 puts the same object at the same centimetre in every drive,
-  /// which real streets do not. Parking bays here are 5.6-7 m apart for 4-4.9 m cars.
-  double parked_shift_m = 0.0;
-  double bin_shift_m = 0.0;
+  /// which real streets do not. Parking bays here are 5.6-7 m apart for 4-4.9 m cars,
+  /// which leaves about a metre either way; a bin moves by about half of that.
+  double parked_shift_m = 1.0;
+  double bin_shift_m = 0.5;
   /// Probability a low-vegetation patch (hiding guide posts) is grown in a drive.
   double vegetation_presence = 0.5;
 };

@@ -13,8 +13,12 @@ describe.
 
   bench/calibrate_uncertainty.py --train 1,2,3,4,5 --test 6,7,8,9,10 STUDY_DIR...
 
-Each STUDY_DIR is a `polmap study --out` directory (seed_N/<level>/...). The study must have
-run with the default reporting (s = 1, no floors): the CSV covariance is then C itself.
+Each STUDY_DIR is a `polmap study --out` directory (seed_N/<level>/...). The CSV covariance
+is what the localizer reported; --ran-with-scale / --ran-with-floor-xy-m /
+--ran-with-floor-yaw-deg give the reporting the study ran with (default: the localizer's
+defaults since 2026-12-06, s 1 and a 0.05 m floor), and C is recovered from it exactly (the
+floors are added to the diagonal, which a rotation to along/across leaves diagonal).
+--folds 2 also swaps the halves and reports both held-out results.
 
 Criteria (issue 15 item 4): NEES of (long, lat, yaw) within chi2_3(0.95) on >= 95 % of the
 samples (consistency) and the lateral protection level bounding |lat error| on >= 99.9 %.
@@ -31,8 +35,10 @@ import sys
 CHI2_3_Q95 = 7.814727903251178
 
 
-def load_samples(study_dir, seeds, level):
-    """(e_long, e_lat, e_rot_rad, c_ll, c_lt, c_tt, c_yaw) per evaluated sample."""
+def load_samples(study_dir, seeds, level, ran=(1.0, 0.0, 0.0)):
+    """(e_long, e_lat, e_rot_rad, c_ll, c_lt, c_tt, c_yaw) per evaluated sample, with the
+    reporting `ran` = (scale, floor_xy_m, floor_yaw_rad) the study ran with undone."""
+    ran_s, ran_fxy, ran_fyaw = ran
     out = []
     for seed in seeds:
         d = os.path.join(study_dir, f"seed_{seed}", level)
@@ -57,9 +63,12 @@ def load_samples(study_dir, seeds, level):
                     c_ll = cy * cy * cxx + 2 * cy * sy * cxy + sy * sy * cyy
                     c_tt = sy * sy * cxx - 2 * cy * sy * cxy + cy * cy * cyy
                     c_lt = -cy * sy * cxx + (cy * cy - sy * sy) * cxy + cy * sy * cyy
+                    c_ll = (c_ll - ran_fxy * ran_fxy) / ran_s
+                    c_tt = (c_tt - ran_fxy * ran_fxy) / ran_s
+                    c_lt = c_lt / ran_s
+                    c_yaw = (float(c["cov_yaw_rad2"]) - ran_fyaw * ran_fyaw) / ran_s
                     out.append((float(r["e_long_m"]), float(r["e_lat_m"]),
-                                math.radians(float(r["e_rot_deg"])), c_ll, c_lt, c_tt,
-                                float(c["cov_yaw_rad2"])))
+                                math.radians(float(r["e_rot_deg"])), c_ll, c_lt, c_tt, c_yaw))
     return out
 
 
@@ -108,13 +117,25 @@ def main():
     ap.add_argument("--test", default="6,7,8,9,10")
     ap.add_argument("--level", default="full")
     ap.add_argument("--pl-share", type=float, default=0.999)
+    ap.add_argument("--ran-with-scale", type=float, default=1.0)
+    ap.add_argument("--ran-with-floor-xy-m", type=float, default=0.05)
+    ap.add_argument("--ran-with-floor-yaw-deg", type=float, default=0.0)
+    ap.add_argument("--folds", type=int, choices=(1, 2), default=1)
     a = ap.parse_args()
     train = [int(x) for x in a.train.split(",")]
     test = [int(x) for x in a.test.split(",")]
+    ran = (a.ran_with_scale, a.ran_with_floor_xy_m, math.radians(a.ran_with_floor_yaw_deg))
+    calibrate(a, train, test, ran)
+    if a.folds == 2:
+        print("\nsecond fold (halves swapped):")
+        calibrate(a, test, train, ran)
+
+
+def calibrate(a, train, test, ran):
     tr, te = [], []
     for d in a.dirs:
-        tr += load_samples(d, train, a.level)
-        te += load_samples(d, test, a.level)
+        tr += load_samples(d, train, a.level, ran)
+        te += load_samples(d, test, a.level, ran)
     if not tr or not te:
         sys.exit("calibrate_uncertainty.py: no samples (study directories with loc_drive_K.csv "
                  "and errors_drive_K.csv under seed_N/<level>?)")
@@ -129,7 +150,7 @@ def main():
                 if best is None or r["sigma_lat_mean"] < best[0]["sigma_lat_mean"]:
                     best = (r, s, f_xy, f_yaw_deg)
     base_tr, base_te = evaluate(tr, 1, 0, 0, 3.29), evaluate(te, 1, 0, 0, 3.29)
-    print(f"samples: training {len(tr)} (seeds {a.train}), held out {len(te)} (seeds {a.test})")
+    print(f"samples: training {len(tr)} (seeds {train}), held out {len(te)} (seeds {test})")
     print("| setting | set | mean NEES | NEES <= q95 | mean sigma_lat m | k | PL bounds lat | mean PL m |")
     print("|---|---|---|---|---|---|---|---|")
 

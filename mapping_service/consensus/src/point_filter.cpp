@@ -5,6 +5,7 @@
 #include <cmath>
 #include <limits>
 #include <optional>
+#include <span>
 #include <unordered_map>
 #include <utility>
 
@@ -80,6 +81,34 @@ class SegmentGrid {
   std::vector<std::size_t> seg_line_;
   std::unordered_map<std::uint64_t, std::vector<std::size_t>> cells_;
 };
+
+/// RMS spread of a landmark's candidates along unit direction u and across it, about p
+/// (m = 0: no candidate found).
+struct AlongAcross {
+  double along_m = 0.0;
+  double across_m = 0.0;
+  std::size_t m = 0;
+};
+AlongAcross spread_along(std::span<const std::int64_t> support_ids,
+                         const std::unordered_map<std::int64_t, const TaggedPointCandidate*>& by_id,
+                         const Eigen::Vector2d& p, const Eigen::Vector2d& u) {
+  const Eigen::Vector2d w(-u.y(), u.x());
+  double sa = 0.0, sc = 0.0;
+  AlongAcross out;
+  for (std::int64_t id : support_ids) {
+    const auto it = by_id.find(id);
+    if (it == by_id.end()) continue;
+    const Eigen::Vector2d d = it->second->candidate.position_m - p;
+    sa += d.dot(u) * d.dot(u);
+    sc += d.dot(w) * d.dot(w);
+    ++out.m;
+  }
+  if (out.m > 0) {
+    out.along_m = std::sqrt(sa / static_cast<double>(out.m));
+    out.across_m = std::sqrt(sc / static_cast<double>(out.m));
+  }
+  return out;
+}
 
 }  // namespace
 
@@ -159,21 +188,10 @@ PointFilterResult filter_point_landmarks(PointConsensusResult& points,
               sp.min_detection_share * static_cast<double>(in_view[i].size())) {
         ev.verdict = PointEvidence::Verdict::SurfacePeak;
       }
-      const Eigen::Vector2d u = nl.direction;
-      const Eigen::Vector2d w(-u.y(), u.x());
-      double sa = 0.0, sc = 0.0;
-      std::size_t m = 0;
-      for (std::int64_t id : points.support[i]) {
-        const auto it = by_id.find(id);
-        if (it == by_id.end()) continue;
-        const Eigen::Vector2d d = it->second->candidate.position_m - p;
-        sa += d.dot(u) * d.dot(u);
-        sc += d.dot(w) * d.dot(w);
-        ++m;
-      }
-      if (m == 0) continue;
-      ev.along_spread_m = std::sqrt(sa / static_cast<double>(m));
-      ev.across_spread_m = std::sqrt(sc / static_cast<double>(m));
+      const AlongAcross sp_line = spread_along(points.support[i], by_id, p, nl.direction);
+      if (sp_line.m == 0) continue;
+      ev.along_spread_m = sp_line.along_m;
+      ev.across_spread_m = sp_line.across_m;
       if (cfg.line_peaks.enabled && ev.verdict == PointEvidence::Verdict::Kept &&
           nl.distance_m <= cfg.line_peaks.max_line_distance_m &&
           ev.along_spread_m >= cfg.line_peaks.min_along_spread_m &&
@@ -257,22 +275,11 @@ PointFilterResult filter_point_landmarks(PointConsensusResult& points,
       const Eigen::Vector2d p = points.landmarks[i].position_m;
       const std::optional<Eigen::Vector2d> road = view->nearest_path_direction(p);
       if (!road) continue;
-      const Eigen::Vector2d u = *road;
-      const Eigen::Vector2d w(-u.y(), u.x());
-      double sa = 0.0, sc = 0.0;
-      std::size_t m = 0;
-      for (std::int64_t id : points.support[i]) {
-        const auto it = by_id.find(id);
-        if (it == by_id.end()) continue;
-        const Eigen::Vector2d d = it->second->candidate.position_m - p;
-        sa += d.dot(u) * d.dot(u);
-        sc += d.dot(w) * d.dot(w);
-        ++m;
-      }
-      if (m == 0) continue;
+      const AlongAcross sp_road = spread_along(points.support[i], by_id, p, *road);
+      if (sp_road.m == 0) continue;
       PointEvidence& ev = out.evidence[i];
-      ev.along_road_spread_m = std::sqrt(sa / static_cast<double>(m));
-      ev.across_road_spread_m = std::sqrt(sc / static_cast<double>(m));
+      ev.along_road_spread_m = sp_road.along_m;
+      ev.across_road_spread_m = sp_road.across_m;
       if (rule.enabled && ev.verdict == PointEvidence::Verdict::Kept &&
           std::cmp_greater_equal(support[i].size(), rule.min_support_drives) &&
           static_cast<double>(support[i].size()) <=

@@ -32,6 +32,16 @@ VisibilityIndex passes_along_x(int n) {
   return VisibilityIndex(std::move(passes));
 }
 
+/// Appends a candidate of drive d at p; its id is its index in `in`.
+void add_candidate(std::vector<TaggedPointCandidate>& in, std::int64_t d,
+                   const Eigen::Vector2d& p) {
+  TaggedPointCandidate c;
+  c.candidate_id = static_cast<std::int64_t>(in.size());
+  c.drive = d;
+  c.candidate.position_m = p;
+  in.push_back(c);
+}
+
 /// Brute force: P(X >= both) by enumerating which `col` of the n passes the second
 /// landmark is detected in (n small), the first being detected in the first `row`.
 double fisher_bruteforce(int both, int first_only, int second_only, int neither) {
@@ -178,14 +188,7 @@ TEST(PointFilter, FewPassesOnlyPerfectCoPresenceCounts) {
   // pole and plate are missed together once (drive 4) but the plate also in drive 2.
   const VisibilityIndex view = passes_along_x(4);
   std::vector<TaggedPointCandidate> in;
-  std::int64_t id = 0;
-  auto add = [&](std::int64_t d, Eigen::Vector2d p) {
-    TaggedPointCandidate c;
-    c.candidate_id = id++;
-    c.drive = d;
-    c.candidate.position_m = p;
-    in.push_back(c);
-  };
+  auto add = [&](std::int64_t d, const Eigen::Vector2d& p) { add_candidate(in, d, p); };
   for (int d : {1, 3}) {
     add(d, {20.0, -3.0});
     add(d, {22.5, -3.0});
@@ -234,14 +237,7 @@ TEST(PointFilter, LinePeaksOnACurbGoPoleBesideItStays) {
   std::mt19937 rng(3);
   std::normal_distribution<double> along(0.0, 0.07), iso(0.0, 0.03);
   std::vector<TaggedPointCandidate> in;
-  std::int64_t id = 0;
-  auto add = [&](std::int64_t d, Eigen::Vector2d p) {
-    TaggedPointCandidate c;
-    c.candidate_id = id++;
-    c.drive = d;
-    c.candidate.position_m = p;
-    in.push_back(c);
-  };
+  auto add = [&](std::int64_t d, const Eigen::Vector2d& p) { add_candidate(in, d, p); };
   const std::vector<double> peaks{-20.0, -5.0, 12.0};
   const Eigen::Vector2d pole(3.0, -3.35);
   for (int d = 1; d <= n; ++d) {
@@ -377,14 +373,7 @@ TEST(PointFilter, SupportBeyondTheModelledViewIsJudgedAgainstPassesAsClose) {
   }
   const VisibilityIndex view(std::move(passes));
   std::vector<TaggedPointCandidate> in;
-  std::int64_t id = 0;
-  auto add = [&](std::int64_t d, Eigen::Vector2d p) {
-    TaggedPointCandidate c;
-    c.candidate_id = id++;
-    c.drive = d;
-    c.candidate.position_m = p;
-    in.push_back(c);
-  };
+  auto add = [&](std::int64_t d, const Eigen::Vector2d& p) { add_candidate(in, d, p); };
   add(3, {5.0, 14.0});
   add(17, {5.05, 14.0});
   for (int d = 1; d <= 30; ++d) add(d, {-30.0, -14.0});
@@ -424,14 +413,7 @@ TEST(PointFilter, ObjectsStandingElsewhereEachDriveSlideAlongTheRoadAndGo) {
     std::mt19937 rng(seed);
     std::normal_distribution<double> noise(0.0, 1.0);
     std::vector<TaggedPointCandidate> in;
-    std::int64_t id = 0;
-    auto add = [&](std::int64_t d, Eigen::Vector2d p) {
-      TaggedPointCandidate c;
-      c.candidate_id = id++;
-      c.drive = d;
-      c.candidate.position_m = p;
-      in.push_back(c);
-    };
+    auto add = [&](std::int64_t d, const Eigen::Vector2d& p) { add_candidate(in, d, p); };
     const Eigen::Vector2d bin(10.0, -4.0), across(30.0, 5.0), pole(-20.0, 6.0), wide(45.0, -6.0);
     for (int d = 1; d <= n; ++d) {
       // Evenly spread shifts (one per drive, shuffled by the seed) keep the chain joined.

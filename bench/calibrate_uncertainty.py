@@ -16,8 +16,9 @@ describe.
 Each STUDY_DIR is a `polmap study --out` directory (seed_N/<level>/...). The CSV covariance
 is what the localizer reported; --ran-with-scale / --ran-with-floor-xy-m /
 --ran-with-floor-yaw-deg give the reporting the study ran with (default: the localizer's
-defaults since 2026-12-06, s 1 and a 0.05 m floor), and C is recovered from it exactly (the
-floors are added to the diagonal, which a rotation to along/across leaves diagonal).
+defaults since 2026-12-07, s 2 and floors of 0.05 m and 0.3 deg; the 2026-12-07 campaign
+ran with s 1, 0.05 m, 0 deg), and C is recovered from it exactly (the floors are added to
+the diagonal, which a rotation to along/across leaves diagonal).
 --folds 2 also swaps the halves and reports both held-out results.
 
 Criteria (issue 15 item 4): NEES of (long, lat, yaw) within chi2_3(0.95) on >= 95 % of the
@@ -117,9 +118,9 @@ def main():
     ap.add_argument("--test", default="6,7,8,9,10")
     ap.add_argument("--level", default="full")
     ap.add_argument("--pl-share", type=float, default=0.999)
-    ap.add_argument("--ran-with-scale", type=float, default=1.0)
+    ap.add_argument("--ran-with-scale", type=float, default=2.0)
     ap.add_argument("--ran-with-floor-xy-m", type=float, default=0.05)
-    ap.add_argument("--ran-with-floor-yaw-deg", type=float, default=0.0)
+    ap.add_argument("--ran-with-floor-yaw-deg", type=float, default=0.3)
     ap.add_argument("--folds", type=int, choices=(1, 2), default=1)
     a = ap.parse_args()
     train = [int(x) for x in a.train.split(",")]

@@ -100,14 +100,20 @@ VisibilityIndex::VisibilityIndex(std::vector<DrivePass> passes, const Visibility
   }
 }
 
-std::vector<std::size_t> VisibilityIndex::passes_in_view(const Eigen::Vector2d& p) const {
-  std::vector<std::size_t> out;
+const std::vector<VisibilityIndex::Piece>* VisibilityIndex::pieces_at(
+    const Eigen::Vector2d& p) const {
   const auto it = cells_.find(cell_key(static_cast<std::int64_t>(std::floor(p.x() / cell_m_)),
                                        static_cast<std::int64_t>(std::floor(p.y() / cell_m_))));
-  if (it == cells_.end()) return out;
+  return it == cells_.end() ? nullptr : &it->second;
+}
+
+std::vector<std::size_t> VisibilityIndex::passes_in_view(const Eigen::Vector2d& p) const {
+  std::vector<std::size_t> out;
+  const std::vector<Piece>* pieces = pieces_at(p);
+  if (pieces == nullptr) return out;
   std::uint32_t last = std::numeric_limits<std::uint32_t>::max();
   bool last_in = false;
-  for (const Piece& piece : it->second) {
+  for (const Piece& piece : *pieces) {
     // Pieces of a pass are contiguous in the cell's list (inserted pass by pass).
     if (piece.pass == last && last_in) continue;
     if (piece.pass != last) last_in = false;
@@ -124,12 +130,11 @@ std::vector<std::size_t> VisibilityIndex::passes_in_view(const Eigen::Vector2d& 
 
 std::optional<Eigen::Vector2d> VisibilityIndex::nearest_path_direction(
     const Eigen::Vector2d& p) const {
-  const auto it = cells_.find(cell_key(static_cast<std::int64_t>(std::floor(p.x() / cell_m_)),
-                                       static_cast<std::int64_t>(std::floor(p.y() / cell_m_))));
-  if (it == cells_.end()) return std::nullopt;
+  const std::vector<Piece>* pieces = pieces_at(p);
+  if (pieces == nullptr) return std::nullopt;
   double best = std::numeric_limits<double>::infinity();
   std::optional<Eigen::Vector2d> out;
-  for (const Piece& piece : it->second) {
+  for (const Piece& piece : *pieces) {
     const Eigen::Vector2d ab = piece.b - piece.a;
     if (ab.squaredNorm() <= 0.0) continue;
     const double d = point_segment_distance(p, piece.a, piece.b);

@@ -88,6 +88,8 @@ class VisibilityIndex {
     std::uint32_t pass;
     Eigen::Vector2d a, b;
   };
+  /// The pieces indexed in p's cell (every piece within its pass's range of p is there).
+  [[nodiscard]] const std::vector<Piece>* pieces_at(const Eigen::Vector2d& p) const;
   std::vector<DrivePass> passes_;
   std::vector<double> range_m_;
   double cell_m_;

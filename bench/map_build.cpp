@@ -458,9 +458,11 @@ class SimSource final : public DriveSource {
   SimSource(const std::string& world, double length_m, unsigned seed, fs::path cache,
             bool with_gridmap, sim::GnssGrade gnss = sim::GnssGrade::Rtk, int rtk_drives = 0,
             double canyon_multipath_m = -1.0, double heading_sigma_deg = -1.0,
-            double bias_sigma_m = -1.0, double parked_shift_m = -1.0)
+            double bias_sigma_m = -1.0, double parked_shift_m = -1.0,
+            std::string_view realism = "ideal")
       : cache_(std::move(cache)), rtk_drives_(rtk_drives) {
     sim_.seed = seed;
+    sim_.realism = sim::realism_preset(realism);
     if (parked_shift_m >= 0.0) {  // where parked cars (and bins, half of it) stand per drive
       sim_.traffic.parked_shift_m = parked_shift_m;
       sim_.traffic.bin_shift_m = 0.5 * parked_shift_m;
@@ -726,6 +728,25 @@ int main(int argc, char** argv) {
                  "the simulator's)");
   app.add_option("--consumer-heading-deg", heading_sigma_deg,
                  "with --gnss consumer: heading error sigma (default: the simulator's)");
+  mapping::DriveAlignmentConfig alignment;
+  app.add_option("--align-gyro-bias-sigma-rps", alignment.gyro_bias_sigma_rps,
+                 "with --gnss consumer: prior sigma of each drive's yaw-rate bias");
+  app.add_option("--align-scale-sigma", alignment.odometry_scale_sigma,
+                 "with --gnss consumer: prior sigma of each drive's wheel-speed scale error");
+  app.add_option("--align-node-spacing-m", alignment.node_spacing_m,
+                 "with --gnss consumer: spacing of the correction nodes");
+  app.add_option("--align-gnss-correlation-m", alignment.gnss_correlation_length_m,
+                 "with --gnss consumer: length over which one drive's GNSS error is correlated");
+  app.add_option("--align-max-iterations", alignment.max_iterations,
+                 "with --gnss consumer: Ceres iterations per association round");
+  app.add_option("--align-odometry", alignment.use_odometry,
+                 "with --gnss consumer: odometry factors between nodes (1, default) or "
+                 "smoothness priors only (0)");
+  std::string realism = "ideal";
+  app.add_option("--realism", realism,
+                 "simulated drives' error sources: ideal (default) | realistic (wheel scale, "
+                 "gyro bias, radar noise, mounts, ...: tools/sim/README.md)")
+      ->check(CLI::IsMember({"ideal", "realistic"}));
   double parked_shift_m = -1.0;
   app.add_option("--parked-shift-m", parked_shift_m,
                  "simulator: parked cars stand within +- this of their place in each drive, "
@@ -760,13 +781,14 @@ int main(int argc, char** argv) {
     }
     // Always named by the shift the drives were simulated with: the simulator's default
     // changed (0 -> 1 m on 2026-12-07), and a cache of one must not serve the other.
+    if (realism != "ideal") cache /= realism;
     cache /= "parked_shift_" + std::to_string(parked_shift_m >= 0.0
                                                   ? parked_shift_m
                                                   : sim::TrafficSimConfig{}.parked_shift_m);
     source = std::make_unique<SimSource>(
         world, length_km * 1000.0, seed, merged ? cache / "with_gridmap" : cache, merged,
         gnss == "consumer" ? sim::GnssGrade::Consumer : sim::GnssGrade::Rtk, rtk_drives,
-        canyon_multipath_m, heading_sigma_deg, bias_sigma_m, parked_shift_m);
+        canyon_multipath_m, heading_sigma_deg, bias_sigma_m, parked_shift_m, realism);
   }
 
   std::printf(
@@ -793,7 +815,9 @@ int main(int argc, char** argv) {
     req.points.filter.co_presence.enabled = co_presence != 0;
     req.points.filter.sliding = filter.sliding;
     req.points.filter.sliding.enabled = sliding != 0;
-    const MapBuilder builder;
+    MapBuilderConfig builder_cfg;
+    builder_cfg.alignment = alignment;
+    const MapBuilder builder(builder_cfg);
     const auto r = builder.build(store, req);
     if (r.status != MapBuildResult::Status::Published) {
       std::fprintf(stderr, "build failed: %s\n", r.error.c_str());
@@ -813,14 +837,18 @@ int main(int argc, char** argv) {
           "  geometry (%d drives, gnss %s, %d rtk): matched %d, offset %.3f m, raw rms %.3f m, "
           "rigid-fit rms %.3f m, 200 m window rms %.3f m (%d windows), yaw %.3f deg | "
           "alignment %s: %lld drives (%lld with odometry), %lld anchors, %lld clusters, "
-          "residual %.3f m, mean correction %.2f m, %.2f s\n",
+          "residual %.3f m, mean correction %.2f m, wheel scale mean %+.4f rms %.4f, %lld "
+          "odometry steps rejected, %.2f s\n",
           n, gnss.c_str(), std::min(rtk_drives, n), g.matched, g.offset_m, g.raw_rms_m,
           g.global_rms_m, g.window_rms_m, g.windows, g.yaw_truth_map_rad * 180.0 / M_PI,
           r.stats.alignment_status.c_str(), static_cast<long long>(r.stats.aligned_drives),
           static_cast<long long>(r.stats.alignment_odometry_drives),
           static_cast<long long>(r.stats.alignment_anchor_drives),
           static_cast<long long>(r.stats.alignment_clusters), r.stats.alignment_residual_rms_m,
-          r.stats.alignment_mean_correction_m, r.stats.seconds_alignment);
+          r.stats.alignment_mean_correction_m, r.stats.alignment_scale_error_mean,
+          r.stats.alignment_scale_error_rms,
+          static_cast<long long>(r.stats.alignment_odometry_steps_rejected),
+          r.stats.seconds_alignment);
       std::fflush(stdout);
     }
     if (explain) source->explain(store, r.version, radius_m);

@@ -585,12 +585,14 @@
         const v = await getJson('/v1/maps/' + r.version, false);
         const p = v.progress || {};
         bar.value = p.fraction || 0;
-        status.textContent = 'version ' + r.version + ': ' + v.status + (p.stage ? ' (' + p.stage + ', ' + Math.round(100 * (p.fraction || 0)) + ' %)' : '');
+        const text = 'version ' + r.version + ': ' + v.status + (p.stage ? ' (' + p.stage + ', ' + Math.round(100 * (p.fraction || 0)) + ' %)' : '');
         if (v.status !== 'building') {
+          // "published" only once the map shows the new version (label, versions, tiles).
           if (v.status === 'published') await refreshVersions();
-          if (v.error) status.textContent += ': ' + v.error;
+          status.textContent = text + (v.error ? ': ' + v.error : '');
           break;
         }
+        status.textContent = text;
         await new Promise((res) => setTimeout(res, 300));
       }
     } catch (e) {

@@ -218,8 +218,7 @@ double wrap_rad(double a) { return std::remainder(a, 2.0 * M_PI); }
 // with the GNSS displacement beyond the mismatch bound.
 std::vector<OdometryStep> odometry_steps(const std::vector<AlignmentSample>& tr,
                                          const std::vector<std::size_t>& node_sample,
-                                         double max_gap_s, double max_length_mismatch_m,
-                                         double max_length_mismatch_share) {
+                                         const DriveAlignmentConfig& cfg) {
   std::vector<OdometryStep> out;
   bool gyro = true;
   for (const auto& smp : tr) {
@@ -240,9 +239,11 @@ std::vector<OdometryStep> odometry_steps(const std::vector<AlignmentSample>& tr,
       const double dt = tr[j + 1].time_s - tr[j].time_s;
       if (!(dt > 0.0)) return {};
       const double v = 0.5 * (tr[j].speed_mps + tr[j + 1].speed_mps);
-      if (dt > max_gap_s && std::max(tr[j].speed_mps, tr[j + 1].speed_mps) > kStandingMps) {
+      const bool moving = std::max(tr[j].speed_mps, tr[j + 1].speed_mps) > kStandingMps;
+      if (dt > cfg.odometry_max_gap_s && moving) {
         o.valid = false;  // this step gets the smoothness prior
       }
+
       double mid = 0.0;
       if (gyro) {
         const double w = 0.5 * (tr[j].yaw_rate_rps + tr[j + 1].yaw_rate_rps);
@@ -260,7 +261,8 @@ std::vector<OdometryStep> odometry_steps(const std::vector<AlignmentSample>& tr,
     // The step's length must agree with the GNSS displacement (whose error changes little
     // over a step); integrating across a gap that hides an acceleration does not.
     const double mismatch = std::abs(o.body_m.norm() - (o.p1 - o.p0).norm());
-    if (mismatch > max_length_mismatch_m + max_length_mismatch_share * o.body_m.norm()) {
+    if (mismatch > cfg.odometry_max_length_mismatch_m +
+                       cfg.odometry_max_length_mismatch_share * o.body_m.norm()) {
       o.valid = false;
     }
     out.push_back(o);
@@ -491,10 +493,7 @@ DriveAlignmentResult align_drives(std::span<const AlignmentDrive> drives,
       }
     }
     c.node_correction.assign(c.node_s_m.size(), Eigen::Vector3d::Zero());
-    if (cfg.use_odometry)
-      steps[d] = odometry_steps(tr, node_sample, cfg.odometry_max_gap_s,
-                                cfg.odometry_max_length_mismatch_m,
-                                cfg.odometry_max_length_mismatch_share);
+    if (cfg.use_odometry) steps[d] = odometry_steps(tr, node_sample, cfg);
     if (!c.survey_grade && !steps[d].empty()) ++res.odometry_drives;
   }
   if (!any_consumer) {
@@ -620,6 +619,13 @@ DriveAlignmentResult align_drives(std::span<const AlignmentDrive> drives,
     }
     res.clusters = static_cast<int>(cl.members.size());
     res.residual_rms_m = std::sqrt(s2 / std::max(1, res.associations));
+  }
+  for (std::size_t d = 0; d < drives.size(); ++d) {
+    DriveCorrection& c = res.corrections[d];
+    for (const OdometryStep& o : steps[d])
+      (o.valid ? c.odometry_steps : c.odometry_steps_rejected) += 1;
+    c.odometry_scale_error = odo_params[d].x();
+    c.gyro_bias_rps = odo_params[d].y();
   }
   double sum = 0.0;
   int count = 0;

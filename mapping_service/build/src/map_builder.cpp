@@ -236,6 +236,9 @@ nlohmann::json to_json(const MapBuildStats& s) {
                     {"residual_rms_m", s.alignment_residual_rms_m},
                     {"mean_correction_m", s.alignment_mean_correction_m},
                     {"odometry_drives", s.alignment_odometry_drives},
+                    {"odometry_steps_rejected", s.alignment_odometry_steps_rejected},
+                    {"scale_error_mean", s.alignment_scale_error_mean},
+                    {"scale_error_rms", s.alignment_scale_error_rms},
                     {"seconds", s.seconds_alignment}};
   j["seconds"] = {{"load", s.seconds_load},           {"consensus", s.seconds_consensus},
                   {"landmarks", s.seconds_landmarks}, {"tiles", s.seconds_tiles},
@@ -361,6 +364,21 @@ DriveCorrections align_candidates(const MapStore& store, const std::optional<Geo
   st.alignment_residual_rms_m = r.residual_rms_m;
   st.alignment_mean_correction_m = r.mean_correction_m;
   st.alignment_odometry_drives = r.odometry_drives;
+  {
+    double sum = 0.0, sum2 = 0.0;
+    int n = 0;
+    for (const DriveCorrection& c : r.corrections) {
+      if (c.survey_grade || c.odometry_steps == 0) continue;
+      st.alignment_odometry_steps_rejected += c.odometry_steps_rejected;
+      sum += c.odometry_scale_error;
+      sum2 += c.odometry_scale_error * c.odometry_scale_error;
+      ++n;
+    }
+    if (n > 0) {
+      st.alignment_scale_error_mean = sum / n;
+      st.alignment_scale_error_rms = std::sqrt(sum2 / n);
+    }
+  }
   if (r.status == DriveAlignmentResult::Status::Aligned) {
     for (const DriveCorrection& c : r.corrections) {
       if (!c.survey_grade) out.emplace(c.drive, c);

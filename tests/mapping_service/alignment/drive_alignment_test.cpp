@@ -228,14 +228,29 @@ TEST(DriveAlignment, OdometryScaleErrorIsEstimated) {
   const World w = make_world(rng);
   Fleet f = make_fleet(w, 10, 0, rng, 0.5);
   std::uniform_real_distribution<double> u(-0.006, 0.006);
+  std::vector<double> truth;  // wheel speed read / true speed - 1, per drive
   for (auto& d : f.drives) {
-    const double scale = 1.0 + u(rng);
-    for (auto& smp : d.trajectory) smp.speed_mps *= scale;
+    truth.push_back(u(rng));
+    for (auto& smp : d.trajectory) smp.speed_mps *= 1.0 + truth.back();
   }
   const DriveAlignmentResult r = align_drives(f.drives);
   ASSERT_EQ(r.status, DriveAlignmentResult::Status::Aligned);
   EXPECT_LT(landmark_rms(w, f, &r).first, 0.06);
   EXPECT_LT(inter_drive_rms(w, f, r), 0.06);
+  // The estimate (1 + e) (1 + truth) = 1 per drive. The landmarks the drives share observe
+  // the differences between drives; the common part only the GNSS and the prior.
+  ASSERT_EQ(r.corrections.size(), truth.size());
+  double mean_truth = 0.0, mean_est = 0.0;
+  for (std::size_t d = 0; d < truth.size(); ++d) {
+    mean_truth += truth[d] / static_cast<double>(truth.size());
+    mean_est += r.corrections[d].odometry_scale_error / static_cast<double>(truth.size());
+  }
+  for (std::size_t d = 0; d < truth.size(); ++d) {
+    const DriveCorrection& c = r.corrections[d];
+    EXPECT_NEAR(c.odometry_scale_error - mean_est, -(truth[d] - mean_truth), 0.001) << d;
+    EXPECT_GT(c.odometry_steps, 0);
+    EXPECT_EQ(c.odometry_steps_rejected, 0);
+  }
 }
 
 TEST(DriveAlignment, StepsAcrossASampleGapOfAMovingCarAreNotOdometry) {
@@ -259,6 +274,9 @@ TEST(DriveAlignment, StepsAcrossASampleGapOfAMovingCarAreNotOdometry) {
   const DriveAlignmentResult r = align_drives(f.drives);
   ASSERT_EQ(r.status, DriveAlignmentResult::Status::Aligned);
   EXPECT_EQ(r.odometry_drives, 8);
+  for (std::size_t d = 0; d < 8; ++d) {  // the step across the gap, in the drives that have it
+    EXPECT_EQ(r.corrections[d].odometry_steps_rejected, d < 4 ? 1 : 0) << d;
+  }
   EXPECT_LT(landmark_rms(w, f, &r).first, 0.06);
   EXPECT_LT(inter_drive_rms(w, f, r), 0.06);
 }

@@ -42,7 +42,8 @@ struct AlignmentDrive {
   std::vector<Eigen::Vector2d> points_m;
 };
 
-/// Parameters with documented defaults (docs/mapping.md, "Consumer-grade GNSS").
+/// Parameters with documented defaults (README.md, "Maps from consumer-grade GNSS", has
+/// what they were measured with).
 struct DriveAlignmentConfig {
   /// Drives whose median reported accuracy is at most this are survey-grade: their
   /// corrections are held to their (centimetre) priors and they anchor the map.
@@ -128,6 +129,13 @@ struct DriveCorrection {
   /// The drive's trajectory resampled every ~1 m (position, arc length) for lookups.
   std::vector<Eigen::Vector2d> path_m;
   std::vector<double> path_s_m;
+  /// The drive's odometry as the alignment used it: node steps constrained by odometry,
+  /// steps that failed the gap or length test (they got the smoothness prior instead), and
+  /// the estimated wheel-speed scale error (relative) and yaw-rate bias.
+  int odometry_steps = 0;
+  int odometry_steps_rejected = 0;
+  double odometry_scale_error = 0.0;
+  double gyro_bias_rps = 0.0;
 
   /// p corrected (p in the build frame as the drive reported it). Identity without nodes.
   [[nodiscard]] Eigen::Vector2d apply(const Eigen::Vector2d& p_m) const;

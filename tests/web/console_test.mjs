@@ -74,7 +74,8 @@ async function openConsole(viewport) {
   const page = await browser.newPage({ viewport });
   // Playwright's own waits (waitForSelector, click) default to 30 s; software WebGL on a
   // loaded 2-core machine can take longer to render a popup, so they get waitFor's 60 s
-  // (one full ctest run on 2026-12-07 failed here once, not reproduced in five more).
+  // (a margin for a loaded machine; the one failure traced so far was a race in
+  // console.js's build status, fixed there).
   page.setDefaultTimeout(60000);
   page.on('console', (m) => { if (m.type() === 'error') errors.push(m.text()); });
   page.on('pageerror', (e) => errors.push('pageerror: ' + e.message));

@@ -239,11 +239,10 @@ std::vector<OdometryStep> odometry_steps(const std::vector<AlignmentSample>& tr,
       const double dt = tr[j + 1].time_s - tr[j].time_s;
       if (!(dt > 0.0)) return {};
       const double v = 0.5 * (tr[j].speed_mps + tr[j + 1].speed_mps);
-      const bool moving = std::max(tr[j].speed_mps, tr[j + 1].speed_mps) > kStandingMps;
-      if (dt > cfg.odometry_max_gap_s && moving) {
+      if (dt > cfg.odometry_max_gap_s &&
+          std::max(tr[j].speed_mps, tr[j + 1].speed_mps) > kStandingMps) {
         o.valid = false;  // this step gets the smoothness prior
       }
-
       double mid = 0.0;
       if (gyro) {
         const double w = 0.5 * (tr[j].yaw_rate_rps + tr[j + 1].yaw_rate_rps);
@@ -620,12 +619,21 @@ DriveAlignmentResult align_drives(std::span<const AlignmentDrive> drives,
     res.clusters = static_cast<int>(cl.members.size());
     res.residual_rms_m = std::sqrt(s2 / std::max(1, res.associations));
   }
+  double scale_sum = 0.0, scale_sum2 = 0.0;
   for (std::size_t d = 0; d < drives.size(); ++d) {
     DriveCorrection& c = res.corrections[d];
     for (const OdometryStep& o : steps[d])
       (o.valid ? c.odometry_steps : c.odometry_steps_rejected) += 1;
     c.odometry_scale_error = odo_params[d].x();
     c.gyro_bias_rps = odo_params[d].y();
+    if (c.survey_grade || steps[d].empty()) continue;  // the drives odometry_drives counts
+    res.odometry_steps_rejected += c.odometry_steps_rejected;
+    scale_sum += c.odometry_scale_error;
+    scale_sum2 += c.odometry_scale_error * c.odometry_scale_error;
+  }
+  if (res.odometry_drives > 0) {
+    res.scale_error_mean = scale_sum / res.odometry_drives;
+    res.scale_error_rms = std::sqrt(scale_sum2 / res.odometry_drives);
   }
   double sum = 0.0;
   int count = 0;

@@ -364,21 +364,9 @@ DriveCorrections align_candidates(const MapStore& store, const std::optional<Geo
   st.alignment_residual_rms_m = r.residual_rms_m;
   st.alignment_mean_correction_m = r.mean_correction_m;
   st.alignment_odometry_drives = r.odometry_drives;
-  {
-    double sum = 0.0, sum2 = 0.0;
-    int n = 0;
-    for (const DriveCorrection& c : r.corrections) {
-      if (c.survey_grade || c.odometry_steps == 0) continue;
-      st.alignment_odometry_steps_rejected += c.odometry_steps_rejected;
-      sum += c.odometry_scale_error;
-      sum2 += c.odometry_scale_error * c.odometry_scale_error;
-      ++n;
-    }
-    if (n > 0) {
-      st.alignment_scale_error_mean = sum / n;
-      st.alignment_scale_error_rms = std::sqrt(sum2 / n);
-    }
-  }
+  st.alignment_odometry_steps_rejected = r.odometry_steps_rejected;
+  st.alignment_scale_error_mean = r.scale_error_mean;
+  st.alignment_scale_error_rms = r.scale_error_rms;
   if (r.status == DriveAlignmentResult::Status::Aligned) {
     for (const DriveCorrection& c : r.corrections) {
       if (!c.survey_grade) out.emplace(c.drive, c);

@@ -193,12 +193,8 @@ struct MapBuildStats {
   double alignment_residual_rms_m = 0.0;
   double alignment_mean_correction_m = 0.0;
   std::int64_t alignment_odometry_drives = 0;  ///< of those, constrained by odometry
-  /// Node steps of the consumer-grade drives that failed the odometry gap or length test.
+  /// DriveAlignmentResult::odometry_steps_rejected, scale_error_mean and scale_error_rms.
   std::int64_t alignment_odometry_steps_rejected = 0;
-  /// Mean and RMS of the consumer-grade drives' estimated wheel-scale errors: cars' errors
-  /// are independent, so a mean far from 0 (beyond ~0.003 / sqrt(n)) says the drives'
-  /// shared GNSS error stretched or shrank the map along the road (2026-12-07, simulated
-  /// urban route, seed 1: all ten drives at -0.1 to -0.65 % with true 0).
   double alignment_scale_error_mean = 0.0;
   double alignment_scale_error_rms = 0.0;
   double seconds_alignment = 0.0;

@@ -459,10 +459,11 @@ class SimSource final : public DriveSource {
             bool with_gridmap, sim::GnssGrade gnss = sim::GnssGrade::Rtk, int rtk_drives = 0,
             double canyon_multipath_m = -1.0, double heading_sigma_deg = -1.0,
             double bias_sigma_m = -1.0, double parked_shift_m = -1.0,
-            std::string_view realism = "ideal")
+            std::string_view realism = "ideal", std::string_view realism_sources = "")
       : cache_(std::move(cache)), rtk_drives_(rtk_drives) {
     sim_.seed = seed;
     sim_.realism = sim::realism_preset(realism);
+    if (!realism_sources.empty()) sim_.realism = sim::only_sources(sim_.realism, realism_sources);
     if (parked_shift_m >= 0.0) {  // where parked cars (and bins, half of it) stand per drive
       sim_.traffic.parked_shift_m = parked_shift_m;
       sim_.traffic.bin_shift_m = 0.5 * parked_shift_m;
@@ -739,6 +740,11 @@ int main(int argc, char** argv) {
                  "with --gnss consumer: length over which one drive's GNSS error is correlated");
   app.add_option("--align-max-iterations", alignment.max_iterations,
                  "with --gnss consumer: Ceres iterations per association round");
+  app.add_option("--align-side-slip-gradient", alignment.odometry_side_slip_gradient_rad_per_mps2,
+                 "with --gnss consumer: side-slip angle per lateral acceleration in the "
+                 "odometry, rad per m/s^2 (0: off)");
+  app.add_option("--align-slip-stiffness", alignment.odometry_slip_stiffness,
+                 "with --gnss consumer: longitudinal slip stiffness in the odometry (0: off)");
   app.add_option("--align-odometry", alignment.use_odometry,
                  "with --gnss consumer: odometry factors between nodes (1, default) or "
                  "smoothness priors only (0)");
@@ -747,6 +753,10 @@ int main(int argc, char** argv) {
                  "simulated drives' error sources: ideal (default) | realistic (wheel scale, "
                  "gyro bias, radar noise, mounts, ...: tools/sim/README.md)")
       ->check(CLI::IsMember({"ideal", "realistic"}));
+  std::string realism_sources;
+  app.add_option("--realism-sources", realism_sources,
+                 "with --realism realistic: only these sources on (comma separated: noise, "
+                 "mounts, timing, slip, multipath, elevation, ins)");
   double parked_shift_m = -1.0;
   app.add_option("--parked-shift-m", parked_shift_m,
                  "simulator: parked cars stand within +- this of their place in each drive, "
@@ -755,6 +765,10 @@ int main(int argc, char** argv) {
   CLI11_PARSE(app, argc, argv);
   if (gnss != "rtk" && world.empty()) {
     std::fprintf(stderr, "--gnss needs --world (the synthetic route has no trajectories)\n");
+    return 2;
+  }
+  if (!realism_sources.empty() && realism != "realistic") {
+    std::fprintf(stderr, "--realism-sources needs --realism realistic\n");
     return 2;
   }
   if (merged && world.empty()) {
@@ -781,14 +795,17 @@ int main(int argc, char** argv) {
     }
     // Always named by the shift the drives were simulated with: the simulator's default
     // changed (0 -> 1 m on 2026-12-07), and a cache of one must not serve the other.
-    if (realism != "ideal") cache /= realism;
+    if (realism != "ideal") {
+      cache /= realism + (realism_sources.empty() ? "" : "_" + realism_sources);
+    }
     cache /= "parked_shift_" + std::to_string(parked_shift_m >= 0.0
                                                   ? parked_shift_m
                                                   : sim::TrafficSimConfig{}.parked_shift_m);
     source = std::make_unique<SimSource>(
         world, length_km * 1000.0, seed, merged ? cache / "with_gridmap" : cache, merged,
         gnss == "consumer" ? sim::GnssGrade::Consumer : sim::GnssGrade::Rtk, rtk_drives,
-        canyon_multipath_m, heading_sigma_deg, bias_sigma_m, parked_shift_m, realism);
+        canyon_multipath_m, heading_sigma_deg, bias_sigma_m, parked_shift_m, realism,
+        realism_sources);
   }
 
   std::printf(
@@ -835,13 +852,15 @@ int main(int argc, char** argv) {
           eval::map_geometry(lm, eval::truth_point_objects(sim_source->world()));
       std::printf(
           "  geometry (%d drives, gnss %s, %d rtk): matched %d, offset %.3f m, raw rms %.3f m, "
-          "rigid-fit rms %.3f m, 200 m window rms %.3f m (%d windows), yaw %.3f deg | "
+          "rigid-fit rms %.3f m, 200 m window rms %.3f m (%d windows, matched share %.2f, "
+          "worst %.2f), yaw %.3f deg | "
           "alignment %s: %lld drives (%lld with odometry), %lld anchors, %lld clusters, "
           "residual %.3f m, mean correction %.2f m, wheel scale mean %+.4f rms %.4f, %lld "
           "odometry steps rejected, %.2f s\n",
           n, gnss.c_str(), std::min(rtk_drives, n), g.matched, g.offset_m, g.raw_rms_m,
-          g.global_rms_m, g.window_rms_m, g.windows, g.yaw_truth_map_rad * 180.0 / M_PI,
-          r.stats.alignment_status.c_str(), static_cast<long long>(r.stats.aligned_drives),
+          g.global_rms_m, g.window_rms_m, g.windows, g.window_matched_share, g.worst_window_share,
+          g.yaw_truth_map_rad * 180.0 / M_PI, r.stats.alignment_status.c_str(),
+          static_cast<long long>(r.stats.aligned_drives),
           static_cast<long long>(r.stats.alignment_odometry_drives),
           static_cast<long long>(r.stats.alignment_anchor_drives),
           static_cast<long long>(r.stats.alignment_clusters), r.stats.alignment_residual_rms_m,

@@ -226,6 +226,7 @@ std::vector<OdometryStep> odometry_steps(const std::vector<AlignmentSample>& tr,
     gyro = gyro && std::isfinite(smp.yaw_rate_rps);
   }
   constexpr double kStandingMps = 0.1;
+  constexpr double kGravityMps2 = 9.80665;
   for (std::size_t k = 0; k + 1 < node_sample.size(); ++k) {
     OdometryStep o;
     const std::size_t i0 = node_sample[k], i1 = node_sample[k + 1];
@@ -238,7 +239,11 @@ std::vector<OdometryStep> odometry_steps(const std::vector<AlignmentSample>& tr,
     for (std::size_t j = i0; j < i1; ++j) {
       const double dt = tr[j + 1].time_s - tr[j].time_s;
       if (!(dt > 0.0)) return {};
-      const double v = 0.5 * (tr[j].speed_mps + tr[j + 1].speed_mps);
+      double v = 0.5 * (tr[j].speed_mps + tr[j + 1].speed_mps);
+      if (cfg.odometry_slip_stiffness > 0.0) {  // longitudinal slip of the wheels
+        const double a_x = (tr[j + 1].speed_mps - tr[j].speed_mps) / dt;
+        v /= std::max(0.5, 1.0 + a_x / (kGravityMps2 * cfg.odometry_slip_stiffness));
+      }
       if (dt > cfg.odometry_max_gap_s &&
           std::max(tr[j].speed_mps, tr[j + 1].speed_mps) > kStandingMps) {
         o.valid = false;  // this step gets the smoothness prior
@@ -246,12 +251,14 @@ std::vector<OdometryStep> odometry_steps(const std::vector<AlignmentSample>& tr,
       double mid = 0.0;
       if (gyro) {
         const double w = 0.5 * (tr[j].yaw_rate_rps + tr[j + 1].yaw_rate_rps);
-        mid = h + 0.5 * w * dt;
+        // The axle moves at the side-slip angle to the heading the gyro integrates.
+        mid = h + 0.5 * w * dt - cfg.odometry_side_slip_gradient_rad_per_mps2 * v * w;
         h += w * dt;
         o.gyro_integration_rad += 0.5 * std::abs(tr[j + 1].yaw_rate_rps - tr[j].yaw_rate_rps) * dt;
       } else {  // reported heading relative to node k's, halfway between the samples
-        mid = wrap_rad(tr[j].yaw_rad - o.yaw0_rad) +
-              0.5 * wrap_rad(tr[j + 1].yaw_rad - tr[j].yaw_rad);
+        const double dyaw = wrap_rad(tr[j + 1].yaw_rad - tr[j].yaw_rad);
+        mid = wrap_rad(tr[j].yaw_rad - o.yaw0_rad) + 0.5 * dyaw -
+              cfg.odometry_side_slip_gradient_rad_per_mps2 * v * (dyaw / dt);
       }
       o.body_m += v * dt * Eigen::Vector2d(std::cos(mid), std::sin(mid));
       o.dt_s += dt;

@@ -1,10 +1,12 @@
 // Map geometry against truth: a shifted and rotated copy of the truth (plus noise and
-// false landmarks) is matched, its offset and rotation recovered, and the window RMS
-// ignores what a rigid fit per window explains but not a local distortion.
+// false landmarks) is matched, its offset and rotation recovered, the window RMS ignores
+// what a rigid fit per window explains but not a local distortion, and a section that broke
+// apart lowers its window's matched share instead of dropping out of the figures.
 #include "polmap/eval/map_geometry.hpp"
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <random>
 
@@ -54,6 +56,46 @@ TEST(MapGeometry, WindowFitAbsorbsASlowBendButNotNoise) {
   ASSERT_EQ(m.status, MapGeometry::Status::Ok);
   EXPECT_GT(m.global_rms_m, 0.15);
   EXPECT_LT(m.window_rms_m, 0.5 * m.global_rms_m);
+}
+
+TEST(MapGeometry, AWindowOffFromTheRestIsFittedOnItsOwn) {
+  std::mt19937_64 rng(5);
+  const auto truth = truth_points(rng);
+  std::vector<Eigen::Vector2d> map;
+  // The middle 200 m sit 2 m to the side: beyond the global fit's last gate, but one rigid
+  // shift of their own window.
+  for (const auto& p : truth) {
+    map.push_back(p + Eigen::Vector2d(0.0, p.x() >= 200.0 && p.x() < 400.0 ? 2.0 : 0.0));
+  }
+  const MapGeometry m = map_geometry(map, truth);
+  ASSERT_EQ(m.status, MapGeometry::Status::Ok);
+  EXPECT_LT(m.matched, static_cast<int>(0.8 * truth.size()));  // the global fit drops them
+  EXPECT_GT(m.worst_window_share, 0.95);
+  EXPECT_LT(m.window_rms_m, 1e-6);
+  double max_shift_m = 0.0;
+  for (const auto& w : m.window_fits) max_shift_m = std::max(max_shift_m, w.shift_m);
+  EXPECT_NEAR(max_shift_m, 2.0, 0.05);
+}
+
+TEST(MapGeometry, ASectionThatBrokeApartLowersItsShare) {
+  std::mt19937_64 rng(6);
+  const auto truth = truth_points(rng);
+  std::vector<Eigen::Vector2d> map;
+  // Beyond x = 400 m every other landmark sits 1.5 m ahead: no rigid fit of that window
+  // matches more than about half of them. The rest of the map is exact.
+  int beyond[2] = {0, 0};  // per side of the road, so each window is split evenly
+  for (const auto& p : truth) {
+    const bool broken = p.x() >= 400.0 && beyond[p.y() > 0.0 ? 1 : 0]++ % 2 == 0;
+    map.push_back(p + Eigen::Vector2d(broken ? 1.5 : 0.0, 0.0));
+  }
+  const MapGeometry m = map_geometry(map, truth);
+  ASSERT_EQ(m.status, MapGeometry::Status::Ok);
+  EXPECT_LT(m.worst_window_share, 0.65);
+  EXPECT_GT(m.worst_window_share, 0.35);
+  EXPECT_LT(m.window_matched_share, 0.9);
+  int whole = 0;
+  for (const auto& w : m.window_fits) whole += w.ix < 2 && w.share() == 1.0 ? 1 : 0;
+  EXPECT_GE(whole, 2);  // the windows before the break are whole
 }
 
 TEST(MapGeometry, NothingToMatchIsReported) {

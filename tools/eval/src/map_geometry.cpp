@@ -3,7 +3,9 @@
 #include <algorithm>
 #include <cmath>
 #include <map>
+#include <span>
 #include <utility>
+#include <vector>
 
 namespace polmap::eval {
 
@@ -62,23 +64,22 @@ double rms_after(const Pairs& pairs, const Eigen::Matrix2d& R, const Eigen::Vect
   return pairs.empty() ? 0.0 : std::sqrt(s2 / static_cast<double>(pairs.size()));
 }
 
-}  // namespace
-
-MapGeometry map_geometry(std::span<const Eigen::Vector2d> map_m,
-                         std::span<const Eigen::Vector2d> truth_m, const MapGeometryConfig& cfg) {
-  MapGeometry g;
-  if (map_m.empty() || truth_m.empty()) return g;
-  // Coarse start: the mode of truth - map displacements (blurred 3 x 3 histogram).
-  const int half = static_cast<int>(std::ceil(cfg.vote_radius_m / cfg.vote_cell_m));
+// The mode of the displacements truth - (R m + t) within radius_m (blurred 3 x 3 histogram
+// of cell_m cells); ties go to the smallest displacement.
+Eigen::Vector2d voted_shift(std::span<const Eigen::Vector2d> map_m,
+                            std::span<const Eigen::Vector2d> truth_m, const Eigen::Matrix2d& R,
+                            const Eigen::Vector2d& t, double radius_m, double cell_m) {
+  const int half = static_cast<int>(std::ceil(radius_m / cell_m));
   const int size = 2 * half + 1;
   std::vector<double> hist(static_cast<std::size_t>(size * size), 0.0);
-  const double r2 = cfg.vote_radius_m * cfg.vote_radius_m;
+  const double r2 = radius_m * radius_m;
   for (const auto& m : map_m) {
-    for (const auto& t : truth_m) {
-      const Eigen::Vector2d d = t - m;
+    const Eigen::Vector2d p = R * m + t;
+    for (const auto& tr : truth_m) {
+      const Eigen::Vector2d d = tr - p;
       if (d.squaredNorm() > r2) continue;
-      const int x = static_cast<int>(std::lround(d.x() / cfg.vote_cell_m)) + half;
-      const int y = static_cast<int>(std::lround(d.y() / cfg.vote_cell_m)) + half;
+      const int x = static_cast<int>(std::lround(d.x() / cell_m)) + half;
+      const int y = static_cast<int>(std::lround(d.y() / cell_m)) + half;
       for (int dy = -1; dy <= 1; ++dy) {
         for (int dx = -1; dx <= 1; ++dx) {
           const int xx = x + dx, yy = y + dy;
@@ -89,12 +90,33 @@ MapGeometry map_geometry(std::span<const Eigen::Vector2d> map_m,
       }
     }
   }
-  const auto best = static_cast<int>(std::max_element(hist.begin(), hist.end()) - hist.begin());
+  std::size_t best = static_cast<std::size_t>(half * size + half);
+  int best_r2 = 0;
+  for (std::size_t i = 0; i < hist.size(); ++i) {
+    const int x = static_cast<int>(i) % size - half, y = static_cast<int>(i) / size - half;
+    if (hist[i] > hist[best] || (hist[i] == hist[best] && x * x + y * y < best_r2)) {
+      best = i;
+      best_r2 = x * x + y * y;
+    }
+  }
+  return {(static_cast<int>(best) % size - half) * cell_m,
+          (static_cast<int>(best) / size - half) * cell_m};
+}
+
+struct Fit {
+  bool ok = false;
   Eigen::Matrix2d R = Eigen::Matrix2d::Identity();
-  Eigen::Vector2d t((best % size - half) * cfg.vote_cell_m, (best / size - half) * cfg.vote_cell_m);
-  Pairs pairs;
-  for (const double gate : cfg.gates_m) {
-    pairs.clear();
+  Eigen::Vector2d t = Eigen::Vector2d::Zero();
+  Pairs pairs;  // the last round's matches
+};
+
+// Nearest-truth matching within each gate in turn, refitting after each round, from the
+// start (R, t). Fails when a round keeps fewer than three pairs.
+Fit match_and_fit(std::span<const Eigen::Vector2d> map_m, std::span<const Eigen::Vector2d> truth_m,
+                  Eigen::Matrix2d R, Eigen::Vector2d t, std::span<const double> gates_m) {
+  Fit f;
+  for (const double gate : gates_m) {
+    f.pairs.clear();
     for (const auto& m : map_m) {
       const Eigen::Vector2d p = R * m + t;
       double bd = gate * gate;
@@ -103,39 +125,82 @@ MapGeometry map_geometry(std::span<const Eigen::Vector2d> map_m,
         const double d2 = (tr - p).squaredNorm();
         if (d2 < bd) bd = d2, bt = &tr;
       }
-      if (bt != nullptr) pairs.emplace_back(m, *bt);
+      if (bt != nullptr) f.pairs.emplace_back(m, *bt);
     }
-    if (pairs.size() < 3) return g;
-    std::tie(R, t) = rigid_fit(pairs);
+    if (f.pairs.size() < 3) return f;
+    std::tie(R, t) = rigid_fit(f.pairs);
   }
+  f.ok = true;
+  f.R = R;
+  f.t = t;
+  return f;
+}
+
+}  // namespace
+
+MapGeometry map_geometry(std::span<const Eigen::Vector2d> map_m,
+                         std::span<const Eigen::Vector2d> truth_m, const MapGeometryConfig& cfg) {
+  MapGeometry g;
+  if (map_m.empty() || truth_m.empty()) return g;
+  const Eigen::Matrix2d I = Eigen::Matrix2d::Identity();
+  const Fit global = match_and_fit(
+      map_m, truth_m, I,
+      voted_shift(map_m, truth_m, I, Eigen::Vector2d::Zero(), cfg.vote_radius_m, cfg.vote_cell_m),
+      cfg.gates_m);
+  if (!global.ok) return g;
+  const Eigen::Matrix2d R = global.R;
+  const Eigen::Vector2d t = global.t;
   g.status = MapGeometry::Status::Ok;
-  g.matched = static_cast<int>(pairs.size());
+  g.matched = static_cast<int>(global.pairs.size());
   g.R_truth_map = R;
   g.t_truth_map_m = t;
   g.yaw_truth_map_rad = std::atan2(R(1, 0), R(0, 0));
   Eigen::Vector2d mean = Eigen::Vector2d::Zero();
-  for (const auto& [m, tr] : pairs) mean += tr - m;
-  g.offset_m = (mean / static_cast<double>(pairs.size())).norm();
-  g.raw_rms_m = rms_after(pairs, Eigen::Matrix2d::Identity(), Eigen::Vector2d::Zero());
-  g.global_rms_m = rms_after(pairs, R, t);
-  // Per window: the same pairs, each window fitted on its own.
-  std::map<std::pair<long, long>, Pairs> windows;
-  for (const auto& pr : pairs) {
-    windows[{std::lround(std::floor(pr.first.x() / cfg.window_m)),
-             std::lround(std::floor(pr.first.y() / cfg.window_m))}]
-        .push_back(pr);
+  for (const auto& [m, tr] : global.pairs) mean += tr - m;
+  g.offset_m = (mean / static_cast<double>(global.pairs.size())).norm();
+  g.raw_rms_m = rms_after(global.pairs, I, Eigen::Vector2d::Zero());
+  g.global_rms_m = rms_after(global.pairs, R, t);
+  // Per window: all of the window's landmarks, matched afresh from the global fit (own vote,
+  // own shrinking gates), so a section that the global fit matched badly is judged by what a
+  // fit of its own can match, and its unmatched landmarks count against its share.
+  std::map<std::pair<long, long>, std::vector<Eigen::Vector2d>> windows;
+  for (const auto& m : map_m) {
+    windows[{std::lround(std::floor(m.x() / cfg.window_m)),
+             std::lround(std::floor(m.y() / cfg.window_m))}]
+        .push_back(m);
   }
   double s2 = 0.0;
-  std::size_t n = 0;
-  for (const auto& [key, wp] : windows) {
-    if (static_cast<int>(wp.size()) < cfg.min_window_matches) continue;
-    const auto [Rw, tw] = rigid_fit(wp);
-    const double r = rms_after(wp, Rw, tw);
-    s2 += r * r * static_cast<double>(wp.size());
-    n += wp.size();
-    ++g.windows;
+  std::size_t n_rms = 0, n_landmarks = 0, n_matched = 0;
+  g.worst_window_share = 1.0;
+  for (const auto& [key, wm] : windows) {
+    if (static_cast<int>(wm.size()) < cfg.min_window_landmarks) continue;
+    MapWindowFit w;
+    w.ix = key.first;
+    w.iy = key.second;
+    w.landmarks = static_cast<int>(wm.size());
+    const Eigen::Vector2d shift =
+        voted_shift(wm, truth_m, R, t, cfg.window_vote_radius_m, cfg.vote_cell_m);
+    const Fit f = match_and_fit(wm, truth_m, R, t + shift, cfg.gates_m);
+    if (f.ok) {
+      w.matched = static_cast<int>(f.pairs.size());
+      w.rms_m = rms_after(f.pairs, f.R, f.t);
+      const Eigen::Matrix2d dR = f.R * R.transpose();
+      w.yaw_rad = std::atan2(dR(1, 0), dR(0, 0));
+      const Eigen::Vector2d centre((w.ix + 0.5) * cfg.window_m, (w.iy + 0.5) * cfg.window_m);
+      w.shift_m = ((f.R * centre + f.t) - (R * centre + t)).norm();
+      s2 += w.rms_m * w.rms_m * static_cast<double>(w.matched);
+      n_rms += static_cast<std::size_t>(w.matched);
+    }
+    n_landmarks += static_cast<std::size_t>(w.landmarks);
+    n_matched += static_cast<std::size_t>(w.matched);
+    g.worst_window_share = std::min(g.worst_window_share, w.share());
+    g.window_fits.push_back(w);
   }
-  g.window_rms_m = n > 0 ? std::sqrt(s2 / static_cast<double>(n)) : 0.0;
+  g.windows = static_cast<int>(g.window_fits.size());
+  if (g.windows == 0) g.worst_window_share = 0.0;
+  g.window_rms_m = n_rms > 0 ? std::sqrt(s2 / static_cast<double>(n_rms)) : 0.0;
+  g.window_matched_share =
+      n_landmarks > 0 ? static_cast<double>(n_matched) / static_cast<double>(n_landmarks) : 0.0;
   return g;
 }
 

@@ -79,6 +79,18 @@ struct DriveAlignmentConfig {
   double odometry_max_gap_s = 2.5;
   double odometry_max_length_mismatch_m = 0.5;
   double odometry_max_length_mismatch_share = 0.05;
+  /// Tyre slip in the integration (0 turns a term off). A car's rear axle moves at the
+  /// side-slip angle beta = -gradient x a_y to its heading (a_y = speed x yaw rate; ISO 8855
+  /// signs, the rear drifts out of the turn), and its wheels turn faster than it moves when
+  /// they drive and slower when they brake: v = v_wheel / (1 + a_x / (g x slip stiffness)).
+  /// Both repeat at the same curve and the same stop in every drive, so associations cannot
+  /// see them and the map would inherit them (an urban 90-degree turn at 3 m/s^2 moves the
+  /// next leg ~0.4 m sideways without the side slip). Defaults: the linear single-track
+  /// model of a mid-size passenger car (Rajamani, Vehicle Dynamics and Control, 2nd ed.,
+  /// ch. 2-3: 0.23 deg per m/s^2 at the rear axle) and dry asphalt (mu-slip slope ~30,
+  /// Gustafsson 1997); a fleet backend would keep them per vehicle model.
+  double odometry_side_slip_gradient_rad_per_mps2 = 0.0;
+  double odometry_slip_stiffness = 0.0;
   /// Displacement noise per step: sigma_m + sigma_per_m x step length (wheel-speed noise
   /// and slip; the scale error is a parameter of its own below).
   double odometry_sigma_m = 0.02;

@@ -3,7 +3,9 @@
 /// A map's point landmarks against the world's truth: the absolute offset, and the
 /// relative geometry as maps from consumer-grade GNSS are judged (RMS landmark error after
 /// the best rigid fit to truth within each window of the map, so a map that is shifted or
-/// slightly rotated as a whole is not penalised there).
+/// slightly rotated as a whole is not penalised there). Each window is matched afresh from
+/// the global fit, and the share of its landmarks that find truth is reported next to the
+/// RMS: a section that broke apart shows as a low share instead of dropping out of the RMS.
 #include <Eigen/Core>
 #include <span>
 #include <vector>
@@ -24,8 +26,24 @@ struct MapGeometryConfig {
   double vote_cell_m = 0.25;
   /// Nearest-truth matching gates of the rigid-fit rounds (coarse to fine).
   std::vector<double> gates_m = {1.0, 0.5, 0.3};
-  /// Windows with fewer matches are left out of window_rms_m.
-  int min_window_matches = 5;
+  /// Windows with fewer map landmarks are left out of the window figures.
+  int min_window_landmarks = 5;
+  /// Each window's own start: the mode of truth - (global fit of map) within this radius,
+  /// so a window that the global fit leaves a few metres off is still fitted on its own.
+  double window_vote_radius_m = 3.0;
+};
+
+/// One window of the map fitted to truth on its own.
+struct MapWindowFit {
+  long ix = 0, iy = 0;   ///< grid index: the window covers [ix, ix + 1) * window_m in x (map frame)
+  int landmarks = 0;     ///< map point landmarks in the window
+  int matched = 0;       ///< of them matched to truth within the last gate of the window fit
+  double rms_m = 0.0;    ///< RMS of the matched pairs after the window's rigid fit
+  double yaw_rad = 0.0;  ///< the window fit's rotation relative to the global fit
+  double shift_m = 0.0;  ///< the window fit's displacement of the window centre vs. the global fit
+  [[nodiscard]] double share() const {
+    return landmarks > 0 ? static_cast<double>(matched) / landmarks : 0.0;
+  }
 };
 
 struct MapGeometry {
@@ -40,8 +58,13 @@ struct MapGeometry {
   double offset_m = 0.0;
   double raw_rms_m = 0.0;     ///< RMS of truth - map (no fit)
   double global_rms_m = 0.0;  ///< after the one rigid fit
-  double window_rms_m = 0.0;  ///< after a rigid fit per window
-  int windows = 0;            ///< windows with at least min_window_matches matches
+  double window_rms_m = 0.0;  ///< after a rigid fit per window, over the windows' own matches
+  int windows = 0;            ///< windows with at least min_window_landmarks landmarks
+  /// Matched landmarks / landmarks, pooled over those windows (a map's false landmarks lower
+  /// it too: compare against a map of the same drives built from survey-grade GNSS).
+  double window_matched_share = 0.0;
+  double worst_window_share = 0.0;        ///< the lowest share of a single window
+  std::vector<MapWindowFit> window_fits;  ///< those windows, in grid order
 };
 
 /// Matches the map's points to truth (voted start, then nearest neighbours within

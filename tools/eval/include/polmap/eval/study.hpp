@@ -202,6 +202,10 @@ struct StudyDriveResult {
   double map_offset_m = 0.0;
   double map_rigid_rms_m = 0.0;
   double map_window_rms_m = 0.0;
+  /// Matched share of the map's landmarks per 200 m window (pooled, and the worst window):
+  /// low where a section of the map broke apart.
+  double map_window_share = 0.0;
+  double map_worst_window_share = 0.0;
   bool errors_in_map_frame = false;
   // --- localization
   ErrorSummary errors;

@@ -81,12 +81,13 @@ TEST(MapGeometry, ASectionThatBrokeApartLowersItsShare) {
   std::mt19937_64 rng(6);
   const auto truth = truth_points(rng);
   std::vector<Eigen::Vector2d> map;
-  // Beyond x = 400 m every other landmark sits 1.5 m ahead: no rigid fit of that window
-  // matches more than about half of them. The rest of the map is exact.
+  // Beyond x = 400 m every other landmark sits 0.8 m ahead (near its object, but not on
+  // it): no rigid fit of that window matches more than about half of them. The rest of the
+  // map is exact.
   int beyond[2] = {0, 0};  // per side of the road, so each window is split evenly
   for (const auto& p : truth) {
     const bool broken = p.x() >= 400.0 && beyond[p.y() > 0.0 ? 1 : 0]++ % 2 == 0;
-    map.push_back(p + Eigen::Vector2d(broken ? 1.5 : 0.0, 0.0));
+    map.push_back(p + Eigen::Vector2d(broken ? 0.8 : 0.0, 0.0));
   }
   const MapGeometry m = map_geometry(map, truth);
   ASSERT_EQ(m.status, MapGeometry::Status::Ok);

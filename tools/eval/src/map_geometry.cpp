@@ -170,7 +170,7 @@ MapGeometry map_geometry(std::span<const Eigen::Vector2d> map_m,
         .push_back(m);
   }
   double s2 = 0.0;
-  std::size_t n_rms = 0, n_landmarks = 0, n_matched = 0;
+  std::size_t n_rms = 0, n_near = 0, n_matched = 0;
   g.worst_window_share = 1.0;
   for (const auto& [key, wm] : windows) {
     if (static_cast<int>(wm.size()) < cfg.min_window_landmarks) continue;
@@ -180,7 +180,18 @@ MapGeometry map_geometry(std::span<const Eigen::Vector2d> map_m,
     w.landmarks = static_cast<int>(wm.size());
     const Eigen::Vector2d shift =
         voted_shift(wm, truth_m, R, t, cfg.window_vote_radius_m, cfg.vote_cell_m);
-    const Fit f = match_and_fit(wm, truth_m, R, t + shift, cfg.gates_m);
+    const Fit f = match_and_fit(wm, truth_m, R, t + shift, cfg.window_gates_m);
+    // Near: within the widest global gate after the window's fit (its start when it failed).
+    const Eigen::Matrix2d Rw = f.ok ? f.R : R;
+    const Eigen::Vector2d tw = f.ok ? f.t : Eigen::Vector2d(t + shift);
+    const double near2 = cfg.gates_m.front() * cfg.gates_m.front();
+    for (const auto& m : wm) {
+      const Eigen::Vector2d p = Rw * m + tw;
+      const bool near = std::any_of(truth_m.begin(), truth_m.end(),
+                                    [&](const auto& tr) { return (tr - p).squaredNorm() < near2; });
+      w.near += near ? 1 : 0;
+    }
+    if (w.near < cfg.min_window_landmarks) continue;  // clutter and ghosts only, or few
     if (f.ok) {
       w.matched = static_cast<int>(f.pairs.size());
       w.rms_m = rms_after(f.pairs, f.R, f.t);
@@ -191,7 +202,7 @@ MapGeometry map_geometry(std::span<const Eigen::Vector2d> map_m,
       s2 += w.rms_m * w.rms_m * static_cast<double>(w.matched);
       n_rms += static_cast<std::size_t>(w.matched);
     }
-    n_landmarks += static_cast<std::size_t>(w.landmarks);
+    n_near += static_cast<std::size_t>(w.near);
     n_matched += static_cast<std::size_t>(w.matched);
     g.worst_window_share = std::min(g.worst_window_share, w.share());
     g.window_fits.push_back(w);
@@ -200,7 +211,7 @@ MapGeometry map_geometry(std::span<const Eigen::Vector2d> map_m,
   if (g.windows == 0) g.worst_window_share = 0.0;
   g.window_rms_m = n_rms > 0 ? std::sqrt(s2 / static_cast<double>(n_rms)) : 0.0;
   g.window_matched_share =
-      n_landmarks > 0 ? static_cast<double>(n_matched) / static_cast<double>(n_landmarks) : 0.0;
+      n_near > 0 ? static_cast<double>(n_matched) / static_cast<double>(n_near) : 0.0;
   return g;
 }
 

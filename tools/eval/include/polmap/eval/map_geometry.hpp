@@ -26,23 +26,31 @@ struct MapGeometryConfig {
   double vote_cell_m = 0.25;
   /// Nearest-truth matching gates of the rigid-fit rounds (coarse to fine).
   std::vector<double> gates_m = {1.0, 0.5, 0.3};
-  /// Windows with fewer map landmarks are left out of the window figures.
+  /// Windows with fewer near landmarks (MapWindowFit) are left out of the window figures.
   int min_window_landmarks = 5;
   /// Each window's own start: the mode of truth - (global fit of map) within this radius,
   /// so a window that the global fit leaves a few metres off is still fitted on its own.
   double window_vote_radius_m = 3.0;
+  /// The window fit's gates after its vote (which starts it within a vote cell or two): a
+  /// window whose landmarks split into two offsets is fitted to one of them, not averaged
+  /// between them and then lost.
+  std::vector<double> window_gates_m = {0.5, 0.3};
 };
 
 /// One window of the map fitted to truth on its own.
 struct MapWindowFit {
-  long ix = 0, iy = 0;   ///< grid index: the window covers [ix, ix + 1) * window_m in x (map frame)
-  int landmarks = 0;     ///< map point landmarks in the window
+  long ix = 0, iy = 0;  ///< grid index: the window covers [ix, ix + 1) * window_m in x (map frame)
+  int landmarks = 0;    ///< map point landmarks in the window
+  /// Of them within the first (widest) gate of truth after the window fit: the landmarks
+  /// that belong to a real object. Ghosts and clutter, metres from any object, are not
+  /// counted, so share() measures geometry, not the map's precision.
+  int near = 0;
   int matched = 0;       ///< of them matched to truth within the last gate of the window fit
   double rms_m = 0.0;    ///< RMS of the matched pairs after the window's rigid fit
   double yaw_rad = 0.0;  ///< the window fit's rotation relative to the global fit
   double shift_m = 0.0;  ///< the window fit's displacement of the window centre vs. the global fit
   [[nodiscard]] double share() const {
-    return landmarks > 0 ? static_cast<double>(matched) / landmarks : 0.0;
+    return near > 0 ? static_cast<double>(matched) / near : 0.0;
   }
 };
 
@@ -59,9 +67,10 @@ struct MapGeometry {
   double raw_rms_m = 0.0;     ///< RMS of truth - map (no fit)
   double global_rms_m = 0.0;  ///< after the one rigid fit
   double window_rms_m = 0.0;  ///< after a rigid fit per window, over the windows' own matches
-  int windows = 0;            ///< windows with at least min_window_landmarks landmarks
-  /// Matched landmarks / landmarks, pooled over those windows (a map's false landmarks lower
-  /// it too: compare against a map of the same drives built from survey-grade GNSS).
+  int windows = 0;            ///< windows with at least min_window_landmarks near landmarks
+  /// Matched landmarks / near landmarks (MapWindowFit), pooled over those windows: the share
+  /// of the map's real landmarks that sit within the last gate of truth after their
+  /// window's fit.
   double window_matched_share = 0.0;
   double worst_window_share = 0.0;        ///< the lowest share of a single window
   std::vector<MapWindowFit> window_fits;  ///< those windows, in grid order

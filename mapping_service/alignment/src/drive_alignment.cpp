@@ -77,12 +77,13 @@ void corrected(const T* n0, const T* n1, double w, const Eigen::Vector2d& pivot,
 
 }  // namespace
 
-Eigen::Vector2d DriveCorrection::apply(const Eigen::Vector2d& p_m) const {
+Eigen::Vector2d DriveCorrection::apply(const Eigen::Vector2d& p_m, bool candidate) const {
   if (node_s_m.empty()) return p_m;
-  const double s = nearest_s_m(p_m);
+  const double s0 = nearest_s_m(p_m);
+  const double s = candidate ? std::clamp(s0 + candidate_lead_m, 0.0, path_s_m.back()) : s0;
   const Eigen::Vector3d n = at(s);
   double q[2];
-  corrected(n.data(), n.data(), 0.0, path_at(*this, s), p_m, q);
+  corrected(n.data(), n.data(), 0.0, path_at(*this, s0), p_m, q);
   return {q[0], q[1]};
 }
 
@@ -499,6 +500,7 @@ DriveAlignmentResult align_drives(std::span<const AlignmentDrive> drives,
       }
     }
     c.node_correction.assign(c.node_s_m.size(), Eigen::Vector3d::Zero());
+    c.candidate_lead_m = cfg.candidate_lead_m;
     if (cfg.use_odometry) steps[d] = odometry_steps(tr, node_sample, cfg);
     if (!c.survey_grade && !steps[d].empty()) ++res.odometry_drives;
   }
@@ -519,8 +521,9 @@ DriveAlignmentResult align_drives(std::span<const AlignmentDrive> drives,
       Attached a;
       a.drive = d;
       a.p = p;
-      const double s = c.nearest_s_m(p);
-      a.pivot = path_at(c, s);
+      const double s0 = c.nearest_s_m(p);
+      a.pivot = path_at(c, s0);
+      const double s = std::clamp(s0 + cfg.candidate_lead_m, 0.0, c.path_s_m.back());
       const auto it = std::upper_bound(c.node_s_m.begin(), c.node_s_m.end(), s);
       const std::size_t k =
           it == c.node_s_m.begin() ? 0 : static_cast<std::size_t>(it - c.node_s_m.begin()) - 1;

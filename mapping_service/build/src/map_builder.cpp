@@ -417,7 +417,7 @@ std::vector<DrivePass> drive_passes(const MapStore& store, const std::optional<G
     const auto corr = corrections.find(d.row);
     for (const GeoPoint& g : store.drive_path(d.drive_id)) {
       const Eigen::Vector2d p = frame.to_local(g);
-      pass.path_m.push_back(corr == corrections.end() ? p : corr->second.apply(p));
+      pass.path_m.push_back(corr == corrections.end() ? p : corr->second.apply(p, false));
     }
     if (pass.path_m.empty()) continue;  // no trajectory: judged by its candidates alone
     const auto it = cand_of_drive.find(d.row);

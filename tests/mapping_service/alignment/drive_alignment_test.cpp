@@ -71,14 +71,21 @@ struct DriveError {
 struct Fleet {
   std::vector<AlignmentDrive> drives;
   std::vector<DriveError> errors;
+  /// A candidate carries the drive's error from this far before the landmark's station:
+  /// forward-looking radars see an object mostly before the car passes it.
+  double seen_before_m = 10.0;
+  [[nodiscard]] Eigen::Vector2d error_of(std::size_t d, double station) const {
+    return errors[d].at(station - seen_before_m);
+  }
 };
 
 /// n drives, the first `survey` survey-grade; consumer-grade ones also carry the place's
 /// shared error of amplitude shared_m. Samples carry the exact heading, speed and yaw rate
 /// (the vehicle's odometry) unless without_odometry.
 Fleet make_fleet(const World& w, int n, int survey, std::mt19937_64& rng, double shared_m = 0.0,
-                 bool without_odometry = false) {
+                 bool without_odometry = false, double seen_before_m = 10.0) {
   Fleet f;
+  f.seen_before_m = seen_before_m;
   std::normal_distribution<double> g(0.0, 1.0);
   std::uniform_real_distribution<double> u(0.0, 1.0);
   for (int d = 0; d < n; ++d) {
@@ -104,7 +111,7 @@ Fleet make_fleet(const World& w, int n, int survey, std::mt19937_64& rng, double
     }
     for (std::size_t i = 0; i < w.landmarks.size(); ++i) {
       if (u(rng) > 0.8) continue;  // missed in this drive
-      a.points_m.push_back(w.landmarks[i] + e.at(w.station[i]) +
+      a.points_m.push_back(w.landmarks[i] + e.at(w.station[i] - seen_before_m) +
                            Eigen::Vector2d(0.05 * g(rng), 0.05 * g(rng)));
     }
     for (int c = 0; c < 60; ++c) {  // single-drive clutter
@@ -131,7 +138,7 @@ std::pair<double, Eigen::Vector2d> landmark_rms(const World& w, const Fleet& f,
   for (std::size_t d = 0; d < f.drives.size(); ++d) {
     for (std::size_t i = 0; i < w.landmarks.size(); ++i) {
       const Eigen::Vector2d& l = w.landmarks[i];
-      Eigen::Vector2d seen = l + f.errors[d].at(w.station[i]);
+      Eigen::Vector2d seen = l + f.error_of(d, w.station[i]);
       if (r) seen = r->corrections[d].apply(seen);
       diffs[static_cast<std::size_t>(
                 std::clamp(static_cast<int>(l.x() / kWindowM), 0, windows - 1))]
@@ -159,7 +166,7 @@ double inter_drive_rms(const World& w, const Fleet& f, const DriveAlignmentResul
     std::vector<Eigen::Vector2d> seen;
     Eigen::Vector2d mean = Eigen::Vector2d::Zero();
     for (std::size_t d = 0; d < f.drives.size(); ++d) {
-      seen.push_back(r.corrections[d].apply(w.landmarks[i] + f.errors[d].at(w.station[i])));
+      seen.push_back(r.corrections[d].apply(w.landmarks[i] + f.error_of(d, w.station[i])));
       mean += seen.back();
     }
     mean /= static_cast<double>(seen.size());
@@ -218,6 +225,32 @@ TEST(DriveAlignment, TheSharedCanyonErrorNeedsTheVehiclesOdometry) {
   const DriveAlignmentResult c = align_drives(with.drives, off);
   EXPECT_EQ(c.odometry_drives, 0);
   EXPECT_GT(landmark_rms(w, with, &c).first, 0.3);
+}
+
+TEST(DriveAlignment, ACandidateTakesTheCorrectionOfWhereItWasSeen) {
+  // The place's shared error changes by up to 0.04 m per metre; candidates carry it from
+  // where the car saw them, 10 m before it passed. Taking each candidate's correction at its
+  // nearest trajectory point instead (lead 0) bends the map by that error's change over
+  // 10 m, which no association can see (every drive shares it).
+  std::mt19937_64 rng(41);
+  const World w = make_world(rng);
+  const Fleet f = make_fleet(w, 12, 0, rng, 0.8);
+  const DriveAlignmentResult seen = align_drives(f.drives);
+  DriveAlignmentConfig abeam;
+  abeam.candidate_lead_m = 0.0;
+  const DriveAlignmentResult nearest = align_drives(f.drives, abeam);
+  ASSERT_EQ(seen.status, DriveAlignmentResult::Status::Aligned);
+  ASSERT_EQ(nearest.status, DriveAlignmentResult::Status::Aligned);
+  const double rms_seen = landmark_rms(w, f, &seen).first;
+  const double rms_nearest = landmark_rms(w, f, &nearest).first;
+  EXPECT_LT(rms_seen, 0.05);
+  EXPECT_GT(rms_nearest, 2.0 * rms_seen);
+  // A trajectory point keeps its own correction: the lead is for candidates only.
+  const DriveCorrection& c = seen.corrections[3];
+  const Eigen::Vector2d p = c.path_m[c.path_m.size() / 2];
+  const Eigen::Vector3d own = c.at(c.path_s_m[c.path_m.size() / 2]);
+  EXPECT_LT((c.apply(p, false) - (p + own.head<2>())).norm(), 1e-9);
+  EXPECT_GT((c.apply(p, true) - c.apply(p, false)).norm(), 1e-4);
 }
 
 TEST(DriveAlignment, OdometryScaleErrorIsEstimated) {

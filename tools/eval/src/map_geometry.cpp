@@ -191,7 +191,10 @@ MapGeometry map_geometry(std::span<const Eigen::Vector2d> map_m,
                                     [&](const auto& tr) { return (tr - p).squaredNorm() < near2; });
       w.near += near ? 1 : 0;
     }
-    if (w.near < cfg.min_window_landmarks) continue;  // clutter and ghosts only, or few
+    if (w.near < cfg.min_window_landmarks) {  // clutter and ghosts only, or broken
+      ++g.windows_unfitted;
+      continue;
+    }
     if (f.ok) {
       w.matched = static_cast<int>(f.pairs.size());
       w.rms_m = rms_after(f.pairs, f.R, f.t);

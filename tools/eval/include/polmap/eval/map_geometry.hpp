@@ -29,8 +29,9 @@ struct MapGeometryConfig {
   /// Windows with fewer near landmarks (MapWindowFit) are left out of the window figures.
   int min_window_landmarks = 5;
   /// Each window's own start: the mode of truth - (global fit of map) within this radius,
-  /// so a window that the global fit leaves a few metres off is still fitted on its own.
-  double window_vote_radius_m = 3.0;
+  /// so a window that the global fit leaves metres off (a bent map, or a global fit that
+  /// followed one section) is still fitted on its own.
+  double window_vote_radius_m = 6.0;
   /// The window fit's gates after its vote (which starts it within a vote cell or two): a
   /// window whose landmarks split into two offsets is fitted to one of them, not averaged
   /// between them and then lost.
@@ -72,7 +73,10 @@ struct MapGeometry {
   /// of the map's real landmarks that sit within the last gate of truth after their
   /// window's fit.
   double window_matched_share = 0.0;
-  double worst_window_share = 0.0;        ///< the lowest share of a single window
+  double worst_window_share = 0.0;  ///< the lowest share of a single window
+  /// Windows with min_window_landmarks landmarks but fewer near ones: clutter and ghosts
+  /// only, or a section so broken that its own fit finds no real object within a metre.
+  int windows_unfitted = 0;
   std::vector<MapWindowFit> window_fits;  ///< those windows, in grid order
 };
 

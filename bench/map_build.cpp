@@ -28,8 +28,9 @@
 //                   object of the nearest nominal place, up to M away)
 //                   [--sliding 0|1 --sliding-min-along-m M --sliding-ratio R
 //                    --sliding-min-support N] (point_filter.hpp SlidingRule)
-//                   [--explain] [--dump DIR] (simulator: what false landmarks are near; the
-//                   map, line candidates and world objects as CSV for offline analysis)
+//                   [--explain] [--dump DIR] (simulator: what false landmarks are near, and
+//                   each 200 m window's own fit to truth; the map, line candidates and world
+//                   objects as CSV for offline analysis)
 #include <sys/resource.h>
 
 #include <CLI/CLI.hpp>
@@ -790,6 +791,12 @@ int main(int argc, char** argv) {
                                                temporaries_per_km, seed);
   } else {
     fs::path cache = sim_cache.empty() ? root / "packages" : fs::path(sim_cache);
+    // The drives depend on the world, its length and the seed: a cache of one must not serve
+    // another (until 2026-12-07 it did, and a --seed 2 run reused seed 1's drives).
+    char length_name[32];
+    std::snprintf(length_name, sizeof length_name, "%.0fm", length_km * 1000.0);
+    cache /= fs::path(world).filename().string() + "_" + length_name + "_seed" +
+             std::to_string(seed);
     if (gnss == "consumer") {
       cache /= "consumer_rtk" + std::to_string(rtk_drives) +
                (canyon_multipath_m >= 0.0 ? "_mp" + std::to_string(canyon_multipath_m) : "") +
@@ -871,6 +878,16 @@ int main(int argc, char** argv) {
           r.stats.alignment_scale_error_rms,
           static_cast<long long>(r.stats.alignment_odometry_steps_rejected),
           r.stats.seconds_alignment);
+      if (explain) {  // each window's own fit
+        for (const eval::MapWindowFit& w : g.window_fits) {
+          std::printf(
+              "    window (%ld, %ld): %d landmarks, %d near an object, %d within %.1f m "
+              "(share %.2f), rms %.3f m, own fit %.2f m / %.3f deg off the whole map's\n",
+              w.ix, w.iy, w.landmarks, w.near, w.matched,
+              eval::MapGeometryConfig{}.window_gates_m.back(), w.share(), w.rms_m, w.shift_m,
+              w.yaw_rad * 180.0 / M_PI);
+        }
+      }
       std::fflush(stdout);
     }
     if (explain) source->explain(store, r.version, radius_m);

@@ -795,8 +795,8 @@ int main(int argc, char** argv) {
     // another (until 2026-12-07 it did, and a --seed 2 run reused seed 1's drives).
     char length_name[32];
     std::snprintf(length_name, sizeof length_name, "%.0fm", length_km * 1000.0);
-    cache /= fs::path(world).filename().string() + "_" + length_name + "_seed" +
-             std::to_string(seed);
+    cache /=
+        fs::path(world).filename().string() + "_" + length_name + "_seed" + std::to_string(seed);
     if (gnss == "consumer") {
       cache /= "consumer_rtk" + std::to_string(rtk_drives) +
                (canyon_multipath_m >= 0.0 ? "_mp" + std::to_string(canyon_multipath_m) : "") +

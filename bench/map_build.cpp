@@ -746,6 +746,12 @@ int main(int argc, char** argv) {
                  "odometry, rad per m/s^2 (0: off)");
   app.add_option("--align-slip-stiffness", alignment.odometry_slip_stiffness,
                  "with --gnss consumer: longitudinal slip stiffness in the odometry (0: off)");
+  app.add_option("--align-odometry-sigma-m", alignment.odometry_sigma_m,
+                 "with --gnss consumer: odometry displacement noise per step, metres");
+  app.add_option("--align-odometry-sigma-per-m", alignment.odometry_sigma_per_m,
+                 "with --gnss consumer: odometry displacement noise per metre of step");
+  app.add_option("--align-gyro-sigma-rad", alignment.gyro_sigma_rad,
+                 "with --gnss consumer: integrated yaw-rate noise per step, radians");
   app.add_option("--align-candidate-lead-m", alignment.candidate_lead_m,
                  "with --gnss consumer: candidates take the correction this far ahead of "
                  "their nearest trajectory point");

@@ -330,8 +330,19 @@ void vote_round(const std::vector<Attached>& att, std::vector<DriveCorrection>& 
   std::vector<std::pair<std::size_t, double>> hits;
   nanoflann::SearchParams sp;
   sp.sorted = false;
-  // Displacement votes of each candidate, computed once per round.
-  std::vector<std::vector<std::pair<int, int>>> votes(att.size());
+  // Displacement votes of each candidate, computed once per round. A vote towards a
+  // survey-grade drive's candidate weighs as much as all consumer-grade drives together:
+  // the consumer drives share the place's multipath, so without it they outvote the one
+  // drive that knows where the place is (a leave-one-out map of 1 RTK + 4 consumer drives
+  // kept the consumer drives' common 2.2 m offset).
+  int consumer_drives = 0;
+  for (const auto& c : corr) consumer_drives += c.survey_grade || c.node_s_m.empty() ? 0 : 1;
+  const float survey_weight = static_cast<float>(std::max(1, consumer_drives));
+  struct Vote {
+    int x, y;
+    float weight;
+  };
+  std::vector<std::vector<Vote>> votes(att.size());
   for (std::size_t i = 0; i < att.size(); ++i) {
     if (corr[att[i].drive].survey_grade) continue;
     hits.clear();
@@ -340,8 +351,9 @@ void vote_round(const std::vector<Attached>& att, std::vector<DriveCorrection>& 
     for (const auto& [j, d2] : hits) {
       if (att[j].drive == att[i].drive) continue;
       const Eigen::Vector2d d = q[j] - q[i];
-      votes[i].emplace_back(static_cast<int>(std::lround(d.x() / cfg.vote_cell_m)) + half,
-                            static_cast<int>(std::lround(d.y() / cfg.vote_cell_m)) + half);
+      votes[i].push_back({static_cast<int>(std::lround(d.x() / cfg.vote_cell_m)) + half,
+                          static_cast<int>(std::lround(d.y() / cfg.vote_cell_m)) + half,
+                          corr[att[j].drive].survey_grade ? survey_weight : 1.0F});
     }
   }
   std::vector<std::vector<Eigen::Vector2d>> update(corr.size());
@@ -355,9 +367,9 @@ void vote_round(const std::vector<Attached>& att, std::vector<DriveCorrection>& 
       for (int m = std::max(0, k - cfg.vote_window_nodes);
            m <= std::min(nn - 1, k + cfg.vote_window_nodes); ++m) {
         for (const std::size_t i : of_node[d][static_cast<std::size_t>(m)]) {
-          for (const auto& [x, y] : votes[i]) {
+          for (const auto& [x, y, weight] : votes[i]) {
             if (x >= 0 && y >= 0 && x < size && y < size) {
-              img.at<float>(y, x) += 1.0F;
+              img.at<float>(y, x) += weight;
               ++count;
             }
           }

@@ -329,6 +329,47 @@ TEST(DriveAlignment, SurveyGradeDrivesAnchorTheAbsolutePosition) {
   }
 }
 
+TEST(DriveAlignment, OneSurveyGradeDriveOutweighsConsumerDrivesThatAgree) {
+  // Five consumer drives that share a 2.4 m error (the place's multipath, the same in every
+  // drive) agree with each other, not with the one RTK drive: the RTK drive must still win,
+  // or the map keeps the consumer drives' common offset.
+  std::mt19937_64 rng(13);
+  const World w = make_world(rng);
+  Fleet f = make_fleet(w, 6, 1, rng);
+  const Eigen::Vector2d common(2.0, -1.3);
+  std::normal_distribution<double> g(0.0, 0.05);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  for (std::size_t d = 1; d < f.drives.size(); ++d) {  // consumer drives: only the shared error
+    AlignmentDrive& a = f.drives[d];
+    for (std::size_t k = 0; k < a.trajectory.size(); ++k) {
+      a.trajectory[k].position_m = road(0.5 * static_cast<double>(k)) + common;
+    }
+    a.points_m.clear();
+    for (const Eigen::Vector2d& l : w.landmarks) {
+      if (u(rng) < 0.8) a.points_m.push_back(l + common + Eigen::Vector2d(g(rng), g(rng)));
+    }
+  }
+  const DriveAlignmentResult r = align_drives(f.drives);
+  ASSERT_EQ(r.status, DriveAlignmentResult::Status::Aligned);
+  EXPECT_EQ(r.survey_grade_drives, 1);
+  // Where each consumer drive now puts the landmarks, against truth.
+  Eigen::Vector2d mean = Eigen::Vector2d::Zero();
+  int n = 0;
+  for (std::size_t d = 1; d < f.drives.size(); ++d) {
+    for (const Eigen::Vector2d& p : f.drives[d].points_m) {
+      const Eigen::Vector2d q = r.corrections[d].apply(p);
+      double best = 0.5;
+      const Eigen::Vector2d* t = nullptr;
+      for (const auto& l : w.landmarks) {
+        if ((l - q).norm() < best) best = (l - q).norm(), t = &l;
+      }
+      if (t != nullptr) mean += q - *t, ++n;
+    }
+  }
+  ASSERT_GT(n, 200);  // most candidates sit on a landmark again
+  EXPECT_LT((mean / n).norm(), 0.1);
+}
+
 TEST(DriveAlignment, SurveyGradeFleetIsLeftAlone) {
   std::mt19937_64 rng(13);
   const World w = make_world(rng);

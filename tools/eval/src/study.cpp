@@ -1041,7 +1041,8 @@ std::string format_map_geometry_table(const StudyResult& r) {
   std::ostringstream o;
   o << "Map geometry of each leave-one-out map against truth (point landmarks; offset = mean "
        "truth - map, rms after one rigid fit and after a rigid fit per 200 m window; matched = "
-       "share of the landmarks that window's own fit matches, pooled and worst window)\n";
+       "share of the real landmarks (within 1 m of an object) that their window's own fit "
+       "puts within 0.3 m, pooled and worst window)\n";
   char buf[256];
   std::snprintf(buf, sizeof buf, "%-6s %-5s %-5s %9s %10s %10s %8s %8s %s\n", "level", "seed",
                 "drive", "offset m", "rigid rms", "200m rms", "matched", "worst", "errors in");

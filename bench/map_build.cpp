@@ -731,30 +731,40 @@ int main(int argc, char** argv) {
   app.add_option("--consumer-heading-deg", heading_sigma_deg,
                  "with --gnss consumer: heading error sigma (default: the simulator's)");
   mapping::DriveAlignmentConfig alignment;
-  app.add_option("--align-gyro-bias-sigma-rps", alignment.gyro_bias_sigma_rps,
-                 "with --gnss consumer: prior sigma of each drive's yaw-rate bias");
-  app.add_option("--align-scale-sigma", alignment.odometry_scale_sigma,
-                 "with --gnss consumer: prior sigma of each drive's wheel-speed scale error");
-  app.add_option("--align-node-spacing-m", alignment.node_spacing_m,
-                 "with --gnss consumer: spacing of the correction nodes");
-  app.add_option("--align-gnss-correlation-m", alignment.gnss_correlation_length_m,
-                 "with --gnss consumer: length over which one drive's GNSS error is correlated");
+  struct AlignFlag {
+    const char* name;
+    double* value;
+    const char* help;
+  };
+  for (const AlignFlag& f : {
+           AlignFlag{"--align-gyro-bias-sigma-rps", &alignment.gyro_bias_sigma_rps,
+                     "prior sigma of each drive's yaw-rate bias"},
+           AlignFlag{"--align-scale-sigma", &alignment.odometry_scale_sigma,
+                     "prior sigma of each drive's wheel-speed scale error"},
+           AlignFlag{"--align-node-spacing-m", &alignment.node_spacing_m,
+                     "spacing of the correction nodes"},
+           AlignFlag{"--align-gnss-correlation-m", &alignment.gnss_correlation_length_m,
+                     "length over which one drive's GNSS error is correlated"},
+           AlignFlag{"--align-side-slip-gradient",
+                     &alignment.odometry_side_slip_gradient_rad_per_mps2,
+                     "side-slip angle per lateral acceleration in the odometry, rad per m/s^2 "
+                     "(0: off)"},
+           AlignFlag{"--align-slip-stiffness", &alignment.odometry_slip_stiffness,
+                     "longitudinal slip stiffness in the odometry (0: off)"},
+           AlignFlag{"--align-odometry-sigma-m", &alignment.odometry_sigma_m,
+                     "odometry displacement noise per step, metres"},
+           AlignFlag{"--align-odometry-sigma-per-m", &alignment.odometry_sigma_per_m,
+                     "odometry displacement noise per metre of step"},
+           AlignFlag{"--align-gyro-sigma-rad", &alignment.gyro_sigma_rad,
+                     "integrated yaw-rate noise per step, radians"},
+           AlignFlag{"--align-candidate-lead-m", &alignment.candidate_lead_m,
+                     "candidates take the correction this far ahead of their nearest "
+                     "trajectory point"},
+       }) {
+    app.add_option(f.name, *f.value, std::string("with --gnss consumer: ") + f.help);
+  }
   app.add_option("--align-max-iterations", alignment.max_iterations,
                  "with --gnss consumer: Ceres iterations per association round");
-  app.add_option("--align-side-slip-gradient", alignment.odometry_side_slip_gradient_rad_per_mps2,
-                 "with --gnss consumer: side-slip angle per lateral acceleration in the "
-                 "odometry, rad per m/s^2 (0: off)");
-  app.add_option("--align-slip-stiffness", alignment.odometry_slip_stiffness,
-                 "with --gnss consumer: longitudinal slip stiffness in the odometry (0: off)");
-  app.add_option("--align-odometry-sigma-m", alignment.odometry_sigma_m,
-                 "with --gnss consumer: odometry displacement noise per step, metres");
-  app.add_option("--align-odometry-sigma-per-m", alignment.odometry_sigma_per_m,
-                 "with --gnss consumer: odometry displacement noise per metre of step");
-  app.add_option("--align-gyro-sigma-rad", alignment.gyro_sigma_rad,
-                 "with --gnss consumer: integrated yaw-rate noise per step, radians");
-  app.add_option("--align-candidate-lead-m", alignment.candidate_lead_m,
-                 "with --gnss consumer: candidates take the correction this far ahead of "
-                 "their nearest trajectory point");
   app.add_option("--align-odometry", alignment.use_odometry,
                  "with --gnss consumer: odometry factors between nodes (1, default) or "
                  "smoothness priors only (0)");

@@ -879,14 +879,14 @@ int main(int argc, char** argv) {
       std::printf(
           "  geometry (%d drives, gnss %s, %d rtk): matched %d, offset %.3f m, raw rms %.3f m, "
           "rigid-fit rms %.3f m, 200 m window rms %.3f m (%d windows, matched share %.2f, "
-          "worst %.2f, %d unfitted), yaw %.3f deg | "
+          "worst %.2f, %d unfitted, bend %.2f m), yaw %.3f deg | "
           "alignment %s: %lld drives (%lld with odometry), %lld anchors, %lld clusters, "
           "residual %.3f m, mean correction %.2f m, wheel scale mean %+.4f rms %.4f, %lld "
           "odometry steps rejected, %.2f s\n",
           n, gnss.c_str(), std::min(rtk_drives, n), g.matched, g.offset_m, g.raw_rms_m,
           g.global_rms_m, g.window_rms_m, g.windows, g.window_matched_share, g.worst_window_share,
-          g.windows_unfitted, g.yaw_truth_map_rad * 180.0 / M_PI, r.stats.alignment_status.c_str(),
-          static_cast<long long>(r.stats.aligned_drives),
+          g.windows_unfitted, g.max_window_shift_m, g.yaw_truth_map_rad * 180.0 / M_PI,
+          r.stats.alignment_status.c_str(), static_cast<long long>(r.stats.aligned_drives),
           static_cast<long long>(r.stats.alignment_odometry_drives),
           static_cast<long long>(r.stats.alignment_anchor_drives),
           static_cast<long long>(r.stats.alignment_clusters), r.stats.alignment_residual_rms_m,

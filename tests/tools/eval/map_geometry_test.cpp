@@ -75,6 +75,7 @@ TEST(MapGeometry, AWindowOffFromTheRestIsFittedOnItsOwn) {
   double max_shift_m = 0.0;
   for (const auto& w : m.window_fits) max_shift_m = std::max(max_shift_m, w.shift_m);
   EXPECT_NEAR(max_shift_m, 2.0, 0.05);
+  EXPECT_DOUBLE_EQ(m.max_window_shift_m, max_shift_m);
 }
 
 TEST(MapGeometry, ASectionThatBrokeApartLowersItsShare) {

@@ -202,6 +202,7 @@ MapGeometry map_geometry(std::span<const Eigen::Vector2d> map_m,
       w.yaw_rad = std::atan2(dR(1, 0), dR(0, 0));
       const Eigen::Vector2d centre((w.ix + 0.5) * cfg.window_m, (w.iy + 0.5) * cfg.window_m);
       w.shift_m = ((f.R * centre + f.t) - (R * centre + t)).norm();
+      g.max_window_shift_m = std::max(g.max_window_shift_m, w.shift_m);
       s2 += w.rms_m * w.rms_m * static_cast<double>(w.matched);
       n_rms += static_cast<std::size_t>(w.matched);
     }

@@ -74,6 +74,11 @@ struct MapGeometry {
   /// window's fit.
   double window_matched_share = 0.0;
   double worst_window_share = 0.0;  ///< the lowest share of a single window
+  /// The largest displacement of a window's own fit against the whole map's (at the window
+  /// centre): how far the map bends between its sections. The whole-map figures count only
+  /// the landmarks within the last gate, so a section a metre off drops out of them, but a
+  /// vehicle localizing there is a metre off in the map's frame.
+  double max_window_shift_m = 0.0;
   /// Windows with min_window_landmarks landmarks but fewer near ones: clutter and ghosts
   /// only, or a section so broken that its own fit finds no real object within a metre.
   int windows_unfitted = 0;

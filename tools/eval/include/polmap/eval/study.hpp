@@ -206,6 +206,8 @@ struct StudyDriveResult {
   /// low where a section of the map broke apart.
   double map_window_share = 0.0;
   double map_worst_window_share = 0.0;
+  /// The largest shift of a window's own fit against the whole map's (MapGeometry).
+  double map_max_window_shift_m = 0.0;
   bool errors_in_map_frame = false;
   // --- localization
   ErrorSummary errors;

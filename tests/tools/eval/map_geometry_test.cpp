@@ -8,6 +8,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <random>
 
 namespace polmap::eval {
@@ -76,6 +77,72 @@ TEST(MapGeometry, AWindowOffFromTheRestIsFittedOnItsOwn) {
   for (const auto& w : m.window_fits) max_shift_m = std::max(max_shift_m, w.shift_m);
   EXPECT_NEAR(max_shift_m, 2.0, 0.05);
   EXPECT_DOUBLE_EQ(m.max_window_shift_m, max_shift_m);
+}
+
+TEST(MapGeometry, FitRigidMatchesABruteForceSearch) {
+  std::mt19937_64 rng(7);
+  std::normal_distribution<double> g(0.0, 0.05);
+  std::uniform_real_distribution<double> u(-50.0, 50.0);
+  const double th = 0.03;
+  Eigen::Matrix2d R;
+  R << std::cos(th), -std::sin(th), std::sin(th), std::cos(th);
+  std::vector<MapTruthPair> pairs;
+  for (int i = 0; i < 40; ++i) {
+    const Eigen::Vector2d m(u(rng), u(rng));
+    pairs.push_back({m, R * m + Eigen::Vector2d(1.5, -0.7) + Eigen::Vector2d(g(rng), g(rng))});
+  }
+  auto sse = [&](const Eigen::Matrix2d& Rf, const Eigen::Vector2d& tf) {
+    double s = 0.0;
+    for (const auto& p : pairs) s += (Rf * p.map_m + tf - p.truth_m).squaredNorm();
+    return s;
+  };
+  const RigidFit2 f = fit_rigid(pairs);
+  EXPECT_EQ(f.pairs, 40);
+  // Brute force over the angle (the best translation for an angle is the centroid's).
+  Eigen::Vector2d cm = Eigen::Vector2d::Zero(), cg = Eigen::Vector2d::Zero();
+  for (const auto& p : pairs) cm += p.map_m / 40.0, cg += p.truth_m / 40.0;
+  double best = std::numeric_limits<double>::infinity();
+  for (double a = -0.1; a <= 0.1; a += 1e-5) {
+    Eigen::Matrix2d Ra;
+    Ra << std::cos(a), -std::sin(a), std::sin(a), std::cos(a);
+    best = std::min(best, sse(Ra, cg - Ra * cm));
+  }
+  EXPECT_LE(sse(f.R_truth_map, f.t_truth_map_m), best + 1e-9);
+  EXPECT_NEAR(std::atan2(f.R_truth_map(1, 0), f.R_truth_map(0, 0)), th, 2e-3);
+}
+
+TEST(MapGeometry, TheLocalFrameFollowsABentMap) {
+  std::mt19937_64 rng(5);
+  const auto truth = truth_points(rng);
+  std::vector<Eigen::Vector2d> map;
+  // As above: the middle 200 m sit 2 m to the side.
+  auto off = [](const Eigen::Vector2d& p) { return p.x() >= 200.0 && p.x() < 400.0 ? 2.0 : 0.0; };
+  for (const auto& p : truth) map.push_back(p + Eigen::Vector2d(0.0, off(p)));
+  const MapGeometry m = map_geometry(map, truth);
+  ASSERT_EQ(m.status, MapGeometry::Status::Ok);
+  // Every window match is the true correspondence, bent section included.
+  ASSERT_GE(m.window_pairs.size(), static_cast<std::size_t>(0.95 * truth.size()));
+  for (const auto& p : m.window_pairs) {
+    EXPECT_NEAR((p.map_m - p.truth_m).y(), off(p.truth_m), 1e-9);
+    EXPECT_NEAR((p.map_m - p.truth_m).x(), 0.0, 1e-9);
+  }
+  // Around a car in the shifted section the map's frame is 2 m to the side; outside it, not.
+  const auto mid = local_rigid_fit(m.window_pairs, {300.0, 0.0}, 200.0, 5);
+  ASSERT_TRUE(mid.has_value());
+  EXPECT_NEAR(mid->t_truth_map_m.y(), -2.0, 1e-6);
+  EXPECT_NEAR(mid->t_truth_map_m.x(), 0.0, 1e-6);
+  const auto start = local_rigid_fit(m.window_pairs, {80.0, 0.0}, 200.0, 5);
+  ASSERT_TRUE(start.has_value());
+  EXPECT_NEAR(start->t_truth_map_m.norm(), 0.0, 1e-6);
+  // Straddling the step: a blend of both, with the pairs of the square only.
+  const auto border = local_rigid_fit(m.window_pairs, {200.0, 0.0}, 200.0, 5);
+  ASSERT_TRUE(border.has_value());
+  const Eigen::Vector2d c(200.0, 0.0);
+  const double moved_m = (border->R_truth_map * c + border->t_truth_map_m - c).norm();
+  EXPECT_GT(moved_m, 0.3);
+  EXPECT_LT(moved_m, 1.7);
+  // Nowhere near the map: too few pairs.
+  EXPECT_FALSE(local_rigid_fit(m.window_pairs, {2000.0, 0.0}, 200.0, 5).has_value());
 }
 
 TEST(MapGeometry, ASectionThatBrokeApartLowersItsShare) {

@@ -143,6 +143,31 @@ TEST(SummarizeErrors, PoolsSamplesNotDriveRmses) {
   EXPECT_EQ(summarize_errors({}).samples, 0);
 }
 
+TEST(PoolErrorSummaries, AgreesWithPoolingTheSamples) {
+  const auto a = synthetic_drive(1, PolLevel::Full, 0, 0.05, 100);
+  const auto b = synthetic_drive(1, PolLevel::Full, 1, 0.20, 900);
+  const ErrorSummary by_samples = summarize_errors({&a, &b});
+  const ErrorSummary pooled = pool_error_summaries({a.errors, b.errors});
+  EXPECT_EQ(pooled.samples, by_samples.samples);
+  EXPECT_NEAR(pooled.long_rmse_m, by_samples.long_rmse_m, 1e-12);
+  EXPECT_NEAR(pooled.lat_rmse_m, by_samples.lat_rmse_m, 1e-12);
+  EXPECT_NEAR(pooled.rot_rmse_deg, by_samples.rot_rmse_deg, 1e-12);
+  EXPECT_DOUBLE_EQ(pooled.lat_max_m, by_samples.lat_max_m);
+  // Shares weigh by their own sample counts.
+  ErrorSummary x, y;
+  x.nees_samples = 100;
+  x.nees_within_q95_share = 1.0;
+  x.nees_mean = 2.0;
+  y.nees_samples = 300;
+  y.nees_within_q95_share = 0.8;
+  y.nees_mean = 4.0;
+  const ErrorSummary n = pool_error_summaries({x, y});
+  EXPECT_EQ(n.nees_samples, 400);
+  EXPECT_NEAR(n.nees_within_q95_share, 0.85, 1e-12);
+  EXPECT_NEAR(n.nees_mean, 3.5, 1e-12);
+  EXPECT_EQ(pool_error_summaries({}).samples, 0);
+}
+
 TEST(StudyOutput, TablesJsonAndFigures) {
   StudyResult r;
   r.world = "urban";

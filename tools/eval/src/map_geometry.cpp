@@ -7,6 +7,8 @@
 #include <utility>
 #include <vector>
 
+#include "polmap/schema/errors.hpp"
+
 namespace polmap::eval {
 
 std::vector<Eigen::Vector2d> truth_point_objects(const sim::World& world) {
@@ -41,14 +43,17 @@ using Pairs = std::vector<std::pair<Eigen::Vector2d, Eigen::Vector2d>>;  // (map
 
 // Least-squares rigid transform truth ~ R map + t. In 2-D the optimal rotation has a closed
 // form: theta = atan2(sum of cross products, sum of dot products) of the centred pairs.
-std::pair<Eigen::Matrix2d, Eigen::Vector2d> rigid_fit(const Pairs& pairs) {
+template <class Range, class Map, class Truth>
+std::pair<Eigen::Matrix2d, Eigen::Vector2d> rigid_fit_of(const Range& pairs, Map map_of,
+                                                         Truth truth_of) {
   Eigen::Vector2d cm = Eigen::Vector2d::Zero(), cg = Eigen::Vector2d::Zero();
-  for (const auto& [m, g] : pairs) cm += m, cg += g;
-  cm /= static_cast<double>(pairs.size());
-  cg /= static_cast<double>(pairs.size());
+  std::size_t n = 0;
+  for (const auto& p : pairs) cm += map_of(p), cg += truth_of(p), ++n;
+  cm /= static_cast<double>(n);
+  cg /= static_cast<double>(n);
   double sin_sum = 0.0, cos_sum = 0.0;
-  for (const auto& [m, g] : pairs) {
-    const Eigen::Vector2d a = m - cm, b = g - cg;
+  for (const auto& p : pairs) {
+    const Eigen::Vector2d a = map_of(p) - cm, b = truth_of(p) - cg;
     cos_sum += a.dot(b);
     sin_sum += a.x() * b.y() - a.y() * b.x();
   }
@@ -56,6 +61,12 @@ std::pair<Eigen::Matrix2d, Eigen::Vector2d> rigid_fit(const Pairs& pairs) {
   Eigen::Matrix2d R;
   R << std::cos(th), -std::sin(th), std::sin(th), std::cos(th);
   return {R, cg - R * cm};
+}
+
+std::pair<Eigen::Matrix2d, Eigen::Vector2d> rigid_fit(const Pairs& pairs) {
+  return rigid_fit_of(
+      pairs, [](const auto& p) -> const Eigen::Vector2d& { return p.first; },
+      [](const auto& p) -> const Eigen::Vector2d& { return p.second; });
 }
 
 double rms_after(const Pairs& pairs, const Eigen::Matrix2d& R, const Eigen::Vector2d& t) {
@@ -138,6 +149,29 @@ Fit match_and_fit(std::span<const Eigen::Vector2d> map_m, std::span<const Eigen:
 
 }  // namespace
 
+RigidFit2 fit_rigid(std::span<const MapTruthPair> pairs) {
+  POLMAP_EXPECT(pairs.size() >= 2);
+  RigidFit2 f;
+  std::tie(f.R_truth_map, f.t_truth_map_m) = rigid_fit_of(
+      pairs, [](const MapTruthPair& p) -> const Eigen::Vector2d& { return p.map_m; },
+      [](const MapTruthPair& p) -> const Eigen::Vector2d& { return p.truth_m; });
+  f.pairs = static_cast<int>(pairs.size());
+  return f;
+}
+
+std::optional<RigidFit2> local_rigid_fit(std::span<const MapTruthPair> pairs,
+                                         const Eigen::Vector2d& centre_m, double window_m,
+                                         int min_pairs) {
+  std::vector<MapTruthPair> in;
+  const double half = 0.5 * window_m;
+  for (const MapTruthPair& p : pairs) {
+    const Eigen::Vector2d d = p.truth_m - centre_m;
+    if (std::abs(d.x()) <= half && std::abs(d.y()) <= half) in.push_back(p);
+  }
+  if (static_cast<int>(in.size()) < std::max(2, min_pairs)) return std::nullopt;
+  return fit_rigid(in);
+}
+
 MapGeometry map_geometry(std::span<const Eigen::Vector2d> map_m,
                          std::span<const Eigen::Vector2d> truth_m, const MapGeometryConfig& cfg) {
   MapGeometry g;
@@ -202,6 +236,9 @@ MapGeometry map_geometry(std::span<const Eigen::Vector2d> map_m,
       w.yaw_rad = std::atan2(dR(1, 0), dR(0, 0));
       const Eigen::Vector2d centre((w.ix + 0.5) * cfg.window_m, (w.iy + 0.5) * cfg.window_m);
       w.shift_m = ((f.R * centre + f.t) - (R * centre + t)).norm();
+      w.R_truth_map = f.R;
+      w.t_truth_map_m = f.t;
+      for (const auto& [m, tr] : f.pairs) g.window_pairs.push_back({m, tr});
       g.max_window_shift_m = std::max(g.max_window_shift_m, w.shift_m);
       s2 += w.rms_m * w.rms_m * static_cast<double>(w.matched);
       n_rms += static_cast<std::size_t>(w.matched);

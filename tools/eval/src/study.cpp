@@ -176,6 +176,24 @@ StudyDriveResult::Calibration calibration_against_truth(const radar::MountCalibr
   return c;
 }
 
+ErrorSummary error_summary(const TrajectoryMetrics& m) {
+  ErrorSummary e;
+  e.samples = m.evaluated;
+  e.long_rmse_m = m.long_rmse_m;
+  e.long_max_m = m.long_max_m;
+  e.lat_rmse_m = m.lat_rmse_m;
+  e.lat_max_m = m.lat_max_m;
+  e.rot_rmse_deg = m.rot_rmse_deg;
+  e.rot_max_deg = m.rot_max_deg;
+  e.nees_samples = m.nees_samples;
+  e.nees_mean = m.nees_mean;
+  e.nees_within_q95_share = m.nees_within_q95_share;
+  e.pl_samples = m.pl_samples;
+  e.pl_bounded_share = m.pl_bounded_share;
+  e.pl_mean_m = m.pl_mean_m;
+  return e;
+}
+
 }  // namespace
 
 StudyDriveResult localize_simulated_drive(const std::shared_ptr<const sim::World>& world,
@@ -281,31 +299,44 @@ StudyDriveResult localize_simulated_drive(const std::shared_ptr<const sim::World
     r.calibration->converged_after_s = calibration_converged_s;
   }
 
-  // Reference: the simulator's exact poses, carrier-phase flags of the drive's GNSS.
-  std::vector<ReferenceSample> ref;
-  for (sim::ExactState e : simulator.exact_trajectory()) {
-    if (opt.truth_to_map) {  // the map's frame (see LocalizeOptions)
-      const auto& [R, t] = *opt.truth_to_map;
-      const Eigen::Vector2d p = R.transpose() * (Eigen::Vector2d(e.x_m, e.y_m) - t);
-      e.x_m = p.x();
-      e.y_m = p.y();
-      e.yaw_rad -= std::atan2(R(1, 0), R(0, 0));
+  // Reference: the simulator's exact poses, carrier-phase flags of the drive's GNSS; in the
+  // map's frame (see LocalizeOptions) when asked, globally or around each pose.
+  const std::vector<sim::ExactState> exact = simulator.exact_trajectory();
+  using Rigid = std::pair<Eigen::Matrix2d, Eigen::Vector2d>;
+  auto reference = [&](const std::function<std::optional<Rigid>(const Eigen::Vector2d&)>& frame) {
+    std::vector<ReferenceSample> out;
+    out.reserve(exact.size());
+    for (sim::ExactState e : exact) {
+      if (const std::optional<Rigid> Rt = frame(Eigen::Vector2d(e.x_m, e.y_m))) {
+        const auto& [R, t] = *Rt;
+        const Eigen::Vector2d p = R.transpose() * (Eigen::Vector2d(e.x_m, e.y_m) - t);
+        e.x_m = p.x();
+        e.y_m = p.y();
+        e.yaw_rad -= std::atan2(R(1, 0), R(0, 0));
+      }
+      const sim::GeoTruth g = sim::to_geo_truth(e, world->frame);
+      out.push_back(
+          {e.time_s, g.lat_deg, g.lon_deg, g.yaw_enu_rad, e.v_mps, fix.fixed_at(e.time_s)});
     }
-    const sim::GeoTruth g = sim::to_geo_truth(e, world->frame);
-    ref.push_back({e.time_s, g.lat_deg, g.lon_deg, g.yaw_enu_rad, e.v_mps, fix.fixed_at(e.time_s)});
-  }
+    return out;
+  };
+  const auto global_frame = [&](const Eigen::Vector2d&) { return opt.truth_to_map; };
+  const std::vector<ReferenceSample> ref = reference(global_frame);
   TrajectoryEvalOptions eo;
   eo.min_speed_mps = cfg.min_speed_mps;
   eo.require_carrier_phase = cfg.require_carrier_phase;
   const TrajectoryMetrics m = evaluate_trajectory(rows, ref, eo);
-  r.errors.samples = m.evaluated;
-  r.errors.long_rmse_m = m.long_rmse_m;
-  r.errors.long_max_m = m.long_max_m;
-  r.errors.lat_rmse_m = m.lat_rmse_m;
-  r.errors.lat_max_m = m.lat_max_m;
-  r.errors.rot_rmse_deg = m.rot_rmse_deg;
-  r.errors.rot_max_deg = m.rot_max_deg;
+  r.errors = error_summary(m);
   r.reliable_gnss_share = m.reliable_gt_share;
+  if (opt.truth_to_local_map) {
+    r.errors_local_frame = error_summary(evaluate_trajectory(
+        rows,
+        reference([&](const Eigen::Vector2d& p) {
+          std::optional<Rigid> local = opt.truth_to_local_map(p);
+          return local ? local : opt.truth_to_map;
+        }),
+        eo));
+  }
   for (const TrajectoryError& e : m.errors) {
     r.sample_time_s.push_back(e.time_s);
     r.abs_long_m.push_back(std::abs(e.long_m));
@@ -314,12 +345,6 @@ StudyDriveResult localize_simulated_drive(const std::shared_ptr<const sim::World
     r.nees.push_back(e.nees);
     r.pl_lat_m.push_back(e.pl_lat_m);
   }
-  r.errors.nees_samples = m.nees_samples;
-  r.errors.nees_mean = m.nees_mean;
-  r.errors.nees_within_q95_share = m.nees_within_q95_share;
-  r.errors.pl_samples = m.pl_samples;
-  r.errors.pl_bounded_share = m.pl_bounded_share;
-  r.errors.pl_mean_m = m.pl_mean_m;
   r.converged = m.time_to_tracking_s >= 0.0;
   r.converge_time_s = r.converged ? m.time_to_tracking_s : 0.0;
 
@@ -698,6 +723,42 @@ std::string fmt(const char* f, double v) {
 
 // ------------------------------------------------------------------ summaries
 
+ErrorSummary pool_error_summaries(const std::vector<ErrorSummary>& parts) {
+  ErrorSummary s;
+  double sl = 0, sa = 0, sr = 0, nees = 0, nees_in = 0, pl = 0, pl_in = 0;
+  for (const ErrorSummary& e : parts) {
+    const auto n = static_cast<double>(e.samples);
+    s.samples += e.samples;
+    sl += n * e.long_rmse_m * e.long_rmse_m;
+    sa += n * e.lat_rmse_m * e.lat_rmse_m;
+    sr += n * e.rot_rmse_deg * e.rot_rmse_deg;
+    s.long_max_m = std::max(s.long_max_m, e.long_max_m);
+    s.lat_max_m = std::max(s.lat_max_m, e.lat_max_m);
+    s.rot_max_deg = std::max(s.rot_max_deg, e.rot_max_deg);
+    s.nees_samples += e.nees_samples;
+    nees += static_cast<double>(e.nees_samples) * e.nees_mean;
+    nees_in += static_cast<double>(e.nees_samples) * e.nees_within_q95_share;
+    s.pl_samples += e.pl_samples;
+    pl += static_cast<double>(e.pl_samples) * e.pl_mean_m;
+    pl_in += static_cast<double>(e.pl_samples) * e.pl_bounded_share;
+  }
+  if (s.samples > 0) {
+    const auto n = static_cast<double>(s.samples);
+    s.long_rmse_m = std::sqrt(sl / n);
+    s.lat_rmse_m = std::sqrt(sa / n);
+    s.rot_rmse_deg = std::sqrt(sr / n);
+  }
+  if (s.nees_samples > 0) {
+    s.nees_mean = nees / static_cast<double>(s.nees_samples);
+    s.nees_within_q95_share = nees_in / static_cast<double>(s.nees_samples);
+  }
+  if (s.pl_samples > 0) {
+    s.pl_mean_m = pl / static_cast<double>(s.pl_samples);
+    s.pl_bounded_share = pl_in / static_cast<double>(s.pl_samples);
+  }
+  return s;
+}
+
 ErrorSummary summarize_errors(const std::vector<const StudyDriveResult*>& drives) {
   ErrorSummary s;
   double sl = 0, sa = 0, sr = 0, nees = 0, pl = 0;
@@ -881,8 +942,18 @@ StudyResult run_study(const StudyConfig& cfg,
           map_points.push_back(world->frame.to_local(p.position));
         }
         const MapGeometry geo = map_geometry(map_points, truth_points);
+        // A consumer-grade map with a survey-grade drive in it is anchored: its errors are
+        // measured against truth; without one, in its own frame (StudyConfig::rtk_drives).
+        const int anchors = cfg.rtk_drives - (k < cfg.rtk_drives ? 1 : 0);
         if (consumer && geo.status == MapGeometry::Status::Ok) {
-          lo.truth_to_map = std::make_pair(geo.R_truth_map, geo.t_truth_map_m);
+          if (anchors <= 0) lo.truth_to_map = std::make_pair(geo.R_truth_map, geo.t_truth_map_m);
+          const MapGeometryConfig gc;
+          lo.truth_to_local_map = [&geo, gc](const Eigen::Vector2d& p)
+              -> std::optional<std::pair<Eigen::Matrix2d, Eigen::Vector2d>> {
+            const auto f = local_rigid_fit(geo.window_pairs, p, gc.window_m, gc.min_window_landmarks);
+            if (!f) return std::nullopt;
+            return std::make_pair(f->R_truth_map, f->t_truth_map_m);
+          };
         }
         StudyDriveResult r =
             localize_simulated_drive(world, drive_sim_cfg(k), k, level, cfg, *source, lo);
@@ -939,6 +1010,9 @@ StudyResult run_study(const StudyConfig& cfg,
       km += r.distance_m / 1000.0;
     }
     s.errors = summarize_errors(ds);
+    std::vector<ErrorSummary> local;
+    for (const auto* d : ds) local.push_back(d->errors_local_frame);
+    s.errors_local_frame = pool_error_summaries(local);
     s.reliable_gnss_share = s.duration_s > 0 ? gnss_w / s.duration_s : 0.0;
     s.realtime_factor = loc_s > 0 ? s.duration_s / loc_s : 0.0;
     s.graph_update_mean_ms = graph_n > 0 ? graph_sum / static_cast<double>(graph_n) : 0.0;
@@ -1046,17 +1120,30 @@ std::string format_map_geometry_table(const StudyResult& r) {
        "puts within 0.3 m, pooled and worst window; bend = largest shift of a window's own fit "
        "against the whole map's)\n";
   char buf[256];
-  std::snprintf(buf, sizeof buf, "%-6s %-5s %-5s %9s %10s %10s %8s %8s %8s %s\n", "level", "seed",
-                "drive", "offset m", "rigid rms", "200m rms", "matched", "worst", "bend m",
-                "errors in");
+  std::snprintf(buf, sizeof buf, "%-6s %-5s %-5s %9s %10s %10s %8s %8s %8s %-11s %s\n", "level",
+                "seed", "drive", "offset m", "rigid rms", "200m rms", "matched", "worst", "bend m",
+                "errors in", "local frame long / lat m, rot deg");
   o << buf;
+  auto local = [](const ErrorSummary& e) {
+    return e.samples > 0 ? fmt("%.3f / ", e.long_rmse_m) + fmt("%.3f / ", e.lat_rmse_m) +
+                               fmt("%.2f", e.rot_rmse_deg)
+                         : std::string("-");
+  };
   for (const auto& d : r.results) {
-    std::snprintf(buf, sizeof buf, "%-6s %-5llu #%-4d %9.3f %10.3f %10.3f %8.2f %8.2f %8.2f %s\n",
+    std::snprintf(buf, sizeof buf,
+                  "%-6s %-5llu #%-4d %9.3f %10.3f %10.3f %8.2f %8.2f %8.2f %-11s %s\n",
                   std::string(to_string(d.level)).c_str(), static_cast<unsigned long long>(d.seed),
                   d.drive + 1, d.map_offset_m, d.map_rigid_rms_m, d.map_window_rms_m,
                   d.map_window_share, d.map_worst_window_share, d.map_max_window_shift_m,
-                  d.errors_in_map_frame ? "map frame" : "world frame");
+                  d.errors_in_map_frame ? "map frame" : "world frame",
+                  local(d.errors_local_frame).c_str());
     o << buf;
+  }
+  for (const auto& s : r.levels) {
+    if (s.errors_local_frame.samples == 0) continue;
+    o << "pooled, " << to_string(s.level) << ": " << local(s.errors)
+      << " in the frames of 'errors in', " << local(s.errors_local_frame)
+      << " in the local frame (rigid fit of the map within the 200 m around the car)\n";
   }
   return o.str();
 }
@@ -1219,6 +1306,9 @@ nlohmann::json to_json(const StudyResult& r) {
   for (const auto& s : r.levels) {
     j["levels"].push_back({{"level", to_string(s.level)},
                            {"errors", to_json(s.errors)},
+                           {"errors_local_frame", s.errors_local_frame.samples > 0
+                                                      ? to_json(s.errors_local_frame)
+                                                      : nlohmann::json()},
                            {"drives", s.drives},
                            {"converged", s.converged},
                            {"diverged", s.diverged},
@@ -1252,6 +1342,8 @@ nlohmann::json to_json(const StudyResult& r) {
            {"max_window_shift_m", d.map_max_window_shift_m},
            {"errors_in_map_frame", d.errors_in_map_frame}}},
          {"errors", to_json(d.errors)},
+         {"errors_local_frame", d.errors_local_frame.samples > 0 ? to_json(d.errors_local_frame)
+                                                                 : nlohmann::json()},
          {"converged", d.converged},
          {"converge_time_s", d.converge_time_s},
          {"diverged", d.diverged},

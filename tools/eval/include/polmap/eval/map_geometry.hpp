@@ -7,6 +7,7 @@
 /// the global fit, and the share of its landmarks that find truth is reported next to the
 /// RMS: a section that broke apart shows as a low share instead of dropping out of the RMS.
 #include <Eigen/Core>
+#include <optional>
 #include <span>
 #include <vector>
 
@@ -50,9 +51,25 @@ struct MapWindowFit {
   double rms_m = 0.0;    ///< RMS of the matched pairs after the window's rigid fit
   double yaw_rad = 0.0;  ///< the window fit's rotation relative to the global fit
   double shift_m = 0.0;  ///< the window fit's displacement of the window centre vs. the global fit
+  /// The window's own fit: truth ~ R map + t.
+  Eigen::Matrix2d R_truth_map = Eigen::Matrix2d::Identity();
+  Eigen::Vector2d t_truth_map_m = Eigen::Vector2d::Zero();
   [[nodiscard]] double share() const {
     return near > 0 ? static_cast<double>(matched) / near : 0.0;
   }
+};
+
+/// A map landmark and the truth object it was matched to.
+struct MapTruthPair {
+  Eigen::Vector2d map_m = Eigen::Vector2d::Zero();
+  Eigen::Vector2d truth_m = Eigen::Vector2d::Zero();
+};
+
+/// A rigid transform truth ~ R map + t and the pairs it was fitted to.
+struct RigidFit2 {
+  Eigen::Matrix2d R_truth_map = Eigen::Matrix2d::Identity();
+  Eigen::Vector2d t_truth_map_m = Eigen::Vector2d::Zero();
+  int pairs = 0;
 };
 
 struct MapGeometry {
@@ -83,7 +100,23 @@ struct MapGeometry {
   /// only, or a section so broken that its own fit finds no real object within a metre.
   int windows_unfitted = 0;
   std::vector<MapWindowFit> window_fits;  ///< those windows, in grid order
+  /// Every fitted window's final matches (its own vote and gates): correspondences that
+  /// hold in a bent map too, for local fits (local_rigid_fit).
+  std::vector<MapTruthPair> window_pairs;
 };
+
+/// Least-squares rigid transform truth ~ R map + t of the pairs (closed form in 2-D).
+/// Expects at least two pairs.
+RigidFit2 fit_rigid(std::span<const MapTruthPair> pairs);
+
+/// The map's own frame around a place: the rigid fit of the pairs whose truth object lies
+/// in the square of edge window_m centred at centre_m (truth frame), as the map geometry's
+/// windows are judged, but centred where it is asked. A vehicle localizing there sees the
+/// map's local frame: a section shifted by a bend of the map is that section's frame.
+/// Nullopt with fewer than min_pairs pairs.
+std::optional<RigidFit2> local_rigid_fit(std::span<const MapTruthPair> pairs,
+                                         const Eigen::Vector2d& centre_m, double window_m,
+                                         int min_pairs);
 
 /// Matches the map's points to truth (voted start, then nearest neighbours within
 /// shrinking gates, refitting each round) and measures the figures above.

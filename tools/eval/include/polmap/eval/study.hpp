@@ -211,6 +211,12 @@ struct StudyDriveResult {
   bool errors_in_map_frame = false;
   // --- localization
   ErrorSummary errors;
+  /// Consumer-grade studies: the errors once more in the map's local frame (truth moved by
+  /// the rigid fit of the map's landmarks within the 200 m square around the vehicle,
+  /// eval::local_rigid_fit), the frame the relative-geometry target judges a map
+  /// in: a map that bends between its sections is a metre off in its global frame there
+  /// but consistent where the car is. samples = 0 when not measured.
+  ErrorSummary errors_local_frame;
   bool converged = false;        ///< reached Tracking at some point
   double converge_time_s = 0.0;  ///< from the first frame to the first Tracking
   bool diverged = false;         ///< see StudyConfig::divergence_threshold_m
@@ -264,6 +270,7 @@ struct StudyDriveResult {
 struct StudyLevelSummary {
   PolLevel level = PolLevel::Full;
   ErrorSummary errors;
+  ErrorSummary errors_local_frame;  ///< pooled StudyDriveResult::errors_local_frame
   int drives = 0;
   int converged = 0;
   int diverged = 0;
@@ -332,6 +339,12 @@ struct LocalizeOptions {
   /// Evaluate in the map's frame: truth positions p become R^T (p - t) and yaws lose the
   /// fit's yaw, for a map whose truth ~ R map + t (world frame, metres).
   std::optional<std::pair<Eigen::Matrix2d, Eigen::Vector2d>> truth_to_map;
+  /// When set, the errors are evaluated once more (StudyDriveResult::errors_local_frame)
+  /// with each truth pose moved by the transform this returns for its position (world
+  /// frame); nullopt there: truth_to_map's (or none).
+  std::function<std::optional<std::pair<Eigen::Matrix2d, Eigen::Vector2d>>(
+      const Eigen::Vector2d& truth_position_m)>
+      truth_to_local_map;
 };
 
 /// Simulates drive `drive` again (the same frames as for mapping) and localizes
@@ -360,6 +373,8 @@ StudyResult run_study(const StudyConfig& cfg,
 
 /// Pooled summary of a set of drive results (empty -> zero samples).
 ErrorSummary summarize_errors(const std::vector<const StudyDriveResult*>& drives);
+/// Pools per-drive summaries: RMSEs weighted by samples, maxima, NEES and PL shares.
+ErrorSummary pool_error_summaries(const std::vector<ErrorSummary>& parts);
 
 /// Paper Table IV for one level: a row per (seed, drive) and a total row.
 std::string format_accuracy_table(const StudyResult& r, PolLevel level);

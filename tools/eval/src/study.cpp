@@ -329,13 +329,12 @@ StudyDriveResult localize_simulated_drive(const std::shared_ptr<const sim::World
   r.errors = error_summary(m);
   r.reliable_gnss_share = m.reliable_gt_share;
   if (opt.truth_to_local_map) {
-    r.errors_local_frame = error_summary(evaluate_trajectory(
-        rows,
-        reference([&](const Eigen::Vector2d& p) {
-          std::optional<Rigid> local = opt.truth_to_local_map(p);
-          return local ? local : opt.truth_to_map;
-        }),
-        eo));
+    r.errors_local_frame =
+        error_summary(evaluate_trajectory(rows, reference([&](const Eigen::Vector2d& p) {
+                                            std::optional<Rigid> local = opt.truth_to_local_map(p);
+                                            return local ? local : opt.truth_to_map;
+                                          }),
+                                          eo));
   }
   for (const TrajectoryError& e : m.errors) {
     r.sample_time_s.push_back(e.time_s);
@@ -950,7 +949,8 @@ StudyResult run_study(const StudyConfig& cfg,
           const MapGeometryConfig gc;
           lo.truth_to_local_map = [&geo, gc](const Eigen::Vector2d& p)
               -> std::optional<std::pair<Eigen::Matrix2d, Eigen::Vector2d>> {
-            const auto f = local_rigid_fit(geo.window_pairs, p, gc.window_m, gc.min_window_landmarks);
+            const auto f =
+                local_rigid_fit(geo.window_pairs, p, gc.window_m, gc.min_window_landmarks);
             if (!f) return std::nullopt;
             return std::make_pair(f->R_truth_map, f->t_truth_map_m);
           };
@@ -1130,13 +1130,12 @@ std::string format_map_geometry_table(const StudyResult& r) {
                          : std::string("-");
   };
   for (const auto& d : r.results) {
-    std::snprintf(buf, sizeof buf,
-                  "%-6s %-5llu #%-4d %9.3f %10.3f %10.3f %8.2f %8.2f %8.2f %-11s %s\n",
-                  std::string(to_string(d.level)).c_str(), static_cast<unsigned long long>(d.seed),
-                  d.drive + 1, d.map_offset_m, d.map_rigid_rms_m, d.map_window_rms_m,
-                  d.map_window_share, d.map_worst_window_share, d.map_max_window_shift_m,
-                  d.errors_in_map_frame ? "map frame" : "world frame",
-                  local(d.errors_local_frame).c_str());
+    std::snprintf(
+        buf, sizeof buf, "%-6s %-5llu #%-4d %9.3f %10.3f %10.3f %8.2f %8.2f %8.2f %-11s %s\n",
+        std::string(to_string(d.level)).c_str(), static_cast<unsigned long long>(d.seed),
+        d.drive + 1, d.map_offset_m, d.map_rigid_rms_m, d.map_window_rms_m, d.map_window_share,
+        d.map_worst_window_share, d.map_max_window_shift_m,
+        d.errors_in_map_frame ? "map frame" : "world frame", local(d.errors_local_frame).c_str());
     o << buf;
   }
   for (const auto& s : r.levels) {
@@ -1304,19 +1303,19 @@ nlohmann::json to_json(const StudyResult& r) {
   j["http"] = r.http;
   j["wall_s"] = r.wall_s;
   for (const auto& s : r.levels) {
-    j["levels"].push_back({{"level", to_string(s.level)},
-                           {"errors", to_json(s.errors)},
-                           {"errors_local_frame", s.errors_local_frame.samples > 0
-                                                      ? to_json(s.errors_local_frame)
-                                                      : nlohmann::json()},
-                           {"drives", s.drives},
-                           {"converged", s.converged},
-                           {"diverged", s.diverged},
-                           {"duration_s", s.duration_s},
-                           {"reliable_gnss_share", s.reliable_gnss_share},
-                           {"realtime_factor", s.realtime_factor},
-                           {"graph_update_mean_ms", s.graph_update_mean_ms},
-                           {"tile_bytes_per_km", s.tile_bytes_per_km}});
+    j["levels"].push_back(
+        {{"level", to_string(s.level)},
+         {"errors", to_json(s.errors)},
+         {"errors_local_frame",
+          s.errors_local_frame.samples > 0 ? to_json(s.errors_local_frame) : nlohmann::json()},
+         {"drives", s.drives},
+         {"converged", s.converged},
+         {"diverged", s.diverged},
+         {"duration_s", s.duration_s},
+         {"reliable_gnss_share", s.reliable_gnss_share},
+         {"realtime_factor", s.realtime_factor},
+         {"graph_update_mean_ms", s.graph_update_mean_ms},
+         {"tile_bytes_per_km", s.tile_bytes_per_km}});
   }
   for (const auto& d : r.results) {
     j["results"].push_back(
@@ -1342,8 +1341,8 @@ nlohmann::json to_json(const StudyResult& r) {
            {"max_window_shift_m", d.map_max_window_shift_m},
            {"errors_in_map_frame", d.errors_in_map_frame}}},
          {"errors", to_json(d.errors)},
-         {"errors_local_frame", d.errors_local_frame.samples > 0 ? to_json(d.errors_local_frame)
-                                                                 : nlohmann::json()},
+         {"errors_local_frame",
+          d.errors_local_frame.samples > 0 ? to_json(d.errors_local_frame) : nlohmann::json()},
          {"converged", d.converged},
          {"converge_time_s", d.converge_time_s},
          {"diverged", d.diverged},

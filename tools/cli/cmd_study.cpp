@@ -39,6 +39,7 @@ struct StudyOptions {
   std::string realism_sources;
   std::string gnss = "rtk";
   int rtk_drives = 0;
+  int held_out = 0;
   bool http = false;
   bool json = false;
   bool keep_packages = false;
@@ -63,6 +64,7 @@ void run(const StudyOptions& o) {
   cfg.world = o.world;
   cfg.length_m = o.length_m;
   cfg.drives = o.drives;
+  cfg.held_out_drives = o.held_out;
   cfg.out_dir = o.out;
   cfg.http = o.http;
   cfg.package_format = static_cast<std::uint32_t>(o.package_format);
@@ -200,6 +202,10 @@ void setup(CLI::App& app) {
                   "positioning of the mapping drives: rtk (survey-grade) | consumer (a series "
                   "car's GNSS; the build aligns the drives, errors in the map's frame)")
       ->check(CLI::IsMember({"rtk", "consumer"}))
+      ->capture_default_str();
+  cmd->add_option("--held-out", opts->held_out,
+                  "leave out and localize only the last N drives, each against the map of all "
+                  "others (0: every drive)")
       ->capture_default_str();
   cmd->add_option("--rtk-drives", opts->rtk_drives,
                   "with --gnss consumer: the first N drives are survey-grade (anchors)")

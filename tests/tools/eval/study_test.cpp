@@ -251,6 +251,11 @@ TEST(RunStudy, RejectsBadConfigs) {
   c.levels.clear();
   EXPECT_THROW(run_study(c), ValidationError);
   c.levels = {PolLevel::Full};
+  c.held_out_drives = 4;  // more than there are drives
+  EXPECT_THROW(run_study(c), ValidationError);
+  c.held_out_drives = -1;
+  EXPECT_THROW(run_study(c), ValidationError);
+  c.held_out_drives = 0;
   c.out_dir.clear();
   EXPECT_THROW(run_study(c), ValidationError);
 }

@@ -839,14 +839,20 @@ StudyResult run_study(const StudyConfig& cfg,
     result.realism = kept.empty() ? "ideal" : all ? "realistic" : "realistic (" + kept + ")";
   }
   result.length_m = cfg.length_m;
+  if (cfg.held_out_drives < 0 || cfg.held_out_drives > cfg.drives) {
+    throw ValidationError("study: --held-out must be between 0 and --drives (" +
+                          std::to_string(cfg.drives) + "), got " +
+                          std::to_string(cfg.held_out_drives));
+  }
+  const int first_held_out = cfg.held_out_drives > 0 ? cfg.drives - cfg.held_out_drives : 0;
   result.drives = cfg.drives;
   result.seeds = cfg.seeds;
   result.http = cfg.http;
 
-  // Progress in work units: simulate+process 1, build 0.2, localize 1 per drive.
-  const double per_drive = 2.2;
-  const double total_units =
-      per_drive * cfg.drives * static_cast<double>(cfg.seeds.size() * cfg.levels.size());
+  // Progress in work units: simulate+process 1 per drive, build 0.2 and localize 1 per
+  // left-out drive.
+  const double per_set = cfg.drives + 1.2 * (cfg.drives - first_held_out);
+  const double total_units = per_set * static_cast<double>(cfg.seeds.size() * cfg.levels.size());
   double done_units = 0.0;
   auto report = [&](const char* stage, std::uint64_t seed, PolLevel level, int drive, double frac,
                     double weight) {
@@ -898,7 +904,7 @@ StudyResult run_study(const StudyConfig& cfg,
       if (cfg.http) server = std::make_unique<LoopbackServer>(store);
 
       // 3-4. leave one out: build without drive k, localize drive k.
-      for (int k = 0; k < cfg.drives; ++k) {
+      for (int k = first_held_out; k < cfg.drives; ++k) {
         const std::string drive_id = processed[k].drive_id;
         report("build", seed, level, k, 0.0, 0.2);
         mapping::MapBuildRequest req;

@@ -118,6 +118,9 @@ struct StudyConfig {
   /// With sim.gnss.grade = Consumer: the first rtk_drives drives are survey-grade (map
   /// anchors). Consumer studies evaluate in the map's own frame (StudyDriveResult::map_*).
   int rtk_drives = 0;
+  /// Leave out and localize only the last held_out_drives drives (0: every drive), each
+  /// against the map of all others: a large fleet's map costs one build per left-out drive.
+  int held_out_drives = 0;
 };
 
 /// RMSE and maximum of the included samples.

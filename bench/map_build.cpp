@@ -55,6 +55,7 @@
 #include "polmap/mapping_service/polyline_distance.hpp"
 #include "polmap/mapping_service/sqlite_store.hpp"
 #include "polmap/mapping_service/ustar.hpp"
+#include "polmap/sim/drive_simulator.hpp"
 #include "polmap/sim/world.hpp"
 #include "polmap/tiles/local_frame.hpp"
 
@@ -399,6 +400,10 @@ class DriveSource {
   /// Prints what the false point landmarks are near (simulator: nearest world object).
   virtual void explain(const MapStore& /*store*/, std::int64_t /*version*/,
                        double /*radius_m*/) const {}
+  /// Prints, per window of the map geometry, the drives' positioning error averaged over
+  /// the first n drives' trajectories there (simulator: the error every drive shares, which
+  /// consensus cannot see), next to the window fit's shift.
+  virtual void explain_positioning(int /*n*/, const eval::MapGeometry& /*g*/) const {}
   /// Writes the map, the line candidates and the world objects as CSV (local metres) into
   /// dir, for offline analysis (simulator only).
   virtual void dump(const MapStore& /*store*/, std::int64_t /*version*/,
@@ -522,6 +527,59 @@ class SimSource final : public DriveSource {
   [[nodiscard]] const Truth& truth() const override { return truth_; }
   [[nodiscard]] const tiles::LocalFrame& frame() const override { return world_->frame; }
   [[nodiscard]] const sim::World& world() const { return *world_; }
+  void explain_positioning(int n, const eval::MapGeometry& g) const override {
+    const double edge_m = eval::MapGeometryConfig{}.window_m;
+    std::map<std::pair<long, long>, std::pair<Eigen::Vector2d, long>> sum;  // per window
+    Eigen::Vector2d all = Eigen::Vector2d::Zero();
+    long all_n = 0;
+    for (int k = 0; k < n; ++k) {
+      sim::SimConfig cfg = sim_;
+      if (k < rtk_drives_) cfg.gnss.grade = sim::GnssGrade::Rtk;
+      const sim::DriveSimulator drive(world_, cfg, k);
+      const std::vector<sim::ExactState> exact = drive.exact_trajectory();
+      const std::vector<TrajectorySample> rec = drive.recorded_trajectory();
+      if (k < 3) {  // the odometry against the path: wheel speed integral, true arc length
+        double odo_m = 0.0, arc_m = 0.0;
+        for (std::size_t i = 1; i < rec.size() && i < exact.size(); ++i) {
+          odo_m +=
+              0.5 * (rec[i].speed_mps + rec[i - 1].speed_mps) * (rec[i].time_s - rec[i - 1].time_s);
+          arc_m += std::hypot(exact[i].x_m - exact[i - 1].x_m, exact[i].y_m - exact[i - 1].y_m);
+        }
+        std::printf("  drive %d: wheel-speed integral %.2f m, true path %.2f m (%+.3f %%)\n", k,
+                    odo_m, arc_m, 100.0 * (odo_m / arc_m - 1.0));
+      }
+      for (std::size_t i = 0; i < rec.size() && i < exact.size(); i += 10) {
+        const Eigen::Vector2d p(exact[i].x_m, exact[i].y_m);
+        const Eigen::Vector2d e =
+            world_->frame.to_local(GeoPoint{rec[i].lat_deg, rec[i].lon_deg, 0.0}) - p;
+        auto& [s, c] =
+            sum[{std::lround(std::floor(p.x() / edge_m)), std::lround(std::floor(p.y() / edge_m))}];
+        if (c == 0) s.setZero();
+        s += e;
+        ++c;
+        all += e;
+        ++all_n;
+      }
+    }
+    if (all_n == 0) return;
+    all /= static_cast<double>(all_n);
+    std::printf("  positioning error of the %d drives, mean over all: east %+.2f north %+.2f m\n",
+                n, all.x(), all.y());
+    for (const eval::MapWindowFit& w : g.window_fits) {
+      const auto it = sum.find({w.ix, w.iy});
+      if (it == sum.end()) continue;
+      const Eigen::Vector2d e = it->second.first / static_cast<double>(it->second.second) - all;
+      const Eigen::Vector2d c((w.ix + 0.5) * edge_m, (w.iy + 0.5) * edge_m);
+      const Eigen::Vector2d d =
+          (w.R_truth_map * c + w.t_truth_map_m) - (g.R_truth_map * c + g.t_truth_map_m);
+      // A map that inherited the shared error e sits at truth + e: its window fit moves it
+      // back by -e relative to the whole map's fit.
+      std::printf(
+          "    window (%ld, %ld): shared positioning error east %+.2f north %+.2f m (vs. the "
+          "mean); the map's window shift east %+.2f north %+.2f m\n",
+          w.ix, w.iy, e.x(), e.y(), d.x(), d.y());
+    }
+  }
   /// Class of the world object nearest to x (within 2 m), "(temporary)" marked.
   [[nodiscard]] std::string nearest_object(const Eigen::Vector2d& x) const {
     double best = 2.0;
@@ -680,6 +738,10 @@ int main(int argc, char** argv) {
   app.add_option("--dump", dump,
                  "write the map, line candidates and world objects as CSV into DIR/nN (simulator)");
   app.add_flag("--explain", explain, "print what false point landmarks are near (simulator)");
+  bool explain_gnss = false;
+  app.add_flag("--explain-positioning", explain_gnss,
+               "print each 200 m window's positioning error shared by the drives next to the "
+               "map's shift there (simulator)");
   app.add_option("--sim-cache", sim_cache,
                  "simulated packages are kept here and reused (default: KEEP/packages)");
   bool merged = false;
@@ -763,6 +825,11 @@ int main(int argc, char** argv) {
        }) {
     app.add_option(f.name, *f.value, std::string("with --gnss consumer: ") + f.help);
   }
+  app.add_option("--align-min-cluster-drives", alignment.min_cluster_drives,
+                 "with --gnss consumer: drives a landmark needs to tie them (more than the "
+                 "fleet: no associations, each drive fitted to its own GNSS and odometry)");
+  app.add_option("--align-vote-rounds", alignment.vote_rounds,
+                 "with --gnss consumer: rounds of the coarse displacement vote");
   app.add_option("--align-max-iterations", alignment.max_iterations,
                  "with --gnss consumer: Ceres iterations per association round");
   app.add_option("--align-odometry", alignment.use_odometry,
@@ -895,16 +962,30 @@ int main(int argc, char** argv) {
           static_cast<long long>(r.stats.alignment_odometry_steps_rejected),
           r.stats.seconds_alignment);
       if (explain) {  // each window's own fit
+        const double edge_m = eval::MapGeometryConfig{}.window_m;
         for (const eval::MapWindowFit& w : g.window_fits) {
+          // Where the window's own fit puts its centre against the whole map's fit (truth
+          // frame: x east, y north of the world's origin).
+          const Eigen::Vector2d c((w.ix + 0.5) * edge_m, (w.iy + 0.5) * edge_m);
+          const Eigen::Vector2d d =
+              (w.R_truth_map * c + w.t_truth_map_m) - (g.R_truth_map * c + g.t_truth_map_m);
           std::printf(
               "    window (%ld, %ld): %d landmarks, %d near an object, %d within %.1f m "
-              "(share %.2f), rms %.3f m, own fit %.2f m / %.3f deg off the whole map's\n",
+              "(share %.2f), rms %.3f m, own fit %.2f m (east %+.2f, north %+.2f) / %.3f deg "
+              "off the whole map's\n",
               w.ix, w.iy, w.landmarks, w.near, w.matched,
-              eval::MapGeometryConfig{}.window_gates_m.back(), w.share(), w.rms_m, w.shift_m,
-              w.yaw_rad * 180.0 / M_PI);
+              eval::MapGeometryConfig{}.window_gates_m.back(), w.share(), w.rms_m, w.shift_m, d.x(),
+              d.y(), w.yaw_rad * 180.0 / M_PI);
         }
       }
       std::fflush(stdout);
+    }
+    if (explain_gnss) {
+      std::vector<Eigen::Vector2d> lm;
+      for (const auto& p : store.landmarks_in(r.version, std::nullopt, false).points) {
+        lm.push_back(source->frame().to_local(p.position));
+      }
+      source->explain_positioning(n, eval::map_geometry(lm, source->truth().points));
     }
     if (explain) source->explain(store, r.version, radius_m);
     if (!dump.empty()) source->dump(store, r.version, fs::path(dump) / ("n" + std::to_string(n)));

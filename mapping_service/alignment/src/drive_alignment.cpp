@@ -83,7 +83,7 @@ Eigen::Vector2d DriveCorrection::apply(const Eigen::Vector2d& p_m, bool candidat
   const double s = candidate ? std::clamp(s0 + candidate_lead_m, 0.0, path_s_m.back()) : s0;
   const Eigen::Vector3d n = at(s);
   double q[2];
-  corrected(n.data(), n.data(), 0.0, path_at(*this, s0), p_m, q);
+  corrected(n.data(), n.data(), 0.0, path_at(*this, s), p_m, q);
   return {q[0], q[1]};
 }
 
@@ -533,9 +533,10 @@ DriveAlignmentResult align_drives(std::span<const AlignmentDrive> drives,
       Attached a;
       a.drive = d;
       a.p = p;
-      const double s0 = c.nearest_s_m(p);
-      a.pivot = path_at(c, s0);
-      const double s = std::clamp(s0 + cfg.candidate_lead_m, 0.0, c.path_s_m.back());
+      const double s = std::clamp(c.nearest_s_m(p) + cfg.candidate_lead_m, 0.0, c.path_s_m.back());
+      // A pose error moves what the vehicle saw by rotating it about the vehicle: the
+      // heading part of the correction turns the candidate about where it was seen from.
+      a.pivot = path_at(c, s);
       const auto it = std::upper_bound(c.node_s_m.begin(), c.node_s_m.end(), s);
       const std::size_t k =
           it == c.node_s_m.begin() ? 0 : static_cast<std::size_t>(it - c.node_s_m.begin()) - 1;

@@ -396,5 +396,31 @@ TEST(DriveAlignment, CorrectionInterpolatesBetweenNodesAndRotatesAboutThePath) {
   EXPECT_TRUE(c.apply({4.0, 3.0}).isApprox(Eigen::Vector2d(1.0, 0.0), 1e-12));
 }
 
+TEST(DriveAlignment, ACandidateTurnsAboutWhereItWasSeenFrom) {
+  // A heading error turns what the car saw about the car: a candidate seen 5 m before its
+  // nearest trajectory point turns about that earlier point; the trajectory point itself
+  // about itself.
+  DriveCorrection c;
+  c.node_s_m = {0.0, 20.0};
+  c.node_position_m = {{0.0, 0.0}, {20.0, 0.0}};
+  const double th = 0.01;
+  c.node_correction = {{0.0, 0.0, th}, {0.0, 0.0, th}};
+  for (int i = 0; i <= 20; ++i) {
+    c.path_m.emplace_back(i, 0.0);
+    c.path_s_m.push_back(i);
+  }
+  c.candidate_lead_m = -5.0;
+  const Eigen::Vector2d p(12.0, 4.0);
+  auto turned = [&](const Eigen::Vector2d& pivot) {
+    const Eigen::Vector2d r = p - pivot;
+    return Eigen::Vector2d(pivot.x() + std::cos(th) * r.x() - std::sin(th) * r.y(),
+                           pivot.y() + std::sin(th) * r.x() + std::cos(th) * r.y());
+  };
+  EXPECT_TRUE(c.apply(p, true).isApprox(turned({7.0, 0.0}), 1e-12));
+  EXPECT_TRUE(c.apply(p, false).isApprox(turned({12.0, 0.0}), 1e-12));
+  // The two differ by th x 5 m across the road.
+  EXPECT_NEAR((c.apply(p, true) - c.apply(p, false)).norm(), th * 5.0, 1e-6);
+}
+
 }  // namespace
 }  // namespace polmap::mapping

@@ -1,6 +1,7 @@
 // Same seed -> identical record streams (and files); different seeds differ.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -8,6 +9,7 @@
 
 #include "polmap/schema/recording_io.hpp"
 #include "polmap/sim/drive_simulator.hpp"
+#include "polmap/sim/realism.hpp"
 #include "polmap/sim/truth.hpp"
 #include "test_dir.hpp"
 
@@ -103,6 +105,41 @@ TEST(Determinism, SameSeedByteIdenticalRecordingFiles) {
   EXPECT_GT(a.size(), 1000U);
   EXPECT_EQ(a, b);
   std::filesystem::remove_all(dir);
+}
+
+TEST(Determinism, RecordedTrajectoryIsWhatTheStreamCarries) {
+  // Consumer GNSS (bias, multipath, outages) under the realistic preset (INS latency): the
+  // trajectory alone must be the stream's trajectory records, sample for sample.
+  SimConfig cfg;
+  cfg.seed = 11;
+  cfg.duration_s = 3.0;
+  cfg.realism = realism_preset("realistic");
+  cfg.gnss.grade = GnssGrade::Consumer;
+  auto w = load_world("urban", 400.0, cfg.seed, cfg);
+  DriveSimulator sim(w, cfg, 2);
+  const std::vector<TrajectorySample> alone = sim.recorded_trajectory();
+  std::vector<TrajectorySample> streamed;
+  while (auto r = sim.next()) {
+    if (const auto* t = std::get_if<TrajectorySample>(&*r)) streamed.push_back(*t);
+  }
+  ASSERT_EQ(alone.size(), streamed.size());
+  ASSERT_GT(alone.size(), 100u);
+  for (std::size_t i = 0; i < alone.size(); ++i) {
+    EXPECT_EQ(alone[i].time_s, streamed[i].time_s);
+    EXPECT_EQ(alone[i].lat_deg, streamed[i].lat_deg) << i;
+    EXPECT_EQ(alone[i].lon_deg, streamed[i].lon_deg) << i;
+    EXPECT_EQ(alone[i].yaw_enu_rad, streamed[i].yaw_enu_rad) << i;
+    EXPECT_EQ(alone[i].speed_mps, streamed[i].speed_mps) << i;
+    EXPECT_EQ(alone[i].yaw_rate_rps, streamed[i].yaw_rate_rps) << i;
+  }
+  // And it carries the consumer error: metres off the exact trajectory somewhere.
+  const std::vector<ExactState> exact = sim.exact_trajectory();
+  double max_err_m = 0.0;
+  for (std::size_t i = 0; i < alone.size(); ++i) {
+    const Eigen::Vector2d p = w->frame.to_local(GeoPoint{alone[i].lat_deg, alone[i].lon_deg, 0.0});
+    max_err_m = std::max(max_err_m, (p - Eigen::Vector2d(exact[i].x_m, exact[i].y_m)).norm());
+  }
+  EXPECT_GT(max_err_m, 0.3);
 }
 
 }  // namespace

@@ -554,12 +554,7 @@ std::optional<RecordingRecord> DriveSimulator::next() {
   if (traj_ok && (!frame_ok || t_traj <= t_frame)) {
     ++next_traj_;
     last_time_ = t_traj;
-    if (gnss_.latency_s() != 0.0) {  // INS stamps late or early (realism.hpp)
-      ExactState st = plan_.state(t_traj - gnss_.latency_s());
-      st.time_s = t_traj;
-      return RecordingRecord{gnss_.sample(st, world_->frame)};
-    }
-    return RecordingRecord{gnss_.sample(plan_.state(t_traj), world_->frame)};
+    return RecordingRecord{trajectory_sample(gnss_, t_traj)};
   }
   const std::size_t sensor_index = sensor_order_[next_sensor_];
   const std::uint32_t cycle = next_cycle_;
@@ -584,6 +579,27 @@ std::optional<RecordingRecord> DriveSimulator::next() {
       renderer_.render(true_mounts_[sensor_index], plan_.state(t_true), &plan_, cycle, cube, seed);
   f.time_s = t_frame;
   return RecordingRecord{std::move(f)};
+}
+
+TrajectorySample DriveSimulator::trajectory_sample(GnssErrorModel& gnss, double t_s) const {
+  if (gnss.latency_s() != 0.0) {  // INS stamps late or early (realism.hpp)
+    ExactState st = plan_.state(t_s - gnss.latency_s());
+    st.time_s = t_s;
+    return gnss.sample(st, world_->frame);
+  }
+  return gnss.sample(plan_.state(t_s), world_->frame);
+}
+
+std::vector<TrajectorySample> DriveSimulator::recorded_trajectory() const {
+  GnssErrorModel gnss = gnss_;  // the error model's state before the first record
+  std::vector<TrajectorySample> out;
+  const double dur = plan_.duration_s();
+  for (std::uint64_t k = 0;; ++k) {
+    const double t = static_cast<double>(k) / cfg_.gnss.rate_hz;
+    if (t > dur + 1e-9) break;
+    out.push_back(trajectory_sample(gnss, t));
+  }
+  return out;
 }
 
 std::vector<ExactState> DriveSimulator::exact_trajectory() const {

@@ -139,8 +139,10 @@ struct DriveAlignmentConfig {
 };
 
 /// The correction of one drive: nodes along its trajectory with (dx, dy, dyaw), linearly
-/// interpolated by arc length; a point is corrected by the correction at the trajectory
-/// sample nearest to it, rotating about that sample.
+/// interpolated by arc length, each the correction of the vehicle's pose there (position,
+/// heading). A trajectory point takes the correction at its own arc length; a candidate the
+/// correction where it was seen from (candidate_lead_m past its nearest trajectory point),
+/// turned about that trajectory point as the pose error turned it.
 struct DriveCorrection {
   std::int64_t drive = 0;
   bool survey_grade = false;

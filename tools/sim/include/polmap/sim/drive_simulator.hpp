@@ -62,12 +62,19 @@ class DriveSimulator final : public RecordSource {
   [[nodiscard]] const GnssErrorModel& gnss() const { return gnss_; }
   /// Exact states at the trajectory sample times (truth CSV).
   [[nodiscard]] std::vector<ExactState> exact_trajectory() const;
+  /// The trajectory samples next() returns (the positioning solution with its errors, same
+  /// times as exact_trajectory()) without rendering a frame: for analyses of the GNSS
+  /// errors of many drives. Call it before next().
+  [[nodiscard]] std::vector<TrajectorySample> recorded_trajectory() const;
   /// The mounts the sensors really have in this drive (== header().sensors when ideal).
   [[nodiscard]] const std::vector<SensorMount>& true_mounts() const { return true_mounts_; }
   /// Per-sensor time offsets (true time = stamp + offset), indexed like header().sensors.
   [[nodiscard]] const std::vector<double>& time_offsets_s() const { return time_offsets_s_; }
 
  private:
+  /// The trajectory sample at t_s drawn from gnss (next() and recorded_trajectory()).
+  TrajectorySample trajectory_sample(GnssErrorModel& gnss, double t_s) const;
+
   std::shared_ptr<const World> world_;
   SimConfig cfg_;
   int drive_;

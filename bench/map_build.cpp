@@ -819,6 +819,8 @@ int main(int argc, char** argv) {
                      "odometry displacement noise per metre of step"},
            AlignFlag{"--align-gyro-sigma-rad", &alignment.gyro_sigma_rad,
                      "integrated yaw-rate noise per step, radians"},
+           AlignFlag{"--align-candidate-sigma-m", &alignment.candidate_sigma_m,
+                     "position noise of a point candidate in the association residuals"},
            AlignFlag{"--align-candidate-lead-m", &alignment.candidate_lead_m,
                      "candidates take the correction this far ahead of their nearest "
                      "trajectory point"},

@@ -122,8 +122,23 @@ struct DriveAlignmentConfig {
   /// -15, 0.78 at -20; the alignment residual is lowest there too. Depends on the sensor
   /// layout: a fleet backend would keep it per vehicle model.
   double candidate_lead_m = -10.0;
-  /// Position noise of a point candidate (pCFAR centroid), 1 sigma.
-  double candidate_sigma_m = 0.08;
+  /// Weight of a candidate-landmark association: the candidate's position error as the
+  /// correction model leaves it (1 sigma), not its pCFAR centroid noise (~0.08 m). One lead
+  /// and one pose correction per node leave the candidates of a drive errors that are
+  /// correlated along it (objects seen from other distances and sides), and the associations
+  /// tie the map's scale through the candidates' offsets from their trajectory (radar metres
+  /// do not scale with a stretched trajectory). At 0.08 m the tens of thousands of them
+  /// outweighed odometry and GNSS, and their residue went into a common wheel-scale error of
+  /// the fleet (simulated urban route, exact wheel speeds: -0.4 % over 600 m, -0.7 % over
+  /// 2 km), a map shrunk by that much (0.3 m across a 200 m window, bent by metres over
+  /// 2 km). Share of real landmarks within 0.3 m after their window's fit, mean over six
+  /// simulated fleets (README "Maps from consumer-grade GNSS"): 0.80 at 0.08 m, 0.90 at
+  /// 0.5 m, 0.92 at 2 m; synthetic fleets whose candidates follow the model exactly
+  /// (tests/mapping_service/alignment) lose their centimetre agreement above 0.5 m. Those
+  /// fleets (an S-curve at constant speed, even with heading errors turning the scans) do
+  /// not show the scale pull; which part of the simulated route (turns, stops) causes it is
+  /// not yet known.
+  double candidate_sigma_m = 0.5;
   /// Coarse start: displacements to other drives' candidates within this radius are voted
   /// into an image of vote_cell_m cells per window of +-vote_window_nodes nodes.
   double vote_radius_m = 6.0;

@@ -122,23 +122,14 @@ struct DriveAlignmentConfig {
   /// -15, 0.78 at -20; the alignment residual is lowest there too. Depends on the sensor
   /// layout: a fleet backend would keep it per vehicle model.
   double candidate_lead_m = -10.0;
-  /// Weight of a candidate-landmark association: the candidate's position error as the
-  /// correction model leaves it (1 sigma), not its pCFAR centroid noise (~0.08 m). One lead
-  /// and one pose correction per node leave the candidates of a drive errors that are
-  /// correlated along it (objects seen from other distances and sides), and the associations
-  /// tie the map's scale through the candidates' offsets from their trajectory (radar metres
-  /// do not scale with a stretched trajectory). At 0.08 m the tens of thousands of them
-  /// outweighed odometry and GNSS, and their residue went into a common wheel-scale error of
-  /// the fleet (simulated urban route, exact wheel speeds: -0.4 % over 600 m, -0.7 % over
-  /// 2 km), a map shrunk by that much (0.3 m across a 200 m window, bent by metres over
-  /// 2 km). Share of real landmarks within 0.3 m after their window's fit, mean over six
-  /// simulated fleets (README "Maps from consumer-grade GNSS"): 0.80 at 0.08 m, 0.90 at
-  /// 0.5 m, 0.92 at 2 m; synthetic fleets whose candidates follow the model exactly
-  /// (tests/mapping_service/alignment) lose their centimetre agreement above 0.5 m. Those
-  /// fleets (an S-curve at constant speed, even with heading errors turning the scans) do
-  /// not show the scale pull; which part of the simulated route (turns, stops) causes it is
-  /// not yet known.
-  double candidate_sigma_m = 0.5;
+  /// Weight of a candidate-landmark association (1 sigma; the pCFAR centroid noise). A
+  /// weaker weight was measured on 2026-12-07 (README "Maps from consumer-grade GNSS"): at
+  /// 0.5 m the common wheel-scale error that 0.08 m gives unanchored fleets (-0.4 % over
+  /// 600 m, -0.7 % over 2 km, with exact wheel speeds: the map shrinks and bends) vanishes
+  /// and their maps match truth better, but localization against the maps got worse where
+  /// it counts: 2 RTK + 18 consumer drives on 2 km 0.063 / 0.077 m -> 0.191 / 0.199 m
+  /// (long / lat RMSE). Kept at 0.08 m until the scale pull is understood.
+  double candidate_sigma_m = 0.08;
   /// Coarse start: displacements to other drives' candidates within this radius are voted
   /// into an image of vote_cell_m cells per window of +-vote_window_nodes nodes.
   double vote_radius_m = 6.0;

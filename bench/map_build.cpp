@@ -400,10 +400,6 @@ class DriveSource {
   /// Prints what the false point landmarks are near (simulator: nearest world object).
   virtual void explain(const MapStore& /*store*/, std::int64_t /*version*/,
                        double /*radius_m*/) const {}
-  /// Prints, per window of the map geometry, the drives' positioning error averaged over
-  /// the first n drives' trajectories there (simulator: the error every drive shares, which
-  /// consensus cannot see), next to the window fit's shift.
-  virtual void explain_positioning(int /*n*/, const eval::MapGeometry& /*g*/) const {}
   /// Writes the map, the line candidates and the world objects as CSV (local metres) into
   /// dir, for offline analysis (simulator only).
   virtual void dump(const MapStore& /*store*/, std::int64_t /*version*/,
@@ -527,7 +523,11 @@ class SimSource final : public DriveSource {
   [[nodiscard]] const Truth& truth() const override { return truth_; }
   [[nodiscard]] const tiles::LocalFrame& frame() const override { return world_->frame; }
   [[nodiscard]] const sim::World& world() const { return *world_; }
-  void explain_positioning(int n, const eval::MapGeometry& g) const override {
+  /// Prints, per window of the map geometry g, the positioning error averaged over the
+  /// first n drives' trajectories there (the error every drive shares, which consensus
+  /// cannot see) next to the window fit's shift; and for the first drives their wheel-speed
+  /// integral against the true path.
+  void explain_positioning(int n, const eval::MapGeometry& g) const {
     const double edge_m = eval::MapGeometryConfig{}.window_m;
     std::map<std::pair<long, long>, std::pair<Eigen::Vector2d, long>> sum;  // per window
     Eigen::Vector2d all = Eigen::Vector2d::Zero();
@@ -741,7 +741,8 @@ int main(int argc, char** argv) {
   bool explain_gnss = false;
   app.add_flag("--explain-positioning", explain_gnss,
                "print each 200 m window's positioning error shared by the drives next to the "
-               "map's shift there (simulator)");
+               "map's shift there, and the first drives' wheel-speed integral against their "
+               "true path (simulator)");
   app.add_option("--sim-cache", sim_cache,
                  "simulated packages are kept here and reused (default: KEEP/packages)");
   bool merged = false;
@@ -980,14 +981,8 @@ int main(int argc, char** argv) {
               d.y(), w.yaw_rad * 180.0 / M_PI);
         }
       }
+      if (explain_gnss) sim_source->explain_positioning(n, g);
       std::fflush(stdout);
-    }
-    if (explain_gnss) {
-      std::vector<Eigen::Vector2d> lm;
-      for (const auto& p : store.landmarks_in(r.version, std::nullopt, false).points) {
-        lm.push_back(source->frame().to_local(p.position));
-      }
-      source->explain_positioning(n, eval::map_geometry(lm, source->truth().points));
     }
     if (explain) source->explain(store, r.version, radius_m);
     if (!dump.empty()) source->dump(store, r.version, fs::path(dump) / ("n" + std::to_string(n)));

@@ -39,21 +39,18 @@ std::vector<Eigen::Vector2d> truth_point_objects(const sim::World& world) {
 
 namespace {
 
-using Pairs = std::vector<std::pair<Eigen::Vector2d, Eigen::Vector2d>>;  // (map, truth)
+using Pairs = std::vector<MapTruthPair>;
 
 // Least-squares rigid transform truth ~ R map + t. In 2-D the optimal rotation has a closed
 // form: theta = atan2(sum of cross products, sum of dot products) of the centred pairs.
-template <class Range, class Map, class Truth>
-std::pair<Eigen::Matrix2d, Eigen::Vector2d> rigid_fit_of(const Range& pairs, Map map_of,
-                                                         Truth truth_of) {
+std::pair<Eigen::Matrix2d, Eigen::Vector2d> rigid_fit(std::span<const MapTruthPair> pairs) {
   Eigen::Vector2d cm = Eigen::Vector2d::Zero(), cg = Eigen::Vector2d::Zero();
-  std::size_t n = 0;
-  for (const auto& p : pairs) cm += map_of(p), cg += truth_of(p), ++n;
-  cm /= static_cast<double>(n);
-  cg /= static_cast<double>(n);
+  for (const auto& [m, g] : pairs) cm += m, cg += g;
+  cm /= static_cast<double>(pairs.size());
+  cg /= static_cast<double>(pairs.size());
   double sin_sum = 0.0, cos_sum = 0.0;
-  for (const auto& p : pairs) {
-    const Eigen::Vector2d a = map_of(p) - cm, b = truth_of(p) - cg;
+  for (const auto& [m, g] : pairs) {
+    const Eigen::Vector2d a = m - cm, b = g - cg;
     cos_sum += a.dot(b);
     sin_sum += a.x() * b.y() - a.y() * b.x();
   }
@@ -61,12 +58,6 @@ std::pair<Eigen::Matrix2d, Eigen::Vector2d> rigid_fit_of(const Range& pairs, Map
   Eigen::Matrix2d R;
   R << std::cos(th), -std::sin(th), std::sin(th), std::cos(th);
   return {R, cg - R * cm};
-}
-
-std::pair<Eigen::Matrix2d, Eigen::Vector2d> rigid_fit(const Pairs& pairs) {
-  return rigid_fit_of(
-      pairs, [](const auto& p) -> const Eigen::Vector2d& { return p.first; },
-      [](const auto& p) -> const Eigen::Vector2d& { return p.second; });
 }
 
 double rms_after(const Pairs& pairs, const Eigen::Matrix2d& R, const Eigen::Vector2d& t) {
@@ -136,7 +127,7 @@ Fit match_and_fit(std::span<const Eigen::Vector2d> map_m, std::span<const Eigen:
         const double d2 = (tr - p).squaredNorm();
         if (d2 < bd) bd = d2, bt = &tr;
       }
-      if (bt != nullptr) f.pairs.emplace_back(m, *bt);
+      if (bt != nullptr) f.pairs.push_back({m, *bt});
     }
     if (f.pairs.size() < 3) return f;
     std::tie(R, t) = rigid_fit(f.pairs);
@@ -152,9 +143,7 @@ Fit match_and_fit(std::span<const Eigen::Vector2d> map_m, std::span<const Eigen:
 RigidFit2 fit_rigid(std::span<const MapTruthPair> pairs) {
   POLMAP_EXPECT(pairs.size() >= 2);
   RigidFit2 f;
-  std::tie(f.R_truth_map, f.t_truth_map_m) = rigid_fit_of(
-      pairs, [](const MapTruthPair& p) -> const Eigen::Vector2d& { return p.map_m; },
-      [](const MapTruthPair& p) -> const Eigen::Vector2d& { return p.truth_m; });
+  std::tie(f.R_truth_map, f.t_truth_map_m) = rigid_fit(pairs);
   f.pairs = static_cast<int>(pairs.size());
   return f;
 }
@@ -238,7 +227,7 @@ MapGeometry map_geometry(std::span<const Eigen::Vector2d> map_m,
       w.shift_m = ((f.R * centre + f.t) - (R * centre + t)).norm();
       w.R_truth_map = f.R;
       w.t_truth_map_m = f.t;
-      for (const auto& [m, tr] : f.pairs) g.window_pairs.push_back({m, tr});
+      g.window_pairs.insert(g.window_pairs.end(), f.pairs.begin(), f.pairs.end());
       g.max_window_shift_m = std::max(g.max_window_shift_m, w.shift_m);
       s2 += w.rms_m * w.rms_m * static_cast<double>(w.matched);
       n_rms += static_cast<std::size_t>(w.matched);

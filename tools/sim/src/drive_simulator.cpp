@@ -591,7 +591,8 @@ TrajectorySample DriveSimulator::trajectory_sample(GnssErrorModel& gnss, double 
 }
 
 std::vector<TrajectorySample> DriveSimulator::recorded_trajectory() const {
-  GnssErrorModel gnss = gnss_;  // the error model's state before the first record
+  POLMAP_EXPECT(next_traj_ == 0);  // gnss_ still holds the state before the first record
+  GnssErrorModel gnss = gnss_;
   std::vector<TrajectorySample> out;
   const double dur = plan_.duration_s();
   for (std::uint64_t k = 0;; ++k) {

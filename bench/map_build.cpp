@@ -804,6 +804,9 @@ int main(int argc, char** argv) {
                      "prior sigma of each drive's yaw-rate bias"},
            AlignFlag{"--align-scale-sigma", &alignment.odometry_scale_sigma,
                      "prior sigma of each drive's wheel-speed scale error"},
+           AlignFlag{"--align-odometry-parameters-gate-m", &alignment.odometry_parameters_gate_m,
+                     "wheel scale and yaw-rate bias are estimated in association rounds with "
+                     "this gate or finer (held at 0 in coarser ones)"},
            AlignFlag{"--align-node-spacing-m", &alignment.node_spacing_m,
                      "spacing of the correction nodes"},
            AlignFlag{"--align-gnss-correlation-m", &alignment.gnss_correlation_length_m,

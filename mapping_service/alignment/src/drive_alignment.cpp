@@ -599,6 +599,9 @@ DriveAlignmentResult align_drives(std::span<const AlignmentDrive> drives,
           new ceres::AutoDiffCostFunction<OdometryPrior, 2, 2>(
               new OdometryPrior{1.0 / cfg.odometry_scale_sigma, 1.0 / cfg.gyro_bias_sigma_rps}),
           nullptr, odo_params[d].data());
+      if (gate > cfg.odometry_parameters_gate_m) {
+        problem.SetParameterBlockConstant(odo_params[d].data());
+      }
     }
     std::vector<Eigen::Vector2d> lm = cl.centre;
     for (std::size_t j = 0; j < cl.members.size(); ++j) {

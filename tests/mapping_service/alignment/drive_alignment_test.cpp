@@ -286,6 +286,33 @@ TEST(DriveAlignment, OdometryScaleErrorIsEstimated) {
   }
 }
 
+TEST(DriveAlignment, WheelParametersAreHeldInCoarseRounds) {
+  // Coarse rounds associate neighbouring objects wrongly; the wheel scale and yaw-rate bias
+  // are estimated only from rounds with a gate of odometry_parameters_gate_m or finer.
+  std::mt19937_64 rng(37);
+  const World w = make_world(rng);
+  Fleet f = make_fleet(w, 6, 0, rng, 0.5);
+  for (auto& smp : f.drives[0].trajectory) smp.speed_mps *= 1.005;
+  DriveAlignmentConfig cfg;
+  cfg.gates_m = {2.0, 1.0, 0.5};
+  cfg.odometry_parameters_gate_m = 0.3;  // finer than every round: never estimated
+  const DriveAlignmentResult held = align_drives(f.drives, cfg);
+  ASSERT_EQ(held.status, DriveAlignmentResult::Status::Aligned);
+  for (const DriveCorrection& c : held.corrections) {
+    EXPECT_EQ(c.odometry_scale_error, 0.0);
+    EXPECT_EQ(c.gyro_bias_rps, 0.0);
+  }
+  cfg.odometry_parameters_gate_m = 0.5;  // the last round estimates them
+  const DriveAlignmentResult last = align_drives(f.drives, cfg);
+  ASSERT_EQ(last.status, DriveAlignmentResult::Status::Aligned);
+  double others = 0.0;
+  for (std::size_t d = 1; d < last.corrections.size(); ++d) {
+    others += last.corrections[d].odometry_scale_error / 5.0;
+  }
+  // (1 + e) (1 + 0.005) = 1 relative to the others.
+  EXPECT_NEAR(last.corrections[0].odometry_scale_error - others, -0.005, 0.001);
+}
+
 TEST(DriveAlignment, StepsAcrossASampleGapOfAMovingCarAreNotOdometry) {
   // The store keeps a sample per metre and at least one per 5 s: after a stop, the next
   // sample may come seconds later at speed. Integrating speed across such a gap (here

@@ -807,6 +807,9 @@ int main(int argc, char** argv) {
            AlignFlag{"--align-odometry-parameters-gate-m", &alignment.odometry_parameters_gate_m,
                      "wheel scale and yaw-rate bias are estimated in association rounds with "
                      "this gate or finer (held at 0 in coarser ones)"},
+           AlignFlag{"--align-fleet-scale-sigma", &alignment.fleet_scale_sigma,
+                     "the mean wheel-speed scale error of the consumer drives is 0 within this "
+                     "(0: no such factor)"},
            AlignFlag{"--align-node-spacing-m", &alignment.node_spacing_m,
                      "spacing of the correction nodes"},
            AlignFlag{"--align-gnss-correlation-m", &alignment.gnss_correlation_length_m,

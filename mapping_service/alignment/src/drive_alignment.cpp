@@ -199,6 +199,19 @@ struct OdometryFactor {
   }
 };
 
+// The mean of the consumer-grade drives' wheel-scale errors (cars' errors are independent).
+struct FleetMeanScale {
+  double inv_n_sigma;
+  template <typename T>
+  bool operator()(T const* const* odo, T* r) const {
+    T sum(0.0);
+    for (int i = 0; i < n; ++i) sum += odo[i][0];
+    r[0] = sum * inv_n_sigma;
+    return true;
+  }
+  int n = 0;
+};
+
 struct OdometryPrior {
   double inv_scale, inv_bias;
   template <typename T>
@@ -601,6 +614,23 @@ DriveAlignmentResult align_drives(std::span<const AlignmentDrive> drives,
           nullptr, odo_params[d].data());
       if (gate > cfg.odometry_parameters_gate_m) {
         problem.SetParameterBlockConstant(odo_params[d].data());
+      }
+    }
+    if (cfg.fleet_scale_sigma > 0.0 && gate <= cfg.odometry_parameters_gate_m) {
+      std::vector<double*> blocks;
+      for (std::size_t d = 0; d < drives.size(); ++d) {
+        if (!steps[d].empty() && !res.corrections[d].survey_grade) {
+          blocks.push_back(odo_params[d].data());
+        }
+      }
+      if (blocks.size() >= 2) {
+        auto* fm = new FleetMeanScale{
+            1.0 / (static_cast<double>(blocks.size()) * cfg.fleet_scale_sigma),
+            static_cast<int>(blocks.size())};
+        auto* cost = new ceres::DynamicAutoDiffCostFunction<FleetMeanScale, 4>(fm);
+        for (std::size_t i = 0; i < blocks.size(); ++i) cost->AddParameterBlock(2);
+        cost->SetNumResiduals(1);
+        problem.AddResidualBlock(cost, nullptr, blocks);
       }
     }
     std::vector<Eigen::Vector2d> lm = cl.centre;

@@ -116,6 +116,9 @@ struct DriveAlignmentConfig {
   /// at -0.36 % (window share 0.93; 0.96 with this at 0.3). README "Maps from
   /// consumer-grade GNSS" has the measurements.
   double odometry_parameters_gate_m = 0.3;
+  /// The mean wheel-scale error of the consumer-grade drives is 0 within this (cars' errors
+  /// are independent; 0: no such factor).
+  double fleet_scale_sigma = 0.0005;
   /// Length over which the GNSS error of one drive is correlated: the reported sigma is
   /// applied once per this length, not once per node (the priors are not independent).
   double gnss_correlation_length_m = 300.0;

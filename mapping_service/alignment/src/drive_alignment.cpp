@@ -624,9 +624,9 @@ DriveAlignmentResult align_drives(std::span<const AlignmentDrive> drives,
         }
       }
       if (blocks.size() >= 2) {
-        auto* fm = new FleetMeanScale{
-            1.0 / (static_cast<double>(blocks.size()) * cfg.fleet_scale_sigma),
-            static_cast<int>(blocks.size())};
+        auto* fm =
+            new FleetMeanScale{1.0 / (static_cast<double>(blocks.size()) * cfg.fleet_scale_sigma),
+                               static_cast<int>(blocks.size())};
         auto* cost = new ceres::DynamicAutoDiffCostFunction<FleetMeanScale, 4>(fm);
         for (std::size_t i = 0; i < blocks.size(); ++i) cost->AddParameterBlock(2);
         cost->SetNumResiduals(1);

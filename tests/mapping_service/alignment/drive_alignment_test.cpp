@@ -62,7 +62,7 @@ struct DriveError {
   Eigen::Vector2d bias;
   Eigen::Vector2d amp;
   double wavelength_m, phase;
-  double shared_m = 0.0;  ///< amplitude of the place's shared error (survey-grade: none)
+  double shared_m = 0.0;        ///< amplitude of the place's shared error (survey-grade: none)
   double shared_stretch = 0.0;  ///< a shared error that stretches the route along x
   Eigen::Vector2d at(double s) const {
     return bias + amp * std::sin(2 * M_PI * s / wavelength_m + phase) + shared_error(s, shared_m) +
@@ -96,7 +96,9 @@ Fleet make_fleet(const World& w, int n, int survey, std::mt19937_64& rng, double
     DriveError e{rtk ? Eigen::Vector2d(0.01 * g(rng), 0.01 * g(rng))
                      : Eigen::Vector2d(1.5 * g(rng), 1.5 * g(rng)),
                  rtk ? Eigen::Vector2d::Zero() : Eigen::Vector2d(0.5 * g(rng), 0.5 * g(rng)),
-                 600.0 + 600.0 * u(rng), 2 * M_PI * u(rng), rtk ? 0.0 : shared_m,
+                 600.0 + 600.0 * u(rng),
+                 2 * M_PI * u(rng),
+                 rtk ? 0.0 : shared_m,
                  rtk ? 0.0 : shared_stretch};
     AlignmentDrive a;
     a.drive = 100 + d;

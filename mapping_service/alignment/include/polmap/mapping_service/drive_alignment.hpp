@@ -116,8 +116,14 @@ struct DriveAlignmentConfig {
   /// at -0.36 % (window share 0.93; 0.96 with this at 0.3). README "Maps from
   /// consumer-grade GNSS" has the measurements.
   double odometry_parameters_gate_m = 0.3;
-  /// The mean wheel-scale error of the consumer-grade drives is 0 within this (cars' errors
-  /// are independent; 0: no such factor).
+  /// The mean wheel-scale error of the consumer-grade drives is 0 within this (one factor
+  /// over all of them, estimated in the same rounds; 0: no such factor). Cars' scale errors
+  /// are independent, but associations tie the drives together and cannot see a stretch or
+  /// shrink they share, and each drive's own prior lets all of them move together: without
+  /// it, on the simulated urban route with exact wheel speeds, the fleet's scale went to
+  /// -0.23 % (10 drives, 600 m) and -0.37 % (19 drives, 2 km), and the map followed (200 m
+  /// window RMS 0.141 m, 0.103 m with it; realistic preset 0.150 -> 0.103 m). README "Maps
+  /// from consumer-grade GNSS" has the measurements.
   double fleet_scale_sigma = 0.0005;
   /// Length over which the GNSS error of one drive is correlated: the reported sigma is
   /// applied once per this length, not once per node (the priors are not independent).
@@ -139,7 +145,8 @@ struct DriveAlignmentConfig {
   /// 600 m, -0.7 % over 2 km, with exact wheel speeds: the map shrinks and bends) vanishes
   /// and their maps match truth better, but localization against the maps got worse where
   /// it counts: 2 RTK + 18 consumer drives on 2 km 0.063 / 0.077 m -> 0.191 / 0.199 m
-  /// (long / lat RMSE). Kept at 0.08 m until the scale pull is understood.
+  /// (long / lat RMSE). The scale pull came from the coarse association rounds and a
+  /// common stretch no association sees (odometry_parameters_gate_m, fleet_scale_sigma).
   double candidate_sigma_m = 0.08;
   /// Coarse start: displacements to other drives' candidates within this radius are voted
   /// into an image of vote_cell_m cells per window of +-vote_window_nodes nodes.
@@ -211,9 +218,9 @@ struct DriveAlignmentResult {
   int odometry_drives = 0;         ///< consumer-grade drives constrained by odometry
   /// Over those drives: steps that failed the odometry gap or length test, and the mean and
   /// RMS of the estimated wheel-scale errors. Cars' scale errors are independent, so a mean
-  /// far from 0 (beyond ~odometry_scale_sigma / sqrt(n)) says the drives' shared GNSS error
-  /// stretched or shrank the map along the road (2026-12-07, simulated urban route, seed 1:
-  /// all ten drives at -0.1 to -0.65 % with true 0).
+  /// far from fleet_scale_sigma says something pulls the map's length against the factor
+  /// that holds it (2026-12-07, simulated urban route, seed 1, 19 drives on 2 km: -0.30 %
+  /// with it, true 0).
   int odometry_steps_rejected = 0;
   double scale_error_mean = 0.0;
   double scale_error_rms = 0.0;

@@ -957,8 +957,8 @@ int main(int argc, char** argv) {
           "rigid-fit rms %.3f m, 200 m window rms %.3f m (%d windows, matched share %.2f, "
           "worst %.2f, %d unfitted, bend %.2f m), yaw %.3f deg | "
           "alignment %s: %lld drives (%lld with odometry), %lld anchors, %lld clusters, "
-          "residual %.3f m, mean correction %.2f m, wheel scale mean %+.4f rms %.4f, %lld "
-          "odometry steps rejected, %.2f s\n",
+          "residual %.3f m, mean correction %.2f m, wheel scale mean %+.4f rms %.4f, yaw-rate "
+          "bias mean %+.4f rms %.4f deg/s, %lld odometry steps rejected, %.2f s\n",
           n, gnss.c_str(), std::min(rtk_drives, n), g.matched, g.offset_m, g.raw_rms_m,
           g.global_rms_m, g.window_rms_m, g.windows, g.window_matched_share, g.worst_window_share,
           g.windows_unfitted, g.max_window_shift_m, g.yaw_truth_map_rad * 180.0 / M_PI,
@@ -967,7 +967,8 @@ int main(int argc, char** argv) {
           static_cast<long long>(r.stats.alignment_anchor_drives),
           static_cast<long long>(r.stats.alignment_clusters), r.stats.alignment_residual_rms_m,
           r.stats.alignment_mean_correction_m, r.stats.alignment_scale_error_mean,
-          r.stats.alignment_scale_error_rms,
+          r.stats.alignment_scale_error_rms, r.stats.alignment_gyro_bias_mean_rps * 180.0 / M_PI,
+          r.stats.alignment_gyro_bias_rms_rps * 180.0 / M_PI,
           static_cast<long long>(r.stats.alignment_odometry_steps_rejected),
           r.stats.seconds_alignment);
       if (explain) {  // each window's own fit

@@ -52,7 +52,8 @@
 --                     what changed since the version it follows. A tile whose drives are all
 --                     removed stays as an empty tile (it keeps its updated_by).
 --   gridmap_sum_inputs (migration 7) the drives (by package hash) whose gridmap is in the sums;
---                     gridmap_sum_cover the sum tiles each touched. Not tied to drives by a
+--                     gridmap_sum_cover the sum tiles each touched; placement (migration 11)
+--                     how its gridmap was placed (build/drive_placement.hpp). Not tied to drives by a
 --                     foreign key: a deleted drive stays an input until the next build takes
 --                     its contribution out (recomputing its tiles from the remaining inputs).
 --   localization_runs (migration 9) localization run reports sent by vehicles (POST /v1/runs,
@@ -369,3 +370,8 @@ CREATE TABLE hdmap_comparisons (
   PRIMARY KEY (version, name)
 ) WITHOUT ROWID;
 CREATE INDEX landmarks_key ON landmarks(key, version);
+
+-- migration 11: how each drive's gridmap was placed into the merged gridmap sums (its
+-- alignment correction when it was added; '' = as uploaded), so that a drive whose
+-- alignment moves is taken out the way it went in and added again
+ALTER TABLE gridmap_sum_inputs ADD COLUMN placement TEXT NOT NULL DEFAULT '';

@@ -307,3 +307,6 @@ CREATE TABLE hdmap_comparisons (
   PRIMARY KEY (version, name)
 );
 CREATE INDEX landmarks_key ON landmarks(key, version);
+
+-- migration 5: gridmap_sum_inputs.placement (store.sql migration 11)
+ALTER TABLE gridmap_sum_inputs ADD COLUMN placement text NOT NULL DEFAULT '';

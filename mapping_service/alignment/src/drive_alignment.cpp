@@ -199,9 +199,10 @@ struct OdometryFactor {
   }
 };
 
-// The mean of the consumer-grade drives' wheel-scale errors (cars' errors are independent).
+// The mean wheel-scale error of the consumer-grade drives (cars' errors are independent).
 struct FleetMeanScale {
   double inv_n_sigma;
+  int n = 0;
   template <typename T>
   bool operator()(T const* const* odo, T* r) const {
     T sum(0.0);
@@ -209,7 +210,6 @@ struct FleetMeanScale {
     r[0] = sum * inv_n_sigma;
     return true;
   }
-  int n = 0;
 };
 
 struct OdometryPrior {
@@ -624,10 +624,9 @@ DriveAlignmentResult align_drives(std::span<const AlignmentDrive> drives,
         }
       }
       if (blocks.size() >= 2) {
-        auto* fm =
-            new FleetMeanScale{1.0 / (static_cast<double>(blocks.size()) * cfg.fleet_scale_sigma),
-                               static_cast<int>(blocks.size())};
-        auto* cost = new ceres::DynamicAutoDiffCostFunction<FleetMeanScale, 4>(fm);
+        const auto n = static_cast<double>(blocks.size());
+        auto* cost = new ceres::DynamicAutoDiffCostFunction<FleetMeanScale, 4>(
+            new FleetMeanScale{1.0 / (n * cfg.fleet_scale_sigma), static_cast<int>(blocks.size())});
         for (std::size_t i = 0; i < blocks.size(); ++i) cost->AddParameterBlock(2);
         cost->SetNumResiduals(1);
         problem.AddResidualBlock(cost, nullptr, blocks);
@@ -675,7 +674,7 @@ DriveAlignmentResult align_drives(std::span<const AlignmentDrive> drives,
     res.clusters = static_cast<int>(cl.members.size());
     res.residual_rms_m = std::sqrt(s2 / std::max(1, res.associations));
   }
-  double scale_sum = 0.0, scale_sum2 = 0.0;
+  double scale_sum = 0.0, scale_sum2 = 0.0, bias_sum = 0.0, bias_sum2 = 0.0;
   for (std::size_t d = 0; d < drives.size(); ++d) {
     DriveCorrection& c = res.corrections[d];
     for (const OdometryStep& o : steps[d])
@@ -686,10 +685,14 @@ DriveAlignmentResult align_drives(std::span<const AlignmentDrive> drives,
     res.odometry_steps_rejected += c.odometry_steps_rejected;
     scale_sum += c.odometry_scale_error;
     scale_sum2 += c.odometry_scale_error * c.odometry_scale_error;
+    bias_sum += c.gyro_bias_rps;
+    bias_sum2 += c.gyro_bias_rps * c.gyro_bias_rps;
   }
   if (res.odometry_drives > 0) {
     res.scale_error_mean = scale_sum / res.odometry_drives;
     res.scale_error_rms = std::sqrt(scale_sum2 / res.odometry_drives);
+    res.gyro_bias_mean_rps = bias_sum / res.odometry_drives;
+    res.gyro_bias_rms_rps = std::sqrt(bias_sum2 / res.odometry_drives);
   }
   double sum = 0.0;
   int count = 0;

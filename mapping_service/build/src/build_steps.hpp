@@ -8,6 +8,7 @@
 #include <unordered_map>
 #include <vector>
 
+#include "gridmap_build.hpp"
 #include "polmap/mapping_service/map_builder.hpp"
 #include "polmap/tiles/local_frame.hpp"
 
@@ -73,7 +74,8 @@ nlohmann::json build_gridmap(MapStore& store, std::int64_t version, const MapBui
                              const MapBuilderConfig& cfg,
                              const std::vector<DriveRecord>& all_drives,
                              const std::optional<std::int64_t>& current, MapBuildStats& st,
-                             const std::function<void()>& tick);
+                             const std::function<void()>& tick,
+                             const GridmapPlacements& placements = {});
 
 /// The request a version's parameters describe (inverse of request_json; fields it does
 /// not record keep their defaults). ValidationError names a malformed field.

@@ -25,18 +25,21 @@ DrivePackage stored_package(const DriveRecord& d) {
   return pkg;
 }
 
-/// The drive's sum-tile contributions, restricted to `only` when it is given.
-GridmapSumTiles drive_sums(const DrivePackage& pkg, const std::set<GridmapSumKey>* only) {
+/// The drive's sum-tile contributions where `placement` puts them, restricted to `only` when
+/// it is given.
+GridmapSumTiles drive_sums(const DrivePackage& pkg, const DrivePlacement& placement,
+                           const std::set<GridmapSumKey>* only) {
   GridmapSumTiles out;
   if (!pkg.manifest.has_gridmap) return out;
   const tiles::LocalFrame frame(pkg.manifest.origin);
+  const GridmapWarp warp = placement_warp(placement, frame);
   for_each_gridmap_block(pkg, [&](const GridmapRaster& block) {
     if (only == nullptr) {
-      splat_gridmap(block, frame, pkg.manifest.pol_level, out);
+      splat_gridmap(block, frame, pkg.manifest.pol_level, out, warp);
       return;
     }
     GridmapSumTiles part;
-    splat_gridmap(block, frame, pkg.manifest.pol_level, part);
+    splat_gridmap(block, frame, pkg.manifest.pol_level, part, warp);
     for (auto& [k, t] : part) {
       if (!only->contains(k)) continue;
       auto [it, inserted] = out.try_emplace(k, k.level);
@@ -51,6 +54,23 @@ GridmapSumRow row_of(const GridmapSumKey& k, const GridmapSumTile& t) {
 }
 
 GridmapSumKey key_of(const GridmapSumRow& r) { return {static_cast<PolLevel>(r.level), r.x, r.y}; }
+
+/// The stored placement of every input, decoded (an unreadable one is reported and the drive
+/// taken as uploaded: the sums stay usable).
+std::map<std::string, DrivePlacement> stored_placements(const MapStore& store,
+                                                        std::vector<std::string>& errors) {
+  std::map<std::string, DrivePlacement> out;
+  for (const auto& in : store.gridmap_sum_inputs()) {
+    try {
+      out.emplace(in.content_hash,
+                  decode_drive_placement(in.placement, "gridmap sum input " + in.content_hash));
+    } catch (const ValidationError& e) {
+      errors.emplace_back(e.what());
+      out.emplace(in.content_hash, DrivePlacement{});
+    }
+  }
+  return out;
+}
 
 std::string source_of(const GridmapSumRow& r) {
   return "gridmap sum tile (level " + std::to_string(r.level) + ", z20 " + std::to_string(r.x) +
@@ -69,6 +89,7 @@ GridmapSumTiles recompute_sum_tiles(const MapStore& store, const std::set<Gridma
                                     const std::set<std::string>& without,
                                     std::vector<std::string>& errors) {
   GridmapSumTiles out;
+  const std::map<std::string, DrivePlacement> placements = stored_placements(store, errors);
   std::set<std::string> contributors;
   for (const auto& k : keys) {
     out.try_emplace(k, k.level);  // a tile with no remaining contributor is empty
@@ -80,7 +101,9 @@ GridmapSumTiles recompute_sum_tiles(const MapStore& store, const std::set<Gridma
     const auto d = store.find_drive_by_hash(h);
     if (!d) continue;  // removed too; its own removal handles it
     try {
-      for (auto& [k, t] : drive_sums(stored_package(*d), &keys)) out.at(k).add(t);
+      const auto p = placements.find(h);
+      const DrivePlacement as_stored = p == placements.end() ? DrivePlacement{} : p->second;
+      for (auto& [k, t] : drive_sums(stored_package(*d), as_stored, &keys)) out.at(k).add(t);
     } catch (const std::exception& e) {
       errors.push_back(d->drive_id + ": " + e.what());
     }
@@ -91,14 +114,12 @@ GridmapSumTiles recompute_sum_tiles(const MapStore& store, const std::set<Gridma
 GridmapSumsUpdate update_gridmap_sums(MapStore& store, std::int64_t version,
                                       const std::vector<DriveRecord>& drives,
                                       const std::set<std::string>& stored_hashes,
-                                      const std::function<void()>& tick) {
+                                      const std::function<void()>& tick,
+                                      const GridmapPlacements& placements) {
   GridmapSumsUpdate up;
-  std::set<std::string> inputs;
-  for (auto& in : store.gridmap_sum_inputs()) inputs.insert(std::move(in.content_hash));
-  // Inputs whose drive was deleted: their tiles recomputed from the others.
-  for (const auto& h : inputs) {
-    if (stored_hashes.contains(h)) continue;
-    if (tick) tick();
+  std::map<std::string, DrivePlacement> inputs = stored_placements(store, up.errors);
+  // Takes input h out: its tiles recomputed from the other inputs, as they were placed.
+  auto take_out = [&](const std::string& h) {
     std::set<GridmapSumKey> keys;
     for (const auto& c : store.gridmap_sum_cover(h)) {
       keys.insert({static_cast<PolLevel>(c[0]), c[1], c[2]});
@@ -111,14 +132,37 @@ GridmapSumsUpdate update_gridmap_sums(MapStore& store, std::int64_t version,
     change.content_hash = h;
     store.commit_gridmap_sums(version, rows, change);
     up.tiles_written += static_cast<std::int64_t>(rows.size());
+  };
+  // Inputs whose drive was deleted.
+  for (auto it = inputs.begin(); it != inputs.end();) {
+    if (stored_hashes.contains(it->first)) {
+      ++it;
+      continue;
+    }
+    if (tick) tick();
+    take_out(it->first);
     ++up.drives_removed;
+    it = inputs.erase(it);
   }
   for (const auto& d : drives) {
-    if (inputs.contains(d.content_hash)) continue;
+    const auto placement = placements.by_hash.find(d.content_hash);
+    const DrivePlacement place =
+        placement == placements.by_hash.end() ? DrivePlacement{} : placement->second;
+    bool replacing = false;
+    if (const auto in = inputs.find(d.content_hash); in != inputs.end()) {
+      // Already in: re-placed only when this build aligned it somewhere else.
+      if (placement == placements.by_hash.end() ||
+          placement_difference_m(in->second, place) <= placements.replace_threshold_m) {
+        continue;
+      }
+      if (tick) tick();
+      take_out(d.content_hash);
+      replacing = true;
+    }
     if (tick) tick();
     GridmapSumTiles mine;
     try {
-      mine = drive_sums(stored_package(d), nullptr);
+      mine = drive_sums(stored_package(d), place, nullptr);
     } catch (const std::exception& e) {
       // A drive without a readable gridmap still contributes its candidates.
       up.errors.push_back(d.drive_id + ": " + e.what());
@@ -127,6 +171,7 @@ GridmapSumsUpdate update_gridmap_sums(MapStore& store, std::int64_t version,
     GridmapSumInputChange change;
     change.kind = GridmapSumInputChange::Kind::Add;
     change.content_hash = d.content_hash;
+    change.placement = encode_drive_placement(place);
     std::vector<GridmapSumRow> rows;
     for (auto& [k, t] : mine) {
       change.cover.push_back({static_cast<int>(k.level), k.x, k.y});
@@ -137,7 +182,7 @@ GridmapSumsUpdate update_gridmap_sums(MapStore& store, std::int64_t version,
     }
     store.commit_gridmap_sums(version, rows, change);
     up.tiles_written += static_cast<std::int64_t>(rows.size());
-    ++up.drives_added;
+    ++(replacing ? up.drives_replaced : up.drives_added);
   }
   return up;
 }

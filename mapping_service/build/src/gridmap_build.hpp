@@ -9,26 +9,40 @@
 #include <string>
 #include <vector>
 
+#include "polmap/mapping_service/drive_placement.hpp"
 #include "polmap/mapping_service/fleet_gridmap.hpp"
 #include "polmap/mapping_service/gridmap_sums.hpp"
 #include "polmap/mapping_service/store.hpp"
 
 namespace polmap::mapping::detail {
 
+/// Where this build places drives' gridmaps: the drives it aligned (by package hash), and
+/// how far a stored placement may be from the new one before the drive is taken out of the
+/// sums and added again.
+struct GridmapPlacements {
+  std::map<std::string, DrivePlacement> by_hash;
+  double replace_threshold_m = 0.05;
+};
+
 struct GridmapSumsUpdate {
-  std::int64_t drives_added = 0;    ///< drives whose gridmap went into the sums
-  std::int64_t drives_removed = 0;  ///< inputs whose drive is no longer stored, taken out
-  std::int64_t tiles_written = 0;   ///< sum tiles rewritten
-  std::vector<std::string> errors;  ///< drives whose gridmap could not be read (retried later)
+  std::int64_t drives_added = 0;     ///< drives whose gridmap went into the sums
+  std::int64_t drives_replaced = 0;  ///< inputs whose placement moved: taken out, added again
+  std::int64_t drives_removed = 0;   ///< inputs whose drive is no longer stored, taken out
+  std::int64_t tiles_written = 0;    ///< sum tiles rewritten
+  std::vector<std::string> errors;   ///< drives whose gridmap could not be read (retried later)
 };
 
 /// Adds every drive of `drives` that is not yet an input (each in its own commit, tiles
-/// written by `version`), and takes out inputs whose package hash is not in `stored_hashes`
-/// (their tiles recomputed from the remaining inputs). `tick` is called between drives.
+/// written by `version`; placed as `placements` says, else as uploaded), takes out inputs
+/// whose package hash is not in `stored_hashes` (their tiles recomputed from the remaining
+/// inputs), and re-places inputs whose stored placement differs from their new one by more
+/// than the threshold (taken out, then added where they now belong; two commits). `tick`
+/// is called between drives.
 GridmapSumsUpdate update_gridmap_sums(MapStore& store, std::int64_t version,
                                       const std::vector<DriveRecord>& drives,
                                       const std::set<std::string>& stored_hashes,
-                                      const std::function<void()>& tick);
+                                      const std::function<void()>& tick,
+                                      const GridmapPlacements& placements = {});
 
 /// The sum tiles `keys` recomputed from the packages of the inputs that touched them, except
 /// those in `without` (by package hash): what the tiles hold without those drives.

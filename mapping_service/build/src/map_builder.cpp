@@ -202,6 +202,7 @@ nlohmann::json to_json(const MapBuildStats& s) {
   j["gridmap_drives"] = s.gridmap_drives;
   j["gridmap_sums"] = {{"drives_added", s.gridmap_drives_added},
                        {"drives_removed", s.gridmap_drives_removed},
+                       {"drives_replaced", s.gridmap_drives_replaced},
                        {"sum_tiles_written", s.gridmap_sum_tiles_written},
                        {"regions_rendered", s.gridmap_regions_rendered},
                        {"tiles_copied", s.gridmap_tiles_copied}};
@@ -239,6 +240,8 @@ nlohmann::json to_json(const MapBuildStats& s) {
                     {"odometry_steps_rejected", s.alignment_odometry_steps_rejected},
                     {"scale_error_mean", s.alignment_scale_error_mean},
                     {"scale_error_rms", s.alignment_scale_error_rms},
+                    {"gyro_bias_mean_rps", s.alignment_gyro_bias_mean_rps},
+                    {"gyro_bias_rms_rps", s.alignment_gyro_bias_rms_rps},
                     {"seconds", s.seconds_alignment}};
   j["seconds"] = {{"load", s.seconds_load},           {"consensus", s.seconds_consensus},
                   {"landmarks", s.seconds_landmarks}, {"tiles", s.seconds_tiles},
@@ -367,6 +370,8 @@ DriveCorrections align_candidates(const MapStore& store, const std::optional<Geo
   st.alignment_odometry_steps_rejected = r.odometry_steps_rejected;
   st.alignment_scale_error_mean = r.scale_error_mean;
   st.alignment_scale_error_rms = r.scale_error_rms;
+  st.alignment_gyro_bias_mean_rps = r.gyro_bias_mean_rps;
+  st.alignment_gyro_bias_rms_rps = r.gyro_bias_rms_rps;
   if (r.status == DriveAlignmentResult::Status::Aligned) {
     for (const DriveCorrection& c : r.corrections) {
       if (!c.survey_grade) out.emplace(c.drive, c);
@@ -693,14 +698,16 @@ nlohmann::json build_gridmap(MapStore& store, std::int64_t version, const MapBui
                              const MapBuilderConfig& cfg,
                              const std::vector<DriveRecord>& all_drives,
                              const std::optional<std::int64_t>& current, MapBuildStats& st,
-                             const std::function<void()>& tick) {
+                             const std::function<void()>& tick,
+                             const detail::GridmapPlacements& placements) {
   const FleetGridmapConfig& gc = cfg.gridmap;
   std::set<std::string> stored_hashes;
   for (const auto& d : all_drives) stored_hashes.insert(d.content_hash);
   const std::vector<DriveRecord> drives = req.region ? store.drives_in(*req.region) : all_drives;
   detail::GridmapSumsUpdate up =
-      detail::update_gridmap_sums(store, version, drives, stored_hashes, tick);
+      detail::update_gridmap_sums(store, version, drives, stored_hashes, tick, placements);
   st.gridmap_drives_added = up.drives_added;
+  st.gridmap_drives_replaced = up.drives_replaced;
   st.gridmap_drives_removed = up.drives_removed;
   st.gridmap_sum_tiles_written = up.tiles_written;
   for (const auto& in : store.gridmap_sum_inputs()) {
@@ -1066,8 +1073,17 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version, const MapB
     nlohmann::json gridmap_info;
     if (req.build_gridmap) {
       stage("gridmap", 0.8);
-      gridmap_info = build_gridmap(store, version, req, cfg_, all_drives, current, st,
-                                   [&] { stage("gridmap", 0.8); });
+      // The drives this build aligned go into the sums where the alignment put them.
+      detail::GridmapPlacements placements;
+      placements.replace_threshold_m = cfg_.gridmap_replace_threshold_m;
+      for (const DriveRecord& d : all_drives) {
+        if (const auto c = corrections.find(d.row); c != corrections.end()) {
+          placements.by_hash.emplace(d.content_hash, drive_placement(frame, c->second));
+        }
+      }
+      gridmap_info = build_gridmap(
+          store, version, req, cfg_, all_drives, current, st, [&] { stage("gridmap", 0.8); },
+          placements);
       st.seconds_gridmap = clock.lap();
     }
 

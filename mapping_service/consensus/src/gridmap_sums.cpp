@@ -68,7 +68,7 @@ void GridmapSumTile::add(const GridmapSumTile& other) {
 }
 
 void splat_gridmap(const GridmapRaster& r, const tiles::LocalFrame& frame, PolLevel level,
-                   GridmapSumTiles& out) {
+                   GridmapSumTiles& out, const GridmapWarp& warp) {
   if (r.width <= 0 || r.height <= 0) return;
   POLMAP_EXPECT(r.count.size() == static_cast<std::size_t>(r.width) * r.height);
   POLMAP_EXPECT(static_cast<int>(r.layers.size()) == r.q * (r.q + 1) / 2);
@@ -82,7 +82,7 @@ void splat_gridmap(const GridmapRaster& r, const tiles::LocalFrame& frame, PolLe
   auto grid_of = [&](double col, double row) {
     const Eigen::Vector2d xy(r.origin_x_m + (col + 0.5) * r.cell_size_m,
                              r.origin_y_m - (row + 0.5) * r.cell_size_m);
-    const GeoPoint g = frame.to_geo(xy);
+    const GeoPoint g = frame.to_geo(warp ? warp(xy) : xy);
     const auto m = tiles::to_mercator_tiles(g.lat_deg, g.lon_deg, kGridmapSumZoom);
     return Eigen::Vector2d(m.x * kPx, m.y * kPx);
   };

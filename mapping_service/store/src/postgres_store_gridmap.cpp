@@ -7,9 +7,10 @@ namespace polmap::mapping {
 std::vector<GridmapSumInput> PostgresMapStore::gridmap_sum_inputs() const {
   return impl_->read([&](Connection& c) {
     std::vector<GridmapSumInput> out;
-    const Result r =
-        c.run("SELECT content_hash, tiles FROM gridmap_sum_inputs ORDER BY content_hash");
-    for (int i = 0; i < r.rows(); ++i) out.push_back({r.text(i, 0), r.i64(i, 1)});
+    const Result r = c.run(
+        "SELECT content_hash, tiles, placement FROM gridmap_sum_inputs ORDER BY "
+        "content_hash");
+    for (int i = 0; i < r.rows(); ++i) out.push_back({r.text(i, 0), r.i64(i, 1), r.text(i, 2)});
     return out;
   });
 }
@@ -97,8 +98,11 @@ void PostgresMapStore::commit_gridmap_sums(std::int64_t version,
           t.level, t.x, t.y, Bytea{t.data}, version);
     }
     if (change.kind == Kind::Add) {
-      c.run("INSERT INTO gridmap_sum_inputs(content_hash, tiles, added_at) VALUES ($1, $2, $3)",
-            change.content_hash, static_cast<std::int64_t>(change.cover.size()), now_iso());
+      c.run(
+          "INSERT INTO gridmap_sum_inputs(content_hash, tiles, added_at, placement) VALUES ($1, "
+          "$2, $3, $4)",
+          change.content_hash, static_cast<std::int64_t>(change.cover.size()), now_iso(),
+          change.placement);
       std::vector<int> level, x, y;
       for (const auto& k : change.cover) {
         level.push_back(k[0]);

@@ -7,8 +7,9 @@ namespace polmap::mapping {
 std::vector<GridmapSumInput> SqliteMapStore::gridmap_sum_inputs() const {
   return impl_->read([&](Connection& c) {
     std::vector<GridmapSumInput> out;
-    auto s = c.stmt("SELECT content_hash, tiles FROM gridmap_sum_inputs ORDER BY content_hash");
-    while (s.step()) out.push_back({s.text(0), s.i64(1)});
+    auto s = c.stmt(
+        "SELECT content_hash, tiles, placement FROM gridmap_sum_inputs ORDER BY content_hash");
+    while (s.step()) out.push_back({s.text(0), s.i64(1), s.text(2)});
     return out;
   });
 }
@@ -108,10 +109,13 @@ void SqliteMapStore::commit_gridmap_sums(std::int64_t version, std::span<const G
           .run();
     }
     if (change.kind == Kind::Add) {
-      c.stmt("INSERT INTO gridmap_sum_inputs(content_hash, tiles, added_at) VALUES (?1, ?2, ?3)")
+      c.stmt(
+           "INSERT INTO gridmap_sum_inputs(content_hash, tiles, added_at, placement) VALUES (?1, "
+           "?2, ?3, ?4)")
           .bind(1, change.content_hash)
           .bind(2, static_cast<std::int64_t>(change.cover.size()))
           .bind(3, now_iso())
+          .bind(4, change.placement)
           .run();
       for (const auto& k : change.cover) {
         c.stmt(

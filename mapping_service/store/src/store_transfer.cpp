@@ -174,7 +174,7 @@ const std::vector<TableSpec>& table_specs() {
         {"file_path", T}},
        {"id"}},
       {"gridmap_sum_inputs",
-       {{"content_hash", T}, {"tiles", I}, {"added_at", T}},
+       {{"content_hash", T}, {"tiles", I}, {"added_at", T}, {"placement", T}},
        {"content_hash"}},
       {"gridmap_sum_cover",
        {{"content_hash", T}, {"level", I}, {"x", I}, {"y", I}},

@@ -47,6 +47,22 @@ TEST_P(StoreGridmapSums, CommitWritesTilesAndRecordsTheInputWithItsCover) {
   EXPECT_EQ(store.gridmap_sums_in(10, 20, 11, 21).size(), 3U);
 }
 
+TEST_P(StoreGridmapSums, AnInputKeepsHowItsGridmapWasPlaced) {
+  MapStore& store = this->store();
+  GridmapSumInputChange moved = add("aligned", {{0, 2, 2}});
+  moved.placement = std::string("{\"v\":1,\"nodes\":[0.25,-1.5]}\n\t\"x\"", 32);
+  const std::vector<GridmapSumRow> t1{row(0, 2, 2, "a")};
+  store.commit_gridmap_sums(1, t1, moved);
+  const std::vector<GridmapSumRow> t2{row(0, 3, 2, "b")};
+  store.commit_gridmap_sums(1, t2, add("as-uploaded", {{0, 3, 2}}));
+  const auto inputs = store.gridmap_sum_inputs();
+  ASSERT_EQ(inputs.size(), 2U);
+  EXPECT_EQ(inputs[0].content_hash, "aligned");
+  EXPECT_EQ(inputs[0].placement, moved.placement);
+  EXPECT_EQ(inputs[1].content_hash, "as-uploaded");
+  EXPECT_EQ(inputs[1].placement, "");
+}
+
 TEST_P(StoreGridmapSums, AddingADriveTwiceIsAConflictAndWritesNothing) {
   MapStore& store = this->store();
   const std::vector<GridmapSumRow> first{row(0, 1, 1, "one")};

@@ -144,6 +144,10 @@ struct MapBuilderConfig {
   /// survey-grade drives before consensus (drive_alignment.hpp); false: never.
   bool align_drives = true;
   DriveAlignmentConfig alignment;
+  /// An aligned drive's gridmap is added to the merged gridmap sums where its alignment puts
+  /// it (drive_placement.hpp); when a later build moves it by more than this anywhere
+  /// (half a cell of the 0.1 m sum grid), it is taken out and added again.
+  double gridmap_replace_threshold_m = 0.05;
 };
 
 /// Figures of one build (also stored as the version's statistics JSON).
@@ -167,10 +171,12 @@ struct MapBuildStats {
   std::int64_t tile_bytes = 0;      ///< total payload bytes of the version's tiles
   std::int64_t gridmap_tiles = 0;   ///< amplitude raster tiles of the new version
   std::int64_t gridmap_drives = 0;  ///< drives whose gridmap is in the merged sums
-  /// Merged gridmap upkeep: drives added to / taken out of the sums, sum tiles rewritten,
-  /// min-zoom regions rendered and raster tiles copied unchanged from the previous version.
+  /// Merged gridmap upkeep: drives added to / taken out of / re-placed in the sums (their
+  /// alignment moved), sum tiles rewritten, min-zoom regions rendered and raster tiles
+  /// copied unchanged from the previous version.
   std::int64_t gridmap_drives_added = 0;
   std::int64_t gridmap_drives_removed = 0;
+  std::int64_t gridmap_drives_replaced = 0;
   std::int64_t gridmap_sum_tiles_written = 0;
   std::int64_t gridmap_regions_rendered = 0;
   std::int64_t gridmap_tiles_copied = 0;
@@ -193,10 +199,13 @@ struct MapBuildStats {
   double alignment_residual_rms_m = 0.0;
   double alignment_mean_correction_m = 0.0;
   std::int64_t alignment_odometry_drives = 0;  ///< of those, constrained by odometry
-  /// DriveAlignmentResult::odometry_steps_rejected, scale_error_mean and scale_error_rms.
+  /// DriveAlignmentResult::odometry_steps_rejected, scale_error_mean, scale_error_rms,
+  /// gyro_bias_mean_rps and gyro_bias_rms_rps.
   std::int64_t alignment_odometry_steps_rejected = 0;
   double alignment_scale_error_mean = 0.0;
   double alignment_scale_error_rms = 0.0;
+  double alignment_gyro_bias_mean_rps = 0.0;
+  double alignment_gyro_bias_rms_rps = 0.0;
   double seconds_alignment = 0.0;
   double seconds_load = 0.0;
   double seconds_consensus = 0.0;

@@ -35,6 +35,7 @@
 /// builder adds drives and renders raster tiles from them (FleetGridmapAccumulator).
 #include <array>
 #include <cstdint>
+#include <functional>
 #include <map>
 #include <memory>
 #include <vector>
@@ -99,11 +100,16 @@ class GridmapSumTile {
 
 using GridmapSumTiles = std::map<GridmapSumKey, GridmapSumTile>;
 
+/// Moves a drive-frame position (metres) to where the drive's gridmap is added: the drive's
+/// alignment correction (the map builder's drive_placement.hpp). Smooth over a few metres.
+using GridmapWarp = std::function<Eigen::Vector2d(const Eigen::Vector2d&)>;
+
 /// Adds a drive-frame raster (a whole gridmap or one block, N = 0 cells skipped) of a
 /// drive with frame `drive_frame` and polarimetric level `level` to `out` (splatting,
-/// file comment). The raster's noise_power is the drive's σ².
+/// file comment). The raster's noise_power is the drive's σ². With `warp`, every cell goes
+/// where the warp moves it (the per-block affine fit follows the warped positions).
 void splat_gridmap(const GridmapRaster& raster, const tiles::LocalFrame& drive_frame,
-                   PolLevel level, GridmapSumTiles& out);
+                   PolLevel level, GridmapSumTiles& out, const GridmapWarp& warp = {});
 
 /// Merged covariance of one cell: N, hits, the mean covariance layers (GridmapRaster layer
 /// order) and mean noise power. `n` = 0 where nothing was observed.

@@ -233,6 +233,9 @@ struct GridmapSumRow {
 struct GridmapSumInput {
   std::string content_hash;  ///< the drive's package hash (stable across stores and replicas)
   std::int64_t tiles = 0;    ///< sum tiles it touched
+  /// How its gridmap was placed into the sums (opaque to the store; the builder's
+  /// drive_placement.hpp): empty = as uploaded.
+  std::string placement;
 };
 
 /// What a commit_gridmap_sums changes besides tile bytes.
@@ -242,6 +245,8 @@ struct GridmapSumInputChange {
   std::string content_hash;
   /// Add: the sum tiles the drive touched, as (level, x, y).
   std::vector<std::array<int, 3>> cover;
+  /// Add: how its gridmap was placed (GridmapSumInput::placement).
+  std::string placement;
 };
 
 struct StoreStats {

@@ -39,8 +39,8 @@ std::size_t count_of(const nlohmann::json& j, const char* key, std::size_t per,
   if (it == j.end() || !it->is_array() || it->size() % per != 0 ||
       it->size() / per > kMaxPlacementNodes) {
     throw ValidationError(source + ": placement field '" + key + "' must be an array of at most " +
-                          std::to_string(kMaxPlacementNodes) + " groups of " +
-                          std::to_string(per) + " numbers");
+                          std::to_string(kMaxPlacementNodes) + " groups of " + std::to_string(per) +
+                          " numbers");
   }
   return it->size() / per;
 }
@@ -94,8 +94,7 @@ DrivePlacement decode_drive_placement(std::string_view text, const std::string& 
     throw ValidationError(source + ": placement is not a JSON object");
   }
   const auto format = j.find("format");
-  if (format == j.end() || !format->is_number_integer() ||
-      format->get<int>() != kPlacementFormat) {
+  if (format == j.end() || !format->is_number_integer() || format->get<int>() != kPlacementFormat) {
     throw ValidationError(source + ": placement format must be " +
                           std::to_string(kPlacementFormat));
   }

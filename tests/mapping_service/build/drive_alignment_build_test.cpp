@@ -7,6 +7,7 @@
 #include <random>
 
 #include "builder_fixtures.hpp"
+#include "polmap/mapping_service/drive_placement.hpp"
 #include "polmap/mapping_service/map_builder.hpp"
 #include "polmap/mapping_service/sqlite_store.hpp"
 #include "polmap/tiles/local_frame.hpp"
@@ -30,17 +31,23 @@ struct Result {
   std::vector<Eigen::Vector2d> landmarks;  // world frame
 };
 
+// Each drive's positioning error (drive "consumer_<d>").
+const std::vector<Eigen::Vector2d> kErrors{{1.8, -1.2},  {-1.5, 0.9}, {0.4, 2.1},
+                                           {-2.2, -0.6}, {1.1, 1.4},  {-0.3, -1.9}};
+
+void put_consumer_fleet(MapStore& store, const fs::path& dir, const World& w) {
+  std::vector<Eigen::Vector2d> path;
+  for (double x = -160.0; x <= 160.0; x += 5.0) path.emplace_back(x, 0.0);
+  for (std::size_t d = 0; d < kErrors.size(); ++d) {
+    put_drive_along(store, dir, w, "consumer_" + std::to_string(d), 300 + d, {-150, -30}, {150, 30},
+                    path, 0, 100.0 * d, kErrors[d], 2.0F);
+  }
+}
+
 Result build_consumer_fleet(const fs::path& dir, bool align) {
   const World w = road_world();
   SqliteMapStore store(dir / "map.db");
-  const std::vector<Eigen::Vector2d> errors{{1.8, -1.2},  {-1.5, 0.9}, {0.4, 2.1},
-                                            {-2.2, -0.6}, {1.1, 1.4},  {-0.3, -1.9}};
-  std::vector<Eigen::Vector2d> path;
-  for (double x = -160.0; x <= 160.0; x += 5.0) path.emplace_back(x, 0.0);
-  for (std::size_t d = 0; d < errors.size(); ++d) {
-    put_drive_along(store, dir, w, "consumer_" + std::to_string(d), 300 + d, {-150, -30}, {150, 30},
-                    path, 0, 100.0 * d, errors[d], 2.0F);
-  }
+  put_consumer_fleet(store, dir, w);
   MapBuilderConfig cfg;
   cfg.align_drives = align;
   Result r;
@@ -88,6 +95,41 @@ TEST(DriveAlignmentBuild, ConsumerDrivesAreAlignedBeforeConsensus) {
   EXPECT_GE(n, static_cast<int>(0.9 * w.objects.size()));
   EXPECT_LT(rms, 0.06);
   EXPECT_LE(r.landmarks.size(), w.objects.size() + 3);  // each object once
+}
+
+TEST(DriveAlignmentBuild, AlignedDrivesGoIntoTheMergedGridmapWhereTheAlignmentPutsThem) {
+  polmap::test::TestDir tmp("alignment_build_gridmap");
+  const World w = road_world();
+  SqliteMapStore store(tmp.path() / "map.db");
+  put_consumer_fleet(store, tmp.path(), w);
+  const MapBuildResult first = MapBuilder{}.build(store, MapBuildRequest{});
+  ASSERT_EQ(first.status, MapBuildResult::Status::Published) << first.error;
+  EXPECT_EQ(first.stats.gridmap_drives_added, 6);
+  // Each drive's placement undoes its own error, up to the map's one common offset.
+  const tiles::LocalFrame world(kWorldOrigin);
+  std::vector<Eigen::Vector2d> undone;
+  for (std::size_t d = 0; d < kErrors.size(); ++d) {
+    const std::string hash = store.get_drive("consumer_" + std::to_string(d))->content_hash;
+    std::string text;
+    for (const auto& in : store.gridmap_sum_inputs()) {
+      if (in.content_hash == hash) text = in.placement;
+    }
+    ASSERT_FALSE(text.empty()) << d;
+    const DrivePlacement p = decode_drive_placement(text, "test");
+    const Eigen::Vector2d seen(20.0, 10.0);  // a point of the drive's gridmap strip
+    const Eigen::Vector2d moved = world.to_local(placed(p, world.to_geo(seen + kErrors[d])));
+    undone.push_back(moved - seen);
+  }
+  Eigen::Vector2d common = Eigen::Vector2d::Zero();
+  for (const auto& u : undone) common += u / static_cast<double>(undone.size());
+  for (std::size_t d = 0; d < undone.size(); ++d) {
+    EXPECT_LT((undone[d] - common).norm(), 0.1) << d;
+  }
+  // The same drives again: the alignment puts them where it did, nothing is re-placed.
+  const MapBuildResult again = MapBuilder{}.build(store, MapBuildRequest{});
+  ASSERT_EQ(again.status, MapBuildResult::Status::Published) << again.error;
+  EXPECT_EQ(again.stats.gridmap_drives_added, 0);
+  EXPECT_EQ(again.stats.gridmap_drives_replaced, 0);
 }
 
 TEST(DriveAlignmentBuild, WithoutAlignmentTheSameDrivesGiveNoConsistentMap) {

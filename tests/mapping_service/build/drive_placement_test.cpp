@@ -7,7 +7,6 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
-
 #include <nlohmann/json.hpp>
 
 #include "polmap/schema/errors.hpp"
@@ -95,7 +94,7 @@ TEST(DrivePlacement, MalformedTextIsRejectedNamingItsSource) {
       with("candidate_lead_m", "x"),
       with("node_s_m", nlohmann::json::array({0.0, 20.0, 10.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0,
                                               90.0, 100.0})),  // not ordered
-      with("node_xy_m", nlohmann::json::array({0.0, 0.0})),   // too few
+      with("node_xy_m", nlohmann::json::array({0.0, 0.0})),    // too few
       with("node_correction", nullptr),
       with("path_s_m", nlohmann::json::array()),
       with("path_xy_m", nlohmann::json::array({"a"})),
@@ -105,8 +104,7 @@ TEST(DrivePlacement, MalformedTextIsRejectedNamingItsSource) {
       (void)decode_drive_placement(text, "gridmap sum input abc");
       ADD_FAILURE() << "accepted: " << text.substr(0, 120);
     } catch (const ValidationError& e) {
-      EXPECT_NE(std::string(e.what()).find("gridmap sum input abc"), std::string::npos)
-          << e.what();
+      EXPECT_NE(std::string(e.what()).find("gridmap sum input abc"), std::string::npos) << e.what();
     }
   }
 }

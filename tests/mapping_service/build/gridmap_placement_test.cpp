@@ -81,10 +81,10 @@ double sums_difference(const std::map<GridmapSumKey, std::string>& a,
   for (const auto& [k, v] : a) keys.insert(k);
   for (const auto& [k, v] : b) keys.insert(k);
   for (const auto& k : keys) {
-    const GridmapSumTile ta = a.contains(k) ? decode_gridmap_sum_tile(a.at(k), "a")
-                                            : GridmapSumTile(k.level);
-    const GridmapSumTile tb = b.contains(k) ? decode_gridmap_sum_tile(b.at(k), "b")
-                                            : GridmapSumTile(k.level);
+    const GridmapSumTile ta =
+        a.contains(k) ? decode_gridmap_sum_tile(a.at(k), "a") : GridmapSumTile(k.level);
+    const GridmapSumTile tb =
+        b.contains(k) ? decode_gridmap_sum_tile(b.at(k), "b") : GridmapSumTile(k.level);
     for (int p = 0; p < ta.planes(); ++p) {
       for (int y = 0; y < kSumTileCells; ++y) {
         for (int x = 0; x < kSumTileCells; ++x) {
@@ -166,8 +166,8 @@ TEST(GridmapPlacement, AMovedAlignmentIsTakenOutAndAddedWhereItNowBelongs) {
   put_real_package(first_only, tmp4.path(), w, 1, "b", v2(), Eigen::Vector2d(20.0, 5.0), 10.0);
   detail::GridmapPlacements old;
   old.by_hash.emplace(first_only.get_drive("a")->content_hash, shifted(first_only, "a", 0.3, 0.0));
-  (void)detail::update_gridmap_sums(first_only, 1, first_only.list_drives(), hashes(first_only),
-                                    {}, old);
+  (void)detail::update_gridmap_sums(first_only, 1, first_only.list_drives(), hashes(first_only), {},
+                                    old);
   EXPECT_GT(sums_difference(before_delete, sums(first_only)), 0.1);
 
   // Drive b deleted: its tiles are recomputed with a where its stored placement puts it.

@@ -1041,6 +1041,16 @@ int main(int argc, char** argv) {
         static_cast<long long>(part.stats.tiles_written),
         static_cast<long long>(part.stats.tiles_reused),
         static_cast<double>(ru.ru_maxrss) / 1024.0);
+    if (merged) {  // what the merged gridmap's upkeep cost (aligned drives move between builds)
+      std::printf(
+          "       merged gridmap: build %lld added in %.1f s; one more drive %lld added, %lld "
+          "re-placed in %.1f s; 300 m drive %lld added, %lld re-placed in %.1f s\n",
+          static_cast<long long>(r.stats.gridmap_drives_added), r.stats.seconds_gridmap,
+          static_cast<long long>(inc.stats.gridmap_drives_added),
+          static_cast<long long>(inc.stats.gridmap_drives_replaced), inc.stats.seconds_gridmap,
+          static_cast<long long>(part.stats.gridmap_drives_added),
+          static_cast<long long>(part.stats.gridmap_drives_replaced), part.stats.seconds_gridmap);
+    }
     std::printf(
         "       short build: load %.3f s, consensus %.3f s, landmarks %.3f s, tiles %.3f s, "
         "total %.3f s (%s, %lld landmarks copied)\n",

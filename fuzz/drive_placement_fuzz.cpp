@@ -14,12 +14,12 @@
 using namespace polmap;
 using namespace polmap::mapping;
 
-#define FUZZ_CHECK(cond)                                                          \
-  do {                                                                            \
-    if (!(cond)) {                                                                \
+#define FUZZ_CHECK(cond)                                                           \
+  do {                                                                             \
+    if (!(cond)) {                                                                 \
       std::fprintf(stderr, "fuzz_drive_placement: invariant failed: %s\n", #cond); \
-      std::abort();                                                               \
-    }                                                                             \
+      std::abort();                                                                \
+    }                                                                              \
   } while (0)
 
 extern "C" int LLVMFuzzerInitialize(int*, char***) {
@@ -36,8 +36,8 @@ extern "C" int LLVMFuzzerInitialize(int*, char***) {
     }
     c.candidate_lead_m = -10.0;
     fuzz::write_seed(dir, "placement.json",
-                     encode_drive_placement(drive_placement(
-                         tiles::LocalFrame(GeoPoint{48.7758, 9.1829, 250.0}), c)));
+                     encode_drive_placement(
+                         drive_placement(tiles::LocalFrame(GeoPoint{48.7758, 9.1829, 250.0}), c)));
     fuzz::write_seed(dir, "empty.json", "");
   }
   return 0;
@@ -59,7 +59,8 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   if (std::abs(p.frame_origin->lat_deg) < 80.0 && std::abs(p.frame_origin->alt_m) < 1e5 &&
       p.correction.path_m.size() <= 4096) {
     bool small = true;
-    for (const auto& n : p.correction.node_correction) small = small && n.cwiseAbs().maxCoeff() < 1e4;
+    for (const auto& n : p.correction.node_correction)
+      small = small && n.cwiseAbs().maxCoeff() < 1e4;
     for (const auto& q : p.correction.path_m) small = small && q.cwiseAbs().maxCoeff() < 1e5;
     if (small) {
       const tiles::LocalFrame drive(*p.frame_origin);

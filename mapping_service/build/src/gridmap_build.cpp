@@ -55,6 +55,8 @@ GridmapSumRow row_of(const GridmapSumKey& k, const GridmapSumTile& t) {
 
 GridmapSumKey key_of(const GridmapSumRow& r) { return {static_cast<PolLevel>(r.level), r.x, r.y}; }
 
+const DrivePlacement kAsUploaded{};
+
 /// The stored placement of every input, decoded (an unreadable one is reported and the drive
 /// taken as uploaded: the sums stay usable).
 std::map<std::string, DrivePlacement> stored_placements(const MapStore& store,
@@ -87,9 +89,14 @@ tiles::TileKey sum_tile_ancestor(const GridmapSumKey& key, int zoom) {
 
 GridmapSumTiles recompute_sum_tiles(const MapStore& store, const std::set<GridmapSumKey>& keys,
                                     const std::set<std::string>& without,
-                                    std::vector<std::string>& errors) {
+                                    std::vector<std::string>& errors,
+                                    const std::map<std::string, DrivePlacement>* placements) {
   GridmapSumTiles out;
-  const std::map<std::string, DrivePlacement> placements = stored_placements(store, errors);
+  std::map<std::string, DrivePlacement> read;
+  if (placements == nullptr) {
+    read = stored_placements(store, errors);
+    placements = &read;
+  }
   std::set<std::string> contributors;
   for (const auto& k : keys) {
     out.try_emplace(k, k.level);  // a tile with no remaining contributor is empty
@@ -101,8 +108,8 @@ GridmapSumTiles recompute_sum_tiles(const MapStore& store, const std::set<Gridma
     const auto d = store.find_drive_by_hash(h);
     if (!d) continue;  // removed too; its own removal handles it
     try {
-      const auto p = placements.find(h);
-      const DrivePlacement as_stored = p == placements.end() ? DrivePlacement{} : p->second;
+      const auto p = placements->find(h);
+      const DrivePlacement& as_stored = p == placements->end() ? kAsUploaded : p->second;
       for (auto& [k, t] : drive_sums(stored_package(*d), as_stored, &keys)) out.at(k).add(t);
     } catch (const std::exception& e) {
       errors.push_back(d->drive_id + ": " + e.what());
@@ -124,7 +131,7 @@ GridmapSumsUpdate update_gridmap_sums(MapStore& store, std::int64_t version,
     for (const auto& c : store.gridmap_sum_cover(h)) {
       keys.insert({static_cast<PolLevel>(c[0]), c[1], c[2]});
     }
-    const GridmapSumTiles fresh = recompute_sum_tiles(store, keys, {h}, up.errors);
+    const GridmapSumTiles fresh = recompute_sum_tiles(store, keys, {h}, up.errors, &inputs);
     std::vector<GridmapSumRow> rows;
     for (const auto& [k, t] : fresh) rows.push_back(row_of(k, t));
     GridmapSumInputChange change;
@@ -164,8 +171,10 @@ GridmapSumsUpdate update_gridmap_sums(MapStore& store, std::int64_t version,
     try {
       mine = drive_sums(stored_package(d), place, nullptr);
     } catch (const std::exception& e) {
-      // A drive without a readable gridmap still contributes its candidates.
+      // A drive without a readable gridmap still contributes its candidates (taken out
+      // already when it was being re-placed: the next build adds it again).
       up.errors.push_back(d.drive_id + ": " + e.what());
+      if (replacing) inputs.erase(d.content_hash);
       continue;
     }
     GridmapSumInputChange change;
@@ -181,6 +190,8 @@ GridmapSumsUpdate update_gridmap_sums(MapStore& store, std::int64_t version,
       rows.push_back(row_of(k, t));
     }
     store.commit_gridmap_sums(version, rows, change);
+    // Later take-outs recompute shared tiles with this drive where it now is.
+    inputs.insert_or_assign(d.content_hash, place);
     up.tiles_written += static_cast<std::int64_t>(rows.size());
     ++(replacing ? up.drives_replaced : up.drives_added);
   }

@@ -45,10 +45,13 @@ GridmapSumsUpdate update_gridmap_sums(MapStore& store, std::int64_t version,
                                       const GridmapPlacements& placements = {});
 
 /// The sum tiles `keys` recomputed from the packages of the inputs that touched them, except
-/// those in `without` (by package hash): what the tiles hold without those drives.
-GridmapSumTiles recompute_sum_tiles(const MapStore& store, const std::set<GridmapSumKey>& keys,
-                                    const std::set<std::string>& without,
-                                    std::vector<std::string>& errors);
+/// those in `without` (by package hash), each placed as it was added (`placements`: the
+/// inputs' decoded placements when the caller has them, else read from the store): what
+/// the tiles hold without those drives.
+GridmapSumTiles recompute_sum_tiles(
+    const MapStore& store, const std::set<GridmapSumKey>& keys,
+    const std::set<std::string>& without, std::vector<std::string>& errors,
+    const std::map<std::string, DrivePlacement>* placements = nullptr);
 
 /// Renders min-zoom region `region` (a tile at cfg.min_zoom) from the store's sum tiles in it
 /// (`keys`: those of the region), replacing the tiles in `override_tiles` (recomputed ones),

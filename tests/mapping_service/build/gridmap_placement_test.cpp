@@ -170,15 +170,34 @@ TEST(GridmapPlacement, AMovedAlignmentIsTakenOutAndAddedWhereItNowBelongs) {
                                     old);
   EXPECT_GT(sums_difference(before_delete, sums(first_only)), 0.1);
 
+  // Both re-placed in one update: b's tiles are recomputed with a where a now is.
+  detail::GridmapPlacements both;
+  both.by_hash.emplace(hash_a, shifted(store, "a", 0.0, -0.4));
+  both.by_hash.emplace(store.get_drive("b")->content_hash, shifted(store, "b", 0.5, 0.0));
+  up = detail::update_gridmap_sums(store, 4, store.list_drives(), hashes(store), {}, both);
+  EXPECT_EQ(up.drives_replaced, 2);
+  TempDir tmp5;
+  SqliteMapStore both_fresh(tmp5.path() / "map.db");
+  put_real_package(both_fresh, tmp5.path(), w, 0, "a", v2());
+  put_real_package(both_fresh, tmp5.path(), w, 1, "b", v2(), Eigen::Vector2d(20.0, 5.0), 10.0);
+  detail::GridmapPlacements both_direct;
+  both_direct.by_hash.emplace(both_fresh.get_drive("a")->content_hash,
+                              shifted(both_fresh, "a", 0.0, -0.4));
+  both_direct.by_hash.emplace(both_fresh.get_drive("b")->content_hash,
+                              shifted(both_fresh, "b", 0.5, 0.0));
+  (void)detail::update_gridmap_sums(both_fresh, 1, both_fresh.list_drives(), hashes(both_fresh), {},
+                                    both_direct);
+  EXPECT_LT(sums_difference(sums(store), sums(both_fresh)), 1e-5);
+
   // Drive b deleted: its tiles are recomputed with a where its stored placement puts it.
   ASSERT_TRUE(store.delete_drive("b"));
-  up = detail::update_gridmap_sums(store, 4, store.list_drives(), hashes(store), {}, {});
+  up = detail::update_gridmap_sums(store, 5, store.list_drives(), hashes(store), {}, {});
   EXPECT_EQ(up.drives_removed, 1);
   TempDir tmp3;
   SqliteMapStore only_a(tmp3.path() / "map.db");
   put_real_package(only_a, tmp3.path(), w, 0, "a", v2());
   detail::GridmapPlacements a_only;
-  a_only.by_hash.emplace(only_a.get_drive("a")->content_hash, shifted(only_a, "a", 0.0, 0.6));
+  a_only.by_hash.emplace(only_a.get_drive("a")->content_hash, shifted(only_a, "a", 0.0, -0.4));
   (void)detail::update_gridmap_sums(only_a, 1, only_a.list_drives(), hashes(only_a), {}, a_only);
   // Tiles only b touched stay as (empty) tiles; the rest is a's alone, where it was placed.
   EXPECT_LT(sums_difference(sums(store), sums(only_a)), 1e-5);

@@ -163,7 +163,27 @@ GridmapSumsUpdate update_gridmap_sums(MapStore& store, std::int64_t version,
         continue;
       }
       if (tick) tick();
-      take_out(d.content_hash);
+      // Its own contribution subtracted where it went in: the other drives' packages are not
+      // read again (recomputing the tiles would cost every overlapping drive's splat).
+      try {
+        const GridmapSumTiles old = drive_sums(stored_package(d), in->second, nullptr);
+        std::vector<GridmapSumRow> rows;
+        for (const auto& [k, t] : old) {
+          GridmapSumTile now(k.level);
+          for (const auto& r : store.gridmap_sums_in(k.x, k.y, k.x, k.y)) {
+            if (key_of(r) == k) now = decode_gridmap_sum_tile(r.data, source_of(r));
+          }
+          now.subtract(t);
+          rows.push_back(row_of(k, now));
+        }
+        GridmapSumInputChange change;
+        change.kind = GridmapSumInputChange::Kind::Remove;
+        change.content_hash = d.content_hash;
+        store.commit_gridmap_sums(version, rows, change);
+        up.tiles_written += static_cast<std::int64_t>(rows.size());
+      } catch (const std::exception&) {
+        take_out(d.content_hash);  // its package unreadable now: recompute without it
+      }
       replacing = true;
     }
     if (tick) tick();

@@ -67,6 +67,22 @@ void GridmapSumTile::add(const GridmapSumTile& other) {
   }
 }
 
+void GridmapSumTile::subtract(const GridmapSumTile& other, float n_floor_looks) {
+  POLMAP_EXPECT(other.level_ == level_);
+  for (int c = 0; c < kSumChunksPerSide * kSumChunksPerSide; ++c) {
+    const float* src = other.chunk(c);
+    if (src == nullptr) continue;
+    float* dst = chunk(c);
+    for (std::size_t i = 0; i < static_cast<std::size_t>(planes_) * kChunkArea; ++i) {
+      dst[i] -= src[i];
+    }
+    for (std::size_t cell = 0; cell < static_cast<std::size_t>(kChunkArea); ++cell) {
+      if (dst[cell] >= n_floor_looks) continue;  // plane 0: N
+      for (int p = 0; p < planes_; ++p) dst[static_cast<std::size_t>(p) * kChunkArea + cell] = 0.0F;
+    }
+  }
+}
+
 void splat_gridmap(const GridmapRaster& r, const tiles::LocalFrame& frame, PolLevel level,
                    GridmapSumTiles& out, const GridmapWarp& warp) {
   if (r.width <= 0 || r.height <= 0) return;

@@ -156,6 +156,39 @@ TEST(GridmapSums, MergingTwoDrivesGivesTheirCountWeightedMeanCovariance) {
   EXPECT_GT(checked, 1000);
 }
 
+TEST(GridmapSums, SubtractingADriveLeavesTheOthersAndClearsWhatOnlyItSaw) {
+  // Two overlapping drives; b is taken out again by subtraction.
+  const GridmapRaster a = random_raster(60, 60, 21), b = random_raster(60, 60, 22, 2.0, 1.0);
+  const tiles::LocalFrame frame(kOrigin);
+  GridmapSumTiles sa, sb, both;
+  splat_gridmap(a, frame, PolLevel::Full, sa);
+  splat_gridmap(b, frame, PolLevel::Full, sb);
+  for (const auto& [k, t] : sa) both.try_emplace(k, k.level).first->second.add(t);
+  for (const auto& [k, t] : sb) both.try_emplace(k, k.level).first->second.add(t);
+  for (const auto& [k, t] : sb) both.at(k).subtract(t);
+  int only_b = 0, shared = 0;
+  for (const auto& [k, t] : both) {
+    for (int y = 0; y < kSumTileCells; ++y) {
+      for (int x = 0; x < kSumTileCells; ++x) {
+        const double na = sa.contains(k) ? sa.at(k).at(0, x, y) : 0.0;
+        const double nb = sb.contains(k) ? sb.at(k).at(0, x, y) : 0.0;
+        for (int p = 0; p < t.planes(); ++p) {
+          const double want = sa.contains(k) ? sa.at(k).at(p, x, y) : 0.0;
+          if (na < 1e-3) {
+            EXPECT_EQ(t.at(p, x, y), 0.0F);  // cleared, not float residue
+          } else {
+            EXPECT_NEAR(t.at(p, x, y), want, 1e-4 * (1.0 + std::abs(want)));
+          }
+        }
+        only_b += na < 1e-3 && nb > 0.0 ? 1 : 0;
+        shared += na >= 1e-3 && nb > 0.0 ? 1 : 0;
+      }
+    }
+  }
+  EXPECT_GT(only_b, 100);  // the test covers both kinds of cell
+  EXPECT_GT(shared, 100);
+}
+
 TEST(GridmapSums, RasterFromSumsMatchesRasterFromTheDrive) {
   // The same drive rendered two ways: straight from its raster (nearest base pixel) and
   // through the merged sums (bilinear splat at z20, 4 × 4 cells per z18 pixel). Totals per

@@ -91,6 +91,10 @@ class GridmapSumTile {
   void add(int x, int y, double w, const double* values);
   /// Adds another tile of the same level cell by cell.
   void add(const GridmapSumTile& other);
+  /// Subtracts another tile of the same level cell by cell (a drive's contribution taken
+  /// out again); cells left with N below n_floor_looks are cleared, so the float residue of
+  /// a cell only that drive saw does not become a cell of noise.
+  void subtract(const GridmapSumTile& other, float n_floor_looks = 1e-3F);
 
  private:
   PolLevel level_;

@@ -1024,6 +1024,11 @@ int main(int argc, char** argv) {
     const auto inc = builder.build(store, req);
     (void)source->ingest(store, dir, n, n + 1);
     const auto part = builder.build(store, req);
+    for (const auto* b : {&inc, &part}) {
+      if (b->status != MapBuildResult::Status::Published) {
+        std::printf("  build after one more drive: %s\n", b->error.c_str());
+      }
+    }
     rusage ru{};
     getrusage(RUSAGE_SELF, &ru);
     std::printf(

@@ -153,8 +153,13 @@ GridmapSumsUpdate update_gridmap_sums(MapStore& store, std::int64_t version,
   }
   for (const auto& d : drives) {
     const auto placement = placements.by_hash.find(d.content_hash);
+    // The placement as the store will keep it (rounded): a later take-out subtracts exactly
+    // what goes in now.
     const DrivePlacement place =
-        placement == placements.by_hash.end() ? DrivePlacement{} : placement->second;
+        placement == placements.by_hash.end()
+            ? DrivePlacement{}
+            : decode_drive_placement(encode_drive_placement(placement->second),
+                                     "placement of drive " + d.drive_id);
     bool replacing = false;
     if (const auto in = inputs.find(d.content_hash); in != inputs.end()) {
       // Already in: re-placed only when this build aligned it somewhere else.

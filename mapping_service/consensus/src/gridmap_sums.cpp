@@ -69,6 +69,15 @@ void GridmapSumTile::add(const GridmapSumTile& other) {
 
 void GridmapSumTile::subtract(const GridmapSumTile& other, float n_floor_looks) {
   POLMAP_EXPECT(other.level_ == level_);
+  // N, hits, N·σ² and the diagonal N·C_ii (file comment of gridmap_sums.hpp).
+  std::vector<int> non_negative_planes{0, 1, 2};
+  const int q = pol_dimension(level_);
+  for (int a = 0, p = 3; a < q; ++a) {
+    for (int b = a; b < q; ++b) {
+      if (a == b) non_negative_planes.push_back(p);
+      p += a == b ? 1 : 2;
+    }
+  }
   for (int c = 0; c < kSumChunksPerSide * kSumChunksPerSide; ++c) {
     const float* src = other.chunk(c);
     if (src == nullptr) continue;
@@ -77,8 +86,17 @@ void GridmapSumTile::subtract(const GridmapSumTile& other, float n_floor_looks) 
       dst[i] -= src[i];
     }
     for (std::size_t cell = 0; cell < static_cast<std::size_t>(kChunkArea); ++cell) {
-      if (dst[cell] >= n_floor_looks) continue;  // plane 0: N
-      for (int p = 0; p < planes_; ++p) dst[static_cast<std::size_t>(p) * kChunkArea + cell] = 0.0F;
+      if (dst[cell] < n_floor_looks) {  // plane 0: N
+        for (int p = 0; p < planes_; ++p) {
+          dst[static_cast<std::size_t>(p) * kChunkArea + cell] = 0.0F;
+        }
+        continue;
+      }
+      // Sums of non-negative terms stay non-negative (float residue of what was taken out).
+      for (const int p : non_negative_planes) {
+        float& v = dst[static_cast<std::size_t>(p) * kChunkArea + cell];
+        v = std::max(v, 0.0F);
+      }
     }
   }
 }

@@ -6,10 +6,12 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <random>
 
 #include "polmap/mapping_service/fleet_gridmap.hpp"
+#include "polmap/mapping_service/gridmap_sums_codec.hpp"
 
 namespace polmap::mapping {
 namespace {
@@ -157,8 +159,11 @@ TEST(GridmapSums, MergingTwoDrivesGivesTheirCountWeightedMeanCovariance) {
 }
 
 TEST(GridmapSums, SubtractingADriveLeavesTheOthersAndClearsWhatOnlyItSaw) {
-  // Two overlapping drives; b is taken out again by subtraction.
-  const GridmapRaster a = random_raster(60, 60, 21), b = random_raster(60, 60, 22, 2.0, 1.0);
+  // Two overlapping drives; b is taken out again by subtraction. Drive a stored no bins, so
+  // the hits left are b's float residue, which must not go below 0.
+  GridmapRaster a = random_raster(60, 60, 21);
+  const GridmapRaster b = random_raster(60, 60, 22, 2.0, 1.0);
+  std::fill(a.hits.begin(), a.hits.end(), 0U);
   const tiles::LocalFrame frame(kOrigin);
   GridmapSumTiles sa, sb, both;
   splat_gridmap(a, frame, PolLevel::Full, sa);
@@ -187,6 +192,10 @@ TEST(GridmapSums, SubtractingADriveLeavesTheOthersAndClearsWhatOnlyItSaw) {
   }
   EXPECT_GT(only_b, 100);  // the test covers both kinds of cell
   EXPECT_GT(shared, 100);
+  // What is left is a valid sum tile (the codec rejects negative counts).
+  for (const auto& [k, t] : both) {
+    EXPECT_NO_THROW((void)decode_gridmap_sum_tile(encode_gridmap_sum_tile(t), "left"));
+  }
 }
 
 TEST(GridmapSums, RasterFromSumsMatchesRasterFromTheDrive) {

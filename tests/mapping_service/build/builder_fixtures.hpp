@@ -129,6 +129,13 @@ inline void put_written_package(MapStore& store, const fs::path& tmp, const std:
             PutDriveResult::Status::Inserted);
 }
 
+/// Package writer options of one format version.
+inline PackageWriteOptions package_format(int version) {
+  PackageWriteOptions o;
+  o.format_version = version;
+  return o;
+}
+
 /// Writes drive d (0 or 1) of world w as a real package with make_raster(1) in the given
 /// format, validates its archive and puts it into the store.
 /// `origin_m`: moves the whole drive (frame origin, so candidates, trajectory and gridmap)

@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <optional>
 
 #include "builder_fixtures.hpp"
 #include "gridmap_build.hpp"
@@ -19,12 +20,6 @@ using namespace builder_fixtures;  // NOLINT: test fixtures
 struct TempDir : polmap::test::TestDir {
   TempDir() : TestDir("gridmap_placement") {}
 };
-
-PackageWriteOptions v2() {
-  PackageWriteOptions o;
-  o.format_version = 2;
-  return o;
-}
 
 // Drive `id` corrected by (dx, dy) everywhere, in the frame of kWorldOrigin.
 DrivePlacement shifted(const MapStore& store, const std::string& id, double dx, double dy) {
@@ -103,33 +98,57 @@ std::set<std::string> hashes(const MapStore& store) {
   return out;
 }
 
+using Shift = std::optional<Eigen::Vector2d>;  // a drive's correction; none: as uploaded
+
+/// Drives a and b of world w in a store (b 20 m east, 5 m north of a).
+void put_drives(MapStore& store, const fs::path& dir, const World& w, bool with_b = true) {
+  put_real_package(store, dir, w, 0, "a", package_format(2));
+  if (with_b) {
+    put_real_package(store, dir, w, 1, "b", package_format(2), Eigen::Vector2d(20.0, 5.0), 10.0);
+  }
+}
+
+/// One update of `store`'s sums with drives a and b placed as given.
+detail::GridmapSumsUpdate update(MapStore& store, std::int64_t version, const Shift& a,
+                                 const Shift& b) {
+  detail::GridmapPlacements p;
+  for (const auto& [id, shift] : {std::pair{"a", a}, std::pair{"b", b}}) {
+    const auto d = store.get_drive(id);
+    if (d && shift) p.by_hash.emplace(d->content_hash, shifted(store, id, shift->x(), shift->y()));
+  }
+  return detail::update_gridmap_sums(store, version, store.list_drives(), hashes(store), {}, p);
+}
+
+/// The sums of a store that only ever saw these placements.
+std::map<GridmapSumKey, std::string> sums_of_fresh_store(const World& w, const Shift& a,
+                                                         const Shift& b, bool with_b = true) {
+  TempDir tmp;
+  SqliteMapStore fresh(tmp.path() / "map.db");
+  put_drives(fresh, tmp.path(), w, with_b);
+  (void)update(fresh, 1, a, b);
+  return sums(fresh);
+}
+
 TEST(GridmapPlacement, AMovedAlignmentIsTakenOutAndAddedWhereItNowBelongs) {
   TempDir tmp;
   const World w = make_world(4, 50, 50.0);
   SqliteMapStore store(tmp.path() / "map.db");
-  put_real_package(store, tmp.path(), w, 0, "a", v2());
-  put_real_package(store, tmp.path(), w, 1, "b", v2(), Eigen::Vector2d(20.0, 5.0), 10.0);
+  put_drives(store, tmp.path(), w);
   const std::string hash_a = store.get_drive("a")->content_hash;
 
-  // Build 1: drive a aligned 0.3 m east.
-  detail::GridmapPlacements first;
-  first.by_hash.emplace(hash_a, shifted(store, "a", 0.3, 0.0));
-  auto up = detail::update_gridmap_sums(store, 1, store.list_drives(), hashes(store), {}, first);
+  // Build 1: drive a aligned 0.3 m east, b as uploaded.
+  auto up = update(store, 1, Eigen::Vector2d(0.3, 0.0), {});
   EXPECT_EQ(up.drives_added, 2);
   EXPECT_EQ(up.drives_replaced, 0);
   EXPECT_TRUE(up.errors.empty());
   const Eigen::Vector2d c1 = centroid_m(store);
 
   // Build 2: moved by 1 cm: below the threshold, nothing is rewritten.
-  detail::GridmapPlacements small;
-  small.by_hash.emplace(hash_a, shifted(store, "a", 0.31, 0.0));
-  up = detail::update_gridmap_sums(store, 2, store.list_drives(), hashes(store), {}, small);
+  up = update(store, 2, Eigen::Vector2d(0.31, 0.0), {});
   EXPECT_EQ(up.drives_added + up.drives_replaced + up.tiles_written, 0);
 
   // Build 3: now 0.6 m north instead: re-placed.
-  detail::GridmapPlacements moved;
-  moved.by_hash.emplace(hash_a, shifted(store, "a", 0.0, 0.6));
-  up = detail::update_gridmap_sums(store, 3, store.list_drives(), hashes(store), {}, moved);
+  up = update(store, 3, Eigen::Vector2d(0.0, 0.6), {});
   EXPECT_EQ(up.drives_replaced, 1);
   EXPECT_EQ(up.drives_added, 0);
   EXPECT_TRUE(up.errors.empty());
@@ -148,59 +167,28 @@ TEST(GridmapPlacement, AMovedAlignmentIsTakenOutAndAddedWhereItNowBelongs) {
                 0.002);
     }
   }
+  // A store that only ever saw the new placement holds the same sums, and not those of the
+  // first placement (the comparison can tell them apart).
+  EXPECT_LT(sums_difference(sums(store), sums_of_fresh_store(w, Eigen::Vector2d(0.0, 0.6), {})),
+            1e-5);
+  EXPECT_GT(sums_difference(sums(store), sums_of_fresh_store(w, Eigen::Vector2d(0.3, 0.0), {})),
+            0.1);
 
-  // A store that only ever saw the new placement holds the same sums.
-  TempDir tmp2;
-  SqliteMapStore fresh(tmp2.path() / "map.db");
-  put_real_package(fresh, tmp2.path(), w, 0, "a", v2());
-  put_real_package(fresh, tmp2.path(), w, 1, "b", v2(), Eigen::Vector2d(20.0, 5.0), 10.0);
-  detail::GridmapPlacements direct;
-  direct.by_hash.emplace(fresh.get_drive("a")->content_hash, shifted(fresh, "a", 0.0, 0.6));
-  (void)detail::update_gridmap_sums(fresh, 1, fresh.list_drives(), hashes(fresh), {}, direct);
-  const auto before_delete = sums(store);
-  EXPECT_LT(sums_difference(before_delete, sums(fresh)), 1e-5);
-  // ... and not those of the first placement (the test can tell them apart).
-  TempDir tmp4;
-  SqliteMapStore first_only(tmp4.path() / "map.db");
-  put_real_package(first_only, tmp4.path(), w, 0, "a", v2());
-  put_real_package(first_only, tmp4.path(), w, 1, "b", v2(), Eigen::Vector2d(20.0, 5.0), 10.0);
-  detail::GridmapPlacements old;
-  old.by_hash.emplace(first_only.get_drive("a")->content_hash, shifted(first_only, "a", 0.3, 0.0));
-  (void)detail::update_gridmap_sums(first_only, 1, first_only.list_drives(), hashes(first_only), {},
-                                    old);
-  EXPECT_GT(sums_difference(before_delete, sums(first_only)), 0.1);
-
-  // Both re-placed in one update: b's tiles are recomputed with a where a now is.
-  detail::GridmapPlacements both;
-  both.by_hash.emplace(hash_a, shifted(store, "a", 0.0, -0.4));
-  both.by_hash.emplace(store.get_drive("b")->content_hash, shifted(store, "b", 0.5, 0.0));
-  up = detail::update_gridmap_sums(store, 4, store.list_drives(), hashes(store), {}, both);
+  // Both re-placed in one update: b's old contribution comes out of tiles a is in now.
+  up = update(store, 4, Eigen::Vector2d(0.0, -0.4), Eigen::Vector2d(0.5, 0.0));
   EXPECT_EQ(up.drives_replaced, 2);
-  TempDir tmp5;
-  SqliteMapStore both_fresh(tmp5.path() / "map.db");
-  put_real_package(both_fresh, tmp5.path(), w, 0, "a", v2());
-  put_real_package(both_fresh, tmp5.path(), w, 1, "b", v2(), Eigen::Vector2d(20.0, 5.0), 10.0);
-  detail::GridmapPlacements both_direct;
-  both_direct.by_hash.emplace(both_fresh.get_drive("a")->content_hash,
-                              shifted(both_fresh, "a", 0.0, -0.4));
-  both_direct.by_hash.emplace(both_fresh.get_drive("b")->content_hash,
-                              shifted(both_fresh, "b", 0.5, 0.0));
-  (void)detail::update_gridmap_sums(both_fresh, 1, both_fresh.list_drives(), hashes(both_fresh), {},
-                                    both_direct);
-  EXPECT_LT(sums_difference(sums(store), sums(both_fresh)), 1e-5);
+  EXPECT_LT(sums_difference(sums(store), sums_of_fresh_store(w, Eigen::Vector2d(0.0, -0.4),
+                                                             Eigen::Vector2d(0.5, 0.0))),
+            1e-5);
 
   // Drive b deleted: its tiles are recomputed with a where its stored placement puts it.
   ASSERT_TRUE(store.delete_drive("b"));
-  up = detail::update_gridmap_sums(store, 5, store.list_drives(), hashes(store), {}, {});
+  up = update(store, 5, {}, {});
   EXPECT_EQ(up.drives_removed, 1);
-  TempDir tmp3;
-  SqliteMapStore only_a(tmp3.path() / "map.db");
-  put_real_package(only_a, tmp3.path(), w, 0, "a", v2());
-  detail::GridmapPlacements a_only;
-  a_only.by_hash.emplace(only_a.get_drive("a")->content_hash, shifted(only_a, "a", 0.0, -0.4));
-  (void)detail::update_gridmap_sums(only_a, 1, only_a.list_drives(), hashes(only_a), {}, a_only);
   // Tiles only b touched stay as (empty) tiles; the rest is a's alone, where it was placed.
-  EXPECT_LT(sums_difference(sums(store), sums(only_a)), 1e-5);
+  EXPECT_LT(
+      sums_difference(sums(store), sums_of_fresh_store(w, Eigen::Vector2d(0.0, -0.4), {}, false)),
+      1e-5);
 }
 
 }  // namespace

@@ -26,11 +26,7 @@ std::map<std::pair<int, tiles::TileKey>, std::string> etags(const MapStore& s, s
   return out;
 }
 
-PackageWriteOptions v2() {
-  PackageWriteOptions o;
-  o.format_version = 2;
-  return o;
-}
+PackageWriteOptions v2() { return package_format(2); }
 
 TEST(MergedGridmapBuild, ANewDriveRerendersOnlyItsRegionAndEqualsABuildFromScratch) {
   TempDir tmp;

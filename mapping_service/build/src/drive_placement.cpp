@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cmath>
 #include <nlohmann/json.hpp>
+#include <optional>
 
 #include "polmap/schema/errors.hpp"
 
@@ -14,16 +15,20 @@ constexpr int kPlacementFormat = 1;
 
 double rounded(double v, double unit) { return std::round(v / unit) * unit; }
 
-// Reads a flat array of finite numbers of exactly `n` elements.
-std::vector<double> numbers(const nlohmann::json& j, const char* key, std::size_t n,
-                            const std::string& source) {
+// A flat array of finite numbers in groups of `per` (at most kMaxPlacementNodes groups), and
+// exactly `groups` of them unless that is 0.
+std::vector<double> numbers(const nlohmann::json& j, const char* key, std::size_t per,
+                            const std::string& source, std::size_t groups = 0) {
   const auto it = j.find(key);
-  if (it == j.end() || !it->is_array() || it->size() != n) {
-    throw ValidationError(source + ": placement field '" + key + "' must be an array of " +
-                          std::to_string(n) + " numbers");
+  if (it == j.end() || !it->is_array() || it->size() % per != 0 ||
+      it->size() / per > kMaxPlacementNodes || (groups > 0 && it->size() != groups * per)) {
+    throw ValidationError(
+        source + ": placement field '" + key + "' must be an array of " +
+        (groups > 0 ? std::to_string(groups) : "at most " + std::to_string(kMaxPlacementNodes)) +
+        " groups of " + std::to_string(per) + " numbers");
   }
   std::vector<double> out;
-  out.reserve(n);
+  out.reserve(it->size());
   for (const auto& v : *it) {
     if (!v.is_number() || !std::isfinite(v.get<double>())) {
       throw ValidationError(source + ": placement field '" + key + "' holds a non-finite value");
@@ -31,18 +36,6 @@ std::vector<double> numbers(const nlohmann::json& j, const char* key, std::size_
     out.push_back(v.get<double>());
   }
   return out;
-}
-
-std::size_t count_of(const nlohmann::json& j, const char* key, std::size_t per,
-                     const std::string& source) {
-  const auto it = j.find(key);
-  if (it == j.end() || !it->is_array() || it->size() % per != 0 ||
-      it->size() / per > kMaxPlacementNodes) {
-    throw ValidationError(source + ": placement field '" + key + "' must be an array of at most " +
-                          std::to_string(kMaxPlacementNodes) + " groups of " + std::to_string(per) +
-                          " numbers");
-  }
-  return it->size() / per;
 }
 
 void require_ordered(const std::vector<double>& s, const char* key, const std::string& source) {
@@ -98,7 +91,7 @@ DrivePlacement decode_drive_placement(std::string_view text, const std::string& 
     throw ValidationError(source + ": placement format must be " +
                           std::to_string(kPlacementFormat));
   }
-  const std::vector<double> o = numbers(j, "frame_origin", 3, source);
+  const std::vector<double> o = numbers(j, "frame_origin", 3, source, 1);
   if (std::abs(o[0]) > 90.0 || std::abs(o[1]) > 180.0) {
     throw ValidationError(source + ": placement frame_origin is not a WGS84 position");
   }
@@ -109,34 +102,45 @@ DrivePlacement decode_drive_placement(std::string_view text, const std::string& 
     throw ValidationError(source + ": placement field 'candidate_lead_m' must be a finite number");
   }
   c.candidate_lead_m = lead->get<double>();
-  const std::size_t n = count_of(j, "node_s_m", 1, source);
-  const std::size_t m = count_of(j, "path_s_m", 1, source);
+  c.node_s_m = numbers(j, "node_s_m", 1, source);
+  c.path_s_m = numbers(j, "path_s_m", 1, source);
+  const std::size_t n = c.node_s_m.size(), m = c.path_s_m.size();
   if (n == 0 || m == 0) throw ValidationError(source + ": placement has no nodes or no path");
-  c.node_s_m = numbers(j, "node_s_m", n, source);
   require_ordered(c.node_s_m, "node_s_m", source);
-  const std::vector<double> nxy = numbers(j, "node_xy_m", 2 * n, source);
-  const std::vector<double> nc = numbers(j, "node_correction", 3 * n, source);
+  require_ordered(c.path_s_m, "path_s_m", source);
+  const std::vector<double> nxy = numbers(j, "node_xy_m", 2, source, n);
+  const std::vector<double> nc = numbers(j, "node_correction", 3, source, n);
   for (std::size_t k = 0; k < n; ++k) {
     c.node_position_m.emplace_back(nxy[2 * k], nxy[2 * k + 1]);
     c.node_correction.emplace_back(nc[3 * k], nc[3 * k + 1], nc[3 * k + 2]);
   }
-  c.path_s_m = numbers(j, "path_s_m", m, source);
-  require_ordered(c.path_s_m, "path_s_m", source);
-  const std::vector<double> pxy = numbers(j, "path_xy_m", 2 * m, source);
+  const std::vector<double> pxy = numbers(j, "path_xy_m", 2, source, m);
   for (std::size_t i = 0; i < m; ++i) c.path_m.emplace_back(pxy[2 * i], pxy[2 * i + 1]);
   return p;
 }
 
-GeoPoint placed(const DrivePlacement& p, const GeoPoint& g) {
-  if (p.as_uploaded()) return g;
-  const tiles::LocalFrame frame(*p.frame_origin);
-  return frame.to_geo(p.correction.apply(frame.to_local(g), true));
+namespace {
+
+// Where p puts g, with p's frame already built (none: as uploaded).
+GeoPoint placed_in(const DrivePlacement& p, const std::optional<tiles::LocalFrame>& frame,
+                   const GeoPoint& g) {
+  if (!frame) return g;
+  return frame->to_geo(p.correction.apply(frame->to_local(g), true));
 }
+
+std::optional<tiles::LocalFrame> frame_of(const DrivePlacement& p) {
+  return p.as_uploaded() ? std::nullopt : std::optional<tiles::LocalFrame>(*p.frame_origin);
+}
+
+}  // namespace
+
+GeoPoint placed(const DrivePlacement& p, const GeoPoint& g) { return placed_in(p, frame_of(p), g); }
 
 double placement_difference_m(const DrivePlacement& a, const DrivePlacement& b) {
   const DrivePlacement& ref = a.as_uploaded() ? b : a;
   if (ref.as_uploaded()) return 0.0;
   const tiles::LocalFrame frame(*ref.frame_origin);
+  const std::optional<tiles::LocalFrame> fa = frame_of(a), fb = frame_of(b);
   const auto& path = ref.correction.path_m;
   double worst = 0.0;
   for (std::size_t i = 0; i < path.size(); i += 5) {
@@ -147,8 +151,8 @@ double placement_difference_m(const DrivePlacement& a, const DrivePlacement& b) 
     const Eigen::Vector2d normal = Eigen::Vector2d(-t.y(), t.x()).normalized();
     for (const double side_m : {-30.0, 0.0, 30.0}) {
       const GeoPoint g = frame.to_geo(path[i] + side_m * normal);
-      const Eigen::Vector2d qa = frame.to_local(placed(a, g));
-      const Eigen::Vector2d qb = frame.to_local(placed(b, g));
+      const Eigen::Vector2d qa = frame.to_local(placed_in(a, fa, g));
+      const Eigen::Vector2d qb = frame.to_local(placed_in(b, fb, g));
       worst = std::max(worst, (qa - qb).norm());
     }
   }

@@ -89,6 +89,8 @@ struct Server::Impl {
   std::size_t apply_retention();
   /// Removes expired upload sessions (store and files); returns how many. Never throws.
   std::size_t sweep_upload_sessions();
+  /// Fails the store's builds whose process is gone (logged, counted). Never throws.
+  void fail_abandoned_builds();
 
   /// The one ingest path of an uploaded package, for POST /v1/drives and a completed
   /// upload session alike: `bytes` is the whole archive (`hash` its SHA-256 hex), already

@@ -100,21 +100,29 @@ std::int64_t Server::Impl::submit_build(const nlohmann::json& request) {
 
 void Server::Impl::build_loop() {
   auto last_retention = std::chrono::steady_clock::now();
+  auto last_abandoned_check = std::chrono::steady_clock::now();
+  const auto abandoned_every = std::chrono::duration<double>(cfg.abandoned_build_check_s);
   for (;;) {
     BuildJob job;
     {
       std::unique_lock lock(build_mutex);
       // Wakes every 10 minutes without work, for the retention period and the sweep of
-      // expired upload sessions; every second while
-      // a failed build waits to be marked failed.
-      const auto wait =
-          builds_to_fail.empty() ? std::chrono::seconds(600) : std::chrono::seconds(1);
+      // expired upload sessions; every abandoned_build_check_s for builds whose process is
+      // gone; every second while a failed build waits to be marked failed.
+      std::chrono::duration<double> wait = std::chrono::seconds(600);
+      if (cfg.abandoned_build_check_s > 0) wait = std::min(wait, abandoned_every);
+      if (!builds_to_fail.empty()) wait = std::min(wait, std::chrono::duration<double>(1.0));
       if (!build_cv.wait_for(lock, wait,
                              [this] { return build_shutdown || !build_queue.empty(); })) {
         lock.unlock();
         retry_failing_builds();
-        if (std::chrono::steady_clock::now() - last_retention >= std::chrono::minutes(10)) {
-          last_retention = std::chrono::steady_clock::now();
+        const auto now = std::chrono::steady_clock::now();
+        if (cfg.abandoned_build_check_s > 0 && now - last_abandoned_check >= abandoned_every) {
+          last_abandoned_check = now;
+          fail_abandoned_builds();
+        }
+        if (now - last_retention >= std::chrono::minutes(10)) {
+          last_retention = now;
           (void)apply_retention();
           (void)sweep_upload_sessions();
         }
@@ -133,6 +141,19 @@ void Server::Impl::build_loop() {
       progress_version = 0;
     }
     build_cv.notify_all();
+  }
+}
+
+void Server::Impl::fail_abandoned_builds() {
+  try {
+    const std::vector<std::int64_t> failed = store.fail_abandoned_builds();
+    if (failed.empty()) return;
+    std::string list;
+    for (const std::int64_t v : failed) list += (list.empty() ? "" : ", ") + std::to_string(v);
+    log("warn", "map build(s) " + list + " failed: the process building them is gone");
+    for (std::size_t i = 0; i < failed.size(); ++i) metrics.build_finished("abandoned");
+  } catch (const std::exception& e) {
+    log("error", std::string("abandoned build check: ") + e.what());
   }
 }
 

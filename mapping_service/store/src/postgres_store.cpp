@@ -56,6 +56,9 @@ const std::vector<StoreMigration>& postgres_store_migrations() {
 }
 
 namespace {
+constexpr std::string_view kFoundBuildingOnOpen = "interrupted (found building on open)";
+constexpr std::string_view kBuilderGone = "interrupted (the process building it is gone)";
+
 /// Absolute, normalized, without a trailing separator: the form recorded in the database.
 fs::path normalized_dir(const fs::path& p) {
   fs::path a = fs::absolute(p).lexically_normal();
@@ -103,21 +106,56 @@ void PostgresMapStore::Impl::migrate_and_configure() {
   tx.commit();
 }
 
-void PostgresMapStore::Impl::lock_build(std::int64_t version) {
-  std::lock_guard lock(session_mu);
-  if (!session || !session->reusable()) return;
-  // Never waits: a lock on this number held elsewhere (a deleted version whose number was
-  // given again, while its builder still runs) only makes the sweep more careful.
-  session->run("SELECT pg_try_advisory_lock($1, $2)", kBuildLockClass, static_cast<int>(version));
-}
-
 void PostgresMapStore::Impl::unlock_build(std::int64_t version) {
   std::lock_guard lock(session_mu);
+  held_builds.erase(version);
   if (!session || !session->reusable()) return;
   try {
     session->run("SELECT pg_advisory_unlock($1, $2)", kBuildLockClass, static_cast<int>(version));
   } catch (const Error&) {  // the lock goes with the connection anyway
   }
+}
+
+void PostgresMapStore::Impl::ensure_session() {
+  if (session && session->reusable()) {
+    try {
+      session->exec("SELECT 1");  // a session the server ended shows only when used
+      return;
+    } catch (const Error&) {
+    }
+  }
+  // The server ended the old session (network, restart) and with it every lock it held.
+  // A build of ours that another replica failed meanwhile fails at its publish.
+  session = std::make_unique<Connection>(conninfo, description);
+  if (owner) {
+    owner =
+        session->run("SELECT pg_try_advisory_lock($1, $2)", kLockClass, kOwnerLock).i64(0, 0) != 0;
+  }
+  for (const std::int64_t v : held_builds) {
+    session->run("SELECT pg_try_advisory_lock($1, $2)", kBuildLockClass, static_cast<int>(v));
+  }
+}
+
+std::vector<std::int64_t> PostgresMapStore::Impl::fail_abandoned_builds_tx(Connection& c,
+                                                                           std::string_view error) {
+  // A version exists only with its builder's lock (begin_map_version takes both in one
+  // transaction), so a free lock means the builder is gone.
+  const Result r = c.run(
+      "SELECT version FROM map_versions v WHERE status = 'building' "
+      // A partitioned build with jobs left is queued for build workers, not interrupted.
+      "AND NOT EXISTS (SELECT 1 FROM build_jobs j WHERE j.version = v.version AND j.state "
+      "IN ('pending', 'running')) ORDER BY version");
+  std::vector<std::int64_t> failed;
+  for (int i = 0; i < r.rows(); ++i) {
+    const std::int64_t v = r.i64(i, 0);
+    const Result free =
+        c.run("SELECT pg_try_advisory_xact_lock($1, $2)", kBuildLockClass, static_cast<int>(v));
+    if (free.i64(0, 0) == 0) continue;  // its builder is still running
+    c.run("UPDATE map_versions SET status = 'failed', error = $1 WHERE version = $2", error, v);
+    failed.push_back(v);
+  }
+  if (!failed.empty()) drop_failed_content(c);
+  return failed;
 }
 
 void PostgresMapStore::Impl::sweep_orphans() {
@@ -149,31 +187,8 @@ void PostgresMapStore::Impl::sweep_orphans() {
     const auto age = std::chrono::duration<double>(now - e.last_write_time(ec)).count();
     if (age >= opt.orphan_grace_s) fs::remove(e.path(), ec);
   }
-  // Builds older than the grace period whose process is gone (their lock is free).
-  const std::string cutoff =
-      iso_utc(std::chrono::system_clock::now() -
-              std::chrono::seconds(static_cast<std::int64_t>(std::ceil(opt.orphan_grace_s))));
-  write([&](Connection& c) {
-    const Result r = c.run(
-        "SELECT version FROM map_versions v WHERE status = 'building' AND created_at <= $1 "
-        // A partitioned build with jobs left is queued for build workers, not interrupted.
-        "AND NOT EXISTS (SELECT 1 FROM build_jobs j WHERE j.version = v.version AND j.state "
-        "IN ('pending', 'running')) ORDER BY version",
-        cutoff);
-    bool any = false;
-    for (int i = 0; i < r.rows(); ++i) {
-      const std::int64_t v = r.i64(i, 0);
-      const Result free =
-          c.run("SELECT pg_try_advisory_xact_lock($1, $2)", kBuildLockClass, static_cast<int>(v));
-      if (free.i64(0, 0) == 0) continue;  // its builder is still running
-      c.run(
-          "UPDATE map_versions SET status = 'failed', error = 'interrupted (found building on "
-          "open)' WHERE version = $1",
-          v);
-      any = true;
-    }
-    if (any) drop_failed_content(c);
-  });
+  // Builds whose process is gone (their lock is free).
+  write([&](Connection& c) { (void)fail_abandoned_builds_tx(c, kFoundBuildingOnOpen); });
 }
 
 PostgresMapStore::PostgresMapStore(PostgresStoreOptions options) : impl_(std::make_unique<Impl>()) {
@@ -204,6 +219,16 @@ PostgresMapStore::PostgresMapStore(PostgresStoreOptions options) : impl_(std::ma
 }
 
 PostgresMapStore::~PostgresMapStore() = default;
+
+std::vector<std::int64_t> PostgresMapStore::fail_abandoned_builds() {
+  {
+    // Our own builds' locks must be held before another's are judged.
+    std::lock_guard lock(impl_->session_mu);
+    impl_->ensure_session();
+  }
+  return impl_->write(
+      [&](Connection& c) { return impl_->fail_abandoned_builds_tx(c, kBuilderGone); });
+}
 
 const fs::path& PostgresMapStore::package_dir() const { return impl_->package_dir; }
 const fs::path& PostgresMapStore::upload_session_dir() const { return impl_->uploads_dir; }

@@ -9,6 +9,7 @@
 #include <mutex>
 #include <nlohmann/json.hpp>
 #include <optional>
+#include <set>
 #include <string>
 #include <string_view>
 #include <type_traits>
@@ -61,6 +62,7 @@ struct PostgresMapStore::Impl {
   std::mutex session_mu;
   std::unique_ptr<Connection> session;
   bool owner = false;
+  std::set<std::int64_t> held_builds;  ///< versions whose build lock the session holds
 
   /// A pooled connection, returned on destruction (dropped if it is broken or still in a
   /// transaction).
@@ -145,8 +147,13 @@ struct PostgresMapStore::Impl {
 
   /// Session-level lock of a running build (released by publish/fail or by the connection's
   /// end, so the sweep can tell a running build from an abandoned one).
-  void lock_build(std::int64_t version);
   void unlock_build(std::int64_t version);
+  /// Reconnects a broken session connection and takes its locks again (the owner lock if
+  /// this object owned the store, the locks of the builds it runs). Caller holds
+  /// session_mu.
+  void ensure_session();
+  /// Fails every Building version whose build lock is free and that has no job left.
+  std::vector<std::int64_t> fail_abandoned_builds_tx(Connection& c, std::string_view error);
 
   // Writes inside a transaction the caller holds (the public methods wrap each in one;
   // complete_build_job puts a job's whole output in one).

@@ -9,16 +9,41 @@ namespace polmap::mapping {
 // --------------------------------------------------------------------- map versions
 
 std::int64_t PostgresMapStore::begin_map_version(const nlohmann::json& parameters) {
-  const std::int64_t v = impl_->write([&](Connection& c) {
-    const std::int64_t version = Impl::next_id(c, "map_versions", "version");
+  Impl& I = *impl_;
+  // The row and its build lock appear together (one transaction on the session connection,
+  // whose session-level lock outlives the commit): no sweep can see the version without
+  // its lock, so a free lock always means the builder is gone.
+  std::lock_guard lock(I.session_mu);
+  I.ensure_session();
+  Connection& c = *I.session;
+  std::int64_t version = 0;
+  bool locked = false;
+  try {
+    pg::Transaction tx(c);
+    c.run("SELECT pg_advisory_xact_lock($1, $2)", kLockClass, kWriteLock);
+    version = Impl::next_id(c, "map_versions", "version");
     c.run(
         "INSERT INTO map_versions(version, status, created_at, parameters_json) VALUES ($1, "
         "'building', $2, $3::jsonb)",
         version, now_iso(), parameters.dump());
-    return version;
-  });
-  impl_->lock_build(v);  // while this process builds it, no sweep fails it
-  return v;
+    // Never waits: this number locked elsewhere (a deleted version's builder still running)
+    // only keeps the sweep off this version while that one runs.
+    locked =
+        c.run("SELECT pg_try_advisory_lock($1, $2)", kBuildLockClass, static_cast<int>(version))
+            .i64(0, 0) != 0;
+    tx.commit();
+  } catch (...) {
+    // A session-level lock taken in a transaction that rolled back is still held.
+    if (locked && c.reusable()) {
+      try {
+        c.run("SELECT pg_advisory_unlock($1, $2)", kBuildLockClass, static_cast<int>(version));
+      } catch (const Error&) {
+      }
+    }
+    throw;
+  }
+  if (locked) I.held_builds.insert(version);
+  return version;
 }
 
 void PostgresMapStore::Impl::put_landmarks_tx(Connection& c, std::int64_t version,

@@ -328,6 +328,10 @@ void SqliteMapStore::fail_map_version(std::int64_t version, std::string_view err
   });
 }
 
+// SQLite holds no lock a crashed process would release, so a running build cannot be
+// told from an abandoned one here; the sweep at open (after orphan_grace_s) finds them.
+std::vector<std::int64_t> SqliteMapStore::fail_abandoned_builds() { return {}; }
+
 void SqliteMapStore::set_current_map_version(std::int64_t version) {
   impl_->write([&](Connection& c) {
     Impl::require_published(c, version);

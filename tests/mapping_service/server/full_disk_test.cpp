@@ -149,6 +149,7 @@ class WriteTriggerStore final : public MapStore {
     s_.publish_map_version(v, st, make_current);
   }
   void fail_map_version(std::int64_t v, std::string_view e) override { s_.fail_map_version(v, e); }
+  std::vector<std::int64_t> fail_abandoned_builds() override { return s_.fail_abandoned_builds(); }
   void set_current_map_version(std::int64_t v) override { s_.set_current_map_version(v); }
   bool delete_map_version(std::int64_t v) override { return s_.delete_map_version(v); }
   std::optional<std::int64_t> current_map_version() const override {

@@ -18,7 +18,8 @@ class Replica {
  public:
   /// partition_zoom > 0: this replica partitions its builds and leaves the jobs to workers.
   Replica(const std::string& url, const std::filesystem::path& packages,
-          const std::filesystem::path& uploads, int partition_zoom = 0) {
+          const std::filesystem::path& uploads, int partition_zoom = 0,
+          double abandoned_build_check_s = ServerConfig{}.abandoned_build_check_s) {
     PostgresStoreOptions o;
     o.conninfo = url;
     o.package_dir = packages;
@@ -30,6 +31,7 @@ class Replica {
     cfg.threads = 4;
     cfg.log_requests = false;
     cfg.fail_stale_builds_on_start = false;  // as polmap serve on PostgreSQL
+    cfg.abandoned_build_check_s = abandoned_build_check_s;
     if (partition_zoom > 0) {
       cfg.build_partition_zoom = partition_zoom;
       cfg.run_build_jobs = false;
@@ -154,6 +156,43 @@ TEST(Replicas, TwoServersOnOnePostgresStoreAnswerAlike) {
     }
   }
   EXPECT_EQ(ca.Get("/v1/tilejson.json", host)->body, cb.Get("/v1/tilejson.json", host)->body);
+}
+
+TEST(Replicas, AReplicaFailsTheBuildsOfOneThatWasKilledWithinItsCheckInterval) {
+  polmap::test::TestDir tmp("replicas-abandoned");
+  const std::string url = PostgresCluster::instance().create_database();
+  Replica a(url, tmp.path() / "packages", tmp.path() / "uploads-a", 0, 0.2);
+  ASSERT_TRUE(a.ok());
+  PostgresStoreOptions o;
+  o.conninfo = url;
+  PostgresMapStore alive(o);  // a replica that is building
+  const std::int64_t running = alive.begin_map_version({{"notes", "running"}});
+  std::int64_t abandoned = 0;
+  {
+    PostgresMapStore killed(o);  // a replica killed with a build queued
+    abandoned = killed.begin_map_version({{"notes", "queued"}});
+  }
+  auto ca = a.client();
+  std::string status;
+  const auto deadline = Clock::now() + std::chrono::seconds(10);
+  while (Clock::now() < deadline) {
+    auto r = ca.Get("/v1/maps/" + std::to_string(abandoned));
+    ASSERT_TRUE(r);
+    ASSERT_EQ(r->status, 200);
+    status = nlohmann::json::parse(r->body).value("status", "");
+    if (status != "building") break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+  EXPECT_EQ(status, "failed");
+  auto r = ca.Get("/v1/maps/" + std::to_string(running));
+  ASSERT_TRUE(r);
+  EXPECT_EQ(nlohmann::json::parse(r->body).value("status", ""), "building");
+  r = ca.Get("/metrics", auth());
+  ASSERT_TRUE(r);
+  EXPECT_NE(r->body.find("polmap_map_builds_total{outcome=\"abandoned\"} 1"), std::string::npos)
+      << r->body;
+  alive.publish_map_version(running, {});
+  EXPECT_EQ(a.store().current_map_version(), running);
 }
 
 TEST(Replicas, APartitionedBuildQueuedOnOneIsRunByWorkersWithItsProgressOnTheOther) {

@@ -142,6 +142,50 @@ TEST_F(PostgresStore, TheOwnersSweepFailsAbandonedBuildsButNotARunningOne) {
   EXPECT_EQ(restarted.current_map_version(), running);
 }
 
+TEST_F(PostgresStore, ALiveReplicaFailsTheBuildsOfOneThatDiedWithoutWaitingForAnOpen) {
+  PostgresMapStore owner(options());
+  PostgresMapStore builder(options());
+  const std::int64_t running = builder.begin_map_version({{"notes", "running"}});
+  std::int64_t queued = 0, started = 0;
+  {
+    PostgresMapStore killed(options());
+    queued = killed.begin_map_version({{"notes", "queued"}});
+    started = killed.begin_map_version({{"notes", "started"}});
+    killed.put_landmarks(started, std::vector<StoredPointLandmark>{}, {});
+  }  // its process is gone, and the locks of its builds with it
+  // Any opener may ask, not only the owner, and no grace period applies.
+  PostgresMapStore other(options());
+  EXPECT_FALSE(other.owns_store());
+  EXPECT_EQ(other.fail_abandoned_builds(), (std::vector<std::int64_t>{queued, started}));
+  EXPECT_EQ(other.get_map_version(queued)->status, MapVersionStatus::Failed);
+  EXPECT_EQ(other.get_map_version(started)->error, "interrupted (the process building it is gone)");
+  EXPECT_EQ(other.get_map_version(running)->status, MapVersionStatus::Building);
+  EXPECT_TRUE(other.fail_abandoned_builds().empty());  // nothing more, nothing twice
+  builder.publish_map_version(running, {});
+  EXPECT_EQ(owner.current_map_version(), running);
+}
+
+TEST_F(PostgresStore, ABuilderWhoseSessionBrokeTakesItsLocksAgain) {
+  PostgresMapStore builder(options());
+  PostgresMapStore other(options());
+  const std::int64_t v = builder.begin_map_version({{"notes", "long build"}});
+  // The database ends the builder's session connection (restart, network), and its locks.
+  const std::string holders = "FROM pg_locks WHERE locktype = 'advisory' AND classid = " +
+                              std::to_string(0x706d6171) /* kBuildLockClass */ +
+                              " AND objid = " + std::to_string(v) + " AND objsubid = 2";
+  ASSERT_EQ(count("SELECT COUNT(pg_terminate_backend(pid)) " + holders), "1");
+  for (int i = 0; i < 100 && count("SELECT COUNT(*) " + holders) != "0"; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  // Its next store call that needs the session reconnects and locks its build again.
+  EXPECT_TRUE(builder.fail_abandoned_builds().empty());
+  EXPECT_EQ(count("SELECT COUNT(*) " + holders), "1");
+  EXPECT_TRUE(other.fail_abandoned_builds().empty());
+  EXPECT_EQ(other.get_map_version(v)->status, MapVersionStatus::Building);
+  builder.publish_map_version(v, {});
+  EXPECT_EQ(other.current_map_version(), v);
+}
+
 TEST_F(PostgresStore, ConnectionErrorsNameTheServerButNeverThePassword) {
   PostgresStoreOptions o = options();
   o.conninfo = "postgresql://polmap:s3cret-pw@127.0.0.1:1/nowhere?connect_timeout=2";

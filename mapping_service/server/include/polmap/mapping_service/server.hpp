@@ -168,6 +168,10 @@ struct ServerConfig {
   /// finish them). Turn off when several servers share one store (polmap serve does for
   /// PostgreSQL, whose store fails only builds whose process is gone).
   bool fail_stale_builds_on_start = true;
+  /// Every this many seconds the build thread asks the store for builds whose process is
+  /// gone (MapStore::fail_abandoned_builds: a replica killed while building or with builds
+  /// queued) and fails them, so they do not wait for the next open. 0: never.
+  double abandoned_build_check_s = 15.0;
   /// > 0: map builds are partitioned into regions of this zoom (MapBuildRequest::partition,
   /// schema/build_jobs.md), with this halo; 0: one-process builds (incremental).
   int build_partition_zoom = 0;

@@ -33,9 +33,12 @@
 /// before the row commits; a failed transaction leaves no files; leftovers of a crash
 /// swept at open by the store's owner, after orphan_grace_s). The owner is the one opener
 /// that holds a session-level advisory lock (pg_try_advisory_lock) for its lifetime. A map
-/// build holds a session-level advisory lock on its version while it runs, so the sweep
-/// fails only builds whose process is gone (a replica's long build is never failed by
-/// another replica's restart).
+/// build holds a session-level advisory lock on its version from the transaction that
+/// creates the version until it is published or failed, so the sweep (at open, and
+/// fail_abandoned_builds, which the server runs every few seconds) fails exactly the builds
+/// whose process is gone (a replica's long build is never failed by another replica). A
+/// session connection that broke is reopened and its locks taken again at the next build
+/// or sweep.
 ///
 /// Errors: as store.hpp. PostgreSQL cannot store the NUL character in text or jsonb (nor
 /// invalid UTF-8): such a value is a ValidationError here (SQLite stores it).
@@ -62,8 +65,9 @@ struct PostgresStoreOptions {
   std::filesystem::path package_dir;
   /// Idle connections kept open for reuse (more are opened on demand).
   std::size_t max_idle_connections = 8;
-  /// Orphaned package directories and session files (crash leftovers) and abandoned builds
-  /// older than this are removed (failed) at open by the owner. 0 removes all (tests).
+  /// Orphaned package directories and session files (crash leftovers) older than this are
+  /// removed at open by the owner. 0 removes all (tests). Abandoned builds need no grace:
+  /// their free lock tells them apart.
   double orphan_grace_s = 600.0;
   /// Test hook: called at the named stages of put_drive ("files_copied", "rows_inserted",
   /// "files_renamed"); throwing from it simulates a crash at that point.
@@ -126,6 +130,7 @@ class PostgresMapStore final : public MapStore {
   void publish_map_version(std::int64_t version, const nlohmann::json& statistics,
                            bool make_current = true) override;
   void fail_map_version(std::int64_t version, std::string_view error) override;
+  std::vector<std::int64_t> fail_abandoned_builds() override;
   void set_current_map_version(std::int64_t version) override;
   bool delete_map_version(std::int64_t version) override;
   [[nodiscard]] std::optional<std::int64_t> current_map_version() const override;

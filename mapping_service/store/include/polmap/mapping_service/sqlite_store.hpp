@@ -127,6 +127,7 @@ class SqliteMapStore final : public MapStore {
   void publish_map_version(std::int64_t version, const nlohmann::json& statistics,
                            bool make_current = true) override;
   void fail_map_version(std::int64_t version, std::string_view error) override;
+  std::vector<std::int64_t> fail_abandoned_builds() override;
   void set_current_map_version(std::int64_t version) override;
   bool delete_map_version(std::int64_t version) override;
   [[nodiscard]] std::optional<std::int64_t> current_map_version() const override;

@@ -503,6 +503,13 @@ class MapStore {
                                    bool make_current = true) = 0;
   /// Building -> Failed; drops the version's landmarks and tiles.
   virtual void fail_map_version(std::int64_t version, std::string_view error) = 0;
+  /// Fails the Building versions whose builder is gone (its process ended without
+  /// publishing or failing them; partitioned builds with jobs left are the workers' and
+  /// kept) and returns their numbers. For backends that can tell a running build from an
+  /// abandoned one while other processes use the store (PostgreSQL: a build holds a
+  /// session lock from the moment its version exists); the others find abandoned builds
+  /// when the store is opened and return none here (SQLite).
+  virtual std::vector<std::int64_t> fail_abandoned_builds() = 0;
   /// Moves the current pointer to a published version (rollback).
   virtual void set_current_map_version(std::int64_t version) = 0;
   /// Deletes a non-current version with its landmarks and tiles (blobs no

@@ -831,6 +831,13 @@ int main(int argc, char** argv) {
            AlignFlag{"--align-candidate-lead-m", &alignment.candidate_lead_m,
                      "candidates take the correction this far ahead of their nearest "
                      "trajectory point"},
+           AlignFlag{"--align-odometry-max-mismatch-m",
+                     &alignment.odometry_max_length_mismatch_m,
+                     "an odometry step whose length differs from the GNSS displacement by more "
+                     "than this (plus the share below) is rejected"},
+           AlignFlag{"--align-odometry-max-mismatch-share",
+                     &alignment.odometry_max_length_mismatch_share,
+                     "... plus this share of the step's length"},
        }) {
     app.add_option(f.name, *f.value, std::string("with --gnss consumer: ") + f.help);
   }

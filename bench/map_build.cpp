@@ -831,8 +831,7 @@ int main(int argc, char** argv) {
            AlignFlag{"--align-candidate-lead-m", &alignment.candidate_lead_m,
                      "candidates take the correction this far ahead of their nearest "
                      "trajectory point"},
-           AlignFlag{"--align-odometry-max-mismatch-m",
-                     &alignment.odometry_max_length_mismatch_m,
+           AlignFlag{"--align-odometry-max-mismatch-m", &alignment.odometry_max_length_mismatch_m,
                      "an odometry step whose length differs from the GNSS displacement by more "
                      "than this (plus the share below) is rejected"},
            AlignFlag{"--align-odometry-max-mismatch-share",

@@ -92,7 +92,10 @@
 --                     it are cut off before the next chunk); file_path relative to the upload
 --                     session directory (<db>.uploads/, beside the drive store, reachable by
 --                     every replica). Sessions whose expires_at has passed are swept with their
---                     files; nothing else is.
+--                     files; nothing else is. outcome_* (migration 12): once the upload is
+--                     over, the answer its last chunk got (status 200-499, Location, JSON
+--                     body; status 0 while in progress); the file is removed then, the row
+--                     kept until it expires (the answer is repeated to a client that lost it).
 
 -- bootstrap (every open)
 CREATE TABLE IF NOT EXISTS schema_migrations (
@@ -375,3 +378,10 @@ CREATE INDEX landmarks_key ON landmarks(key, version);
 -- alignment correction when it was added; '' = as uploaded), so that a drive whose
 -- alignment moves is taken out the way it went in and added again
 ALTER TABLE gridmap_sum_inputs ADD COLUMN placement TEXT NOT NULL DEFAULT '';
+
+-- migration 12: a completed upload session keeps the answer its last chunk got (HTTP status,
+-- Location, JSON body; status 0 while the upload is in progress) until it expires, so that a
+-- client whose connection dropped before that answer arrived can ask again
+ALTER TABLE upload_sessions ADD COLUMN outcome_status INTEGER NOT NULL DEFAULT 0;
+ALTER TABLE upload_sessions ADD COLUMN outcome_location TEXT NOT NULL DEFAULT '';
+ALTER TABLE upload_sessions ADD COLUMN outcome_body TEXT NOT NULL DEFAULT '';

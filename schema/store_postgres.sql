@@ -310,3 +310,8 @@ CREATE INDEX landmarks_key ON landmarks(key, version);
 
 -- migration 5: gridmap_sum_inputs.placement (store.sql migration 11)
 ALTER TABLE gridmap_sum_inputs ADD COLUMN placement text NOT NULL DEFAULT '';
+
+-- migration 6: upload_sessions.outcome_* (store.sql migration 12)
+ALTER TABLE upload_sessions ADD COLUMN outcome_status integer NOT NULL DEFAULT 0;
+ALTER TABLE upload_sessions ADD COLUMN outcome_location text NOT NULL DEFAULT '';
+ALTER TABLE upload_sessions ADD COLUMN outcome_body text NOT NULL DEFAULT '';

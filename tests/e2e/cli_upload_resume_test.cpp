@@ -123,6 +123,60 @@ TEST_F(CliUploadResume, ADroppedConnectionResumesWithoutResendingAcknowledgedByt
   EXPECT_TRUE(std::filesystem::is_empty(store_->upload_session_dir()));
 }
 
+TEST_F(CliUploadResume, TheLostAnswerToTheLastChunkIsAskedForAgain) {
+  // The last chunk arrives and the drive is stored, but the answer never reaches the CLI:
+  // it asks HEAD where the session stands (complete, at its end) and gets the answer again
+  // from an empty PATCH there, without sending a byte twice.
+  const std::string& tar = scene_tar("scene_drive_0", 11);
+  const std::size_t chunk = 64u << 10;
+  const auto pkg = dir_ / "drive.tar";
+  std::ofstream(pkg, std::ios::binary) << tar;
+  test::TcpProxy::Options po;
+  po.target_port = port_;
+  po.cut_nth = static_cast<int>((tar.size() + chunk - 1) / chunk);  // the last chunk
+  po.cut_before_answer = true;
+  test::TcpProxy proxy(po);
+  ASSERT_GT(proxy.port(), 0);
+  const std::string cmd = kPolmap.string() +
+                          " upload --server http://127.0.0.1:" + std::to_string(proxy.port()) +
+                          " --package " + pkg.string() + " --api-key " + kKey +
+                          " --chunk-mb 0.0625 --timeout-s 30 2>&1";
+  std::string output;
+  FILE* p = ::popen(cmd.c_str(), "r");
+  ASSERT_NE(p, nullptr);
+  std::array<char, 4096> buf{};
+  std::size_t n = 0;
+  while ((n = std::fread(buf.data(), 1, buf.size(), p)) > 0) output.append(buf.data(), n);
+  const int status = ::pclose(p);
+  ASSERT_TRUE(WIFEXITED(status)) << output;
+  ASSERT_EQ(WEXITSTATUS(status), 0) << output;
+  EXPECT_NE(output.find("drive scene_drive_0 uploaded"), std::string::npos) << output;
+  ASSERT_EQ(store_->list_drives().size(), 1U);
+
+  std::vector<Exchange> ex;
+  int cut = 0;
+  for (const auto& r : proxy.records()) {
+    ex.push_back(parse(r));
+    cut += r.cut ? 1 : 0;
+  }
+  EXPECT_EQ(cut, 1);
+  ASSERT_GE(ex.size(), 3U);
+  const Exchange& last = ex[ex.size() - 1];
+  const Exchange& head = ex[ex.size() - 2];
+  const Exchange& lost = ex[ex.size() - 3];
+  EXPECT_EQ(lost.method, "PATCH");
+  EXPECT_EQ(lost.status, 0);  // its answer never arrived
+  EXPECT_EQ(head.method, "HEAD");
+  EXPECT_EQ(head.acked, tar.size());
+  EXPECT_EQ(last.method, "PATCH");
+  EXPECT_EQ(last.offset, tar.size());
+  EXPECT_EQ(last.body_bytes, 0U);
+  EXPECT_EQ(last.status, 201);  // the answer the lost one had
+  std::uint64_t sent = 0;
+  for (const auto& e : ex) sent += e.method == "PATCH" ? e.body_bytes : 0;
+  EXPECT_EQ(sent, tar.size()) << "bytes sent twice: " << sent - tar.size();
+}
+
 TEST_F(CliUploadResume, SmallPackagesStillGoInOnePost) {
   const std::string& tar = scene_tar("scene_drive_1", 12);
   const auto pkg = dir_ / "drive.tar";

@@ -32,6 +32,9 @@ class TcpProxy {
     int cut_nth = 0;
     std::string cut_prefix = "PATCH ";
     std::uint64_t cut_after_bytes = 0;
+    /// Instead: the chosen connection carries the whole request and is cut when the server's
+    /// answer begins (the server did the work; the client never hears of it).
+    bool cut_before_answer = false;
     /// Bytes per second per direction and connection; 0 = unthrottled.
     double bytes_per_s = 0.0;
   };
@@ -148,7 +151,8 @@ class TcpProxy {
       if (::poll(p, 2, 100) < 0) break;
       if (p[0].revents & (POLLIN | POLLHUP | POLLERR)) {
         std::size_t want = buf.size();
-        if (cut_this) want = std::min<std::uint64_t>(want, opt_.cut_after_bytes - up);
+        const bool limit = cut_this && !opt_.cut_before_answer;
+        if (limit) want = std::min<std::uint64_t>(want, opt_.cut_after_bytes - up);
         const ssize_t r = want == 0 ? 0 : ::recv(client, buf.data(), want, 0);
         if (r <= 0 && want != 0) {
           client_open = false;
@@ -163,7 +167,9 @@ class TcpProxy {
             }
           }
           std::size_t n = static_cast<std::size_t>(std::max<ssize_t>(r, 0));
-          if (cut_this) n = std::min<std::uint64_t>(n, opt_.cut_after_bytes - up);
+          if (cut_this && !opt_.cut_before_answer) {
+            n = std::min<std::uint64_t>(n, opt_.cut_after_bytes - up);
+          }
           if (n > 0) {
             throttle(start, up + n);
             if (!send_all(server, buf.data(), n)) break;
@@ -171,7 +177,7 @@ class TcpProxy {
             rec->upstream.append(buf.data(), n);
           }
           up += n;
-          if (cut_this && up >= opt_.cut_after_bytes) {
+          if (cut_this && !opt_.cut_before_answer && up >= opt_.cut_after_bytes) {
             std::lock_guard lock(mu_);
             rec->cut = true;
             break;  // the link is lost: both sides closed below
@@ -180,6 +186,11 @@ class TcpProxy {
       }
       if (p[1].revents & (POLLIN | POLLHUP | POLLERR)) {
         const ssize_t r = ::recv(server, buf.data(), buf.size(), 0);
+        if (r > 0 && cut_this && opt_.cut_before_answer) {
+          std::lock_guard lock(mu_);
+          rec->cut = true;
+          break;  // the answer is lost on the way
+        }
         if (r <= 0) {
           server_open = false;
           ::shutdown(client, SHUT_WR);

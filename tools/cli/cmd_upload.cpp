@@ -171,10 +171,12 @@ std::optional<ResumableOutcome> upload_resumable(const UploadOptions& o, const s
         break;
       }
       if (s && (s->status == 404 || s->status == 410) && base + n == body.size()) {
+        // A completed session repeats its answer until it expires (HEAD gives its end as the
+        // offset, and an empty PATCH there the answer); this one is gone already.
         throw Error("upload of " + o.package +
-                    ": the answer to the last chunk was lost and the session is over, so the "
-                    "package was most likely stored; upload it again to check (a stored "
-                    "package is answered 'already present')");
+                    ": the answer to the last chunk was lost and the session has expired or "
+                    "was deleted since, so the package was most likely stored; upload it "
+                    "again to check (a stored package is answered 'already present')");
       }
       if (!transient(s)) expect_ok(s, o.server, "upload of " + o.package);  // throws
       fail(why(s));

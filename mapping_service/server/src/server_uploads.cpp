@@ -43,6 +43,13 @@ nlohmann::json session_json(const UploadSession& s, std::uint64_t max_chunk_byte
                    {"expires_at", s.expires_at},
                    {"max_chunk_bytes", max_chunk_bytes}};
   if (!s.sha256.empty()) j["sha256"] = s.sha256;
+  j["complete"] = s.outcome.has_value();
+  if (s.outcome) {
+    // Our own answer, kept as sent: parsed back for the listing, replayed verbatim by PATCH.
+    j["outcome"] = {{"status", s.outcome->http_status},
+                    {"response", nlohmann::json::parse(s.outcome->body, nullptr, false)}};
+    if (!s.outcome->location.empty()) j["outcome"]["location"] = s.outcome->location;
+  }
   return j;
 }
 
@@ -50,6 +57,15 @@ void set_session_headers(httplib::Response& res, const UploadSession& s) {
   res.set_header("Upload-Offset", std::to_string(s.offset_bytes));
   res.set_header("Upload-Length", std::to_string(s.length_bytes));
   res.set_header("Upload-Expires", s.expires_at);
+  if (s.outcome) res.set_header("Upload-Complete", std::to_string(s.outcome->http_status));
+}
+
+/// The answer a completed session's last chunk got, again.
+void replay_outcome(httplib::Response& res, const UploadSession& s) {
+  set_session_headers(res, s);
+  if (!s.outcome->location.empty()) res.set_header("Location", s.outcome->location);
+  res.status = s.outcome->http_status;
+  res.set_content(s.outcome->body, "application/json");
 }
 
 /// A session file opened for appending, with an exclusive open-file-description lock: one
@@ -278,6 +294,23 @@ void Server::Impl::register_upload_routes() {
                   "Upload-Offset", {{"offset_bytes", s.offset_bytes}});
       reject_unread("conflict");
     };
+    // A completed session answers an empty PATCH at its end with the answer its last chunk
+    // got (a client whose connection dropped before that answer arrived asks again), and
+    // refuses more bytes.
+    auto completed = [&](const UploadSession& s) {
+      if (from == s.length_bytes && chunk == 0) {
+        metrics.upload("replayed", 0);
+        return replay_outcome(res, s);
+      }
+      set_session_headers(res, s);
+      reply_error(res, 409,
+                  "upload session '" + id + "' is complete (answered " +
+                      std::to_string(s.outcome->http_status) + "): an empty PATCH at offset " +
+                      std::to_string(s.length_bytes) + " repeats that answer",
+                  "Upload-Offset", {{"offset_bytes", s.offset_bytes}});
+      reject_unread("conflict");
+    };
+    if (session->outcome) return completed(*session);
     if (from != session->offset_bytes) return conflict(*session);
     if (from + chunk > session->length_bytes) {
       set_session_headers(res, *session);
@@ -302,6 +335,9 @@ void Server::Impl::register_upload_routes() {
         return reject_unread("conflict");
       }
       if (file.missing()) {
+        // Completed meanwhile (its file goes with the completion), or deleted.
+        session = store.get_upload_session(id);
+        if (session && session->outcome) return completed(*session);
         reply_error(res, 404, "upload session '" + id + "' does not exist", "upload_id");
         return reject_unread("not_found");
       }
@@ -315,6 +351,7 @@ void Server::Impl::register_upload_routes() {
       reply_error(res, 404, "upload session '" + id + "' does not exist", "upload_id");
       return reject_unread("not_found");
     }
+    if (session->outcome) return completed(*session);
     if (from != session->offset_bytes) return conflict(*session);
     if (::ftruncate(file.fd(), static_cast<off_t>(from)) != 0 ||
         ::lseek(file.fd(), static_cast<off_t>(from), SEEK_SET) < 0) {
@@ -381,18 +418,32 @@ void Server::Impl::register_upload_routes() {
                     std::to_string(session->length_bytes));
     }
     const std::string hash = util::sha256_hex(bytes);
+    int status = 0;
     if (!session->sha256.empty() && hash != session->sha256) {
       metrics.upload("invalid", bytes.size());
-      (void)store.delete_upload_session(id);
-      return reply_error(res, 422,
-                         "the uploaded package's SHA-256 is " + hash + ", the session declared " +
-                             session->sha256 + "; nothing was stored",
-                         "Upload-Sha256");
+      reply_error(res, 422,
+                  "the uploaded package's SHA-256 is " + hash + ", the session declared " +
+                      session->sha256 + "; nothing was stored",
+                  "Upload-Sha256");
+      status = 422;
+    } else {
+      status = ingest_package(bytes, hash, *key, upload_scratch_dir(), res);
     }
-    const int status = ingest_package(bytes, hash, *key, upload_scratch_dir(), res);
-    // Stored, already present or refused for good: the session is over. A full disk or an
-    // internal error keeps it, so an empty PATCH at the full offset retries the ingest.
-    if (status < 500) (void)store.delete_upload_session(id);
+    // Stored, already present or refused for good: the upload is over, and the session keeps
+    // that answer until it expires. A full disk or an internal error keeps the bytes, so an
+    // empty PATCH at the full offset retries the ingest.
+    if (status < 500) {
+      try {
+        (void)store.complete_upload_session(
+            id,
+            {status, res.has_header("Location") ? res.get_header_value("Location") : "", res.body});
+        res.set_header("Upload-Complete", std::to_string(status));
+      } catch (const std::exception& e) {
+        // The answer stands; the session keeps its bytes, and asking again ingests them again
+        // (answered "already present" when they were stored).
+        log("warn", "upload session " + id + ": cannot record its outcome: " + e.what());
+      }
+    }
   });
 }
 

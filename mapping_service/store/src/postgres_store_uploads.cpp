@@ -11,7 +11,7 @@ namespace {
 
 constexpr const char* kSessionColumns =
     "id, owner, length_bytes, offset_bytes, COALESCE(sha256, ''), created_at, expires_at, "
-    "file_path";
+    "file_path, outcome_status, outcome_location, outcome_body";
 
 UploadSession session_from_row(const fs::path& uploads_dir, const Result& s, int i) {
   UploadSession u;
@@ -23,6 +23,9 @@ UploadSession session_from_row(const fs::path& uploads_dir, const Result& s, int
   u.created_at = s.text(i, 5);
   u.expires_at = s.text(i, 6);
   u.file = uploads_dir / s.text(i, 7);
+  if (s.i64(i, 8) != 0) {
+    u.outcome = UploadOutcome{static_cast<int>(s.i64(i, 8)), s.text(i, 9), s.text(i, 10)};
+  }
   return u;
 }
 
@@ -46,7 +49,7 @@ CreateUploadSessionResult PostgresMapStore::create_upload_session(const UploadSe
     CreateUploadSessionResult res;
     const Result s = c.run(
         "SELECT COUNT(*), COALESCE(SUM(length_bytes), 0)::bigint FROM upload_sessions "
-        "WHERE owner = $1 AND expires_at > $2",
+        "WHERE owner = $1 AND expires_at > $2 AND outcome_status = 0",
         r.owner, now);
     res.open_sessions = static_cast<std::size_t>(s.i64(0, 0));
     res.open_bytes = static_cast<std::uint64_t>(s.i64(0, 1));
@@ -66,7 +69,7 @@ CreateUploadSessionResult PostgresMapStore::create_upload_session(const UploadSe
         "expires_at, file_path) VALUES ($1, $2, $3, 0, $4, $5, $6, $7)",
         id, r.owner, static_cast<std::int64_t>(r.length_bytes), sha, now, expires, id);
     res.status = CreateUploadSessionResult::Status::Created;
-    res.session = {id, r.owner, r.length_bytes, 0, r.sha256, now, expires, file};
+    res.session = {id, r.owner, r.length_bytes, 0, r.sha256, now, expires, file, std::nullopt};
     return res;
   });
   if (out.status == CreateUploadSessionResult::Status::Created) guard.release();
@@ -96,8 +99,10 @@ bool PostgresMapStore::advance_upload_offset(std::string_view id, std::uint64_t 
       throw ValidationError("advance_upload_offset: offset " + std::to_string(to) +
                             " beyond the session's length " + std::to_string(length));
     }
-    return c.run("UPDATE upload_sessions SET offset_bytes = $1 WHERE id = $2 AND offset_bytes = $3",
-                 static_cast<std::int64_t>(to), id, static_cast<std::int64_t>(from))
+    return c.run(
+                "UPDATE upload_sessions SET offset_bytes = $1 WHERE id = $2 AND offset_bytes = $3 "
+                "AND outcome_status = 0",
+                static_cast<std::int64_t>(to), id, static_cast<std::int64_t>(from))
                .affected() == 1;
   });
 }
@@ -106,6 +111,22 @@ bool PostgresMapStore::delete_upload_session(std::string_view id) {
   std::optional<fs::path> file;
   impl_->write([&](Connection& c) {
     const Result r = c.run("DELETE FROM upload_sessions WHERE id = $1 RETURNING file_path", id);
+    if (!r.empty()) file = impl_->uploads_dir / r.text(0, 0);
+  });
+  if (!file) return false;
+  std::error_code ec;
+  fs::remove(*file, ec);  // after commit; a failure leaves an orphan swept on open
+  return true;
+}
+
+bool PostgresMapStore::complete_upload_session(std::string_view id, const UploadOutcome& outcome) {
+  validate_upload_outcome(outcome);
+  std::optional<fs::path> file;
+  impl_->write([&](Connection& c) {
+    const Result r = c.run(
+        "UPDATE upload_sessions SET outcome_status = $1, outcome_location = $2, outcome_body = $3 "
+        "WHERE id = $4 AND outcome_status = 0 RETURNING file_path",
+        outcome.http_status, outcome.location, outcome.body, id);
     if (!r.empty()) file = impl_->uploads_dir / r.text(0, 0);
   });
   if (!file) return false;

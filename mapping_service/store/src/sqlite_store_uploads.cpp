@@ -20,7 +20,7 @@ namespace {
 
 constexpr const char* kSessionColumns =
     "id, owner, length_bytes, offset_bytes, COALESCE(sha256, ''), created_at, expires_at, "
-    "file_path";
+    "file_path, outcome_status, outcome_location, outcome_body";
 
 UploadSession session_from_row(const fs::path& uploads_dir, Stmt& s) {
   UploadSession u;
@@ -32,6 +32,7 @@ UploadSession session_from_row(const fs::path& uploads_dir, Stmt& s) {
   u.created_at = s.text(5);
   u.expires_at = s.text(6);
   u.file = uploads_dir / s.text(7);
+  if (s.i64(8) != 0) u.outcome = UploadOutcome{static_cast<int>(s.i64(8)), s.text(9), s.text(10)};
   return u;
 }
 
@@ -55,7 +56,7 @@ CreateUploadSessionResult SqliteMapStore::create_upload_session(const UploadSess
     CreateUploadSessionResult res;
     auto s = c.stmt(
         "SELECT COUNT(*), COALESCE(SUM(length_bytes), 0) FROM upload_sessions "
-        "WHERE owner = ?1 AND expires_at > ?2");
+        "WHERE owner = ?1 AND expires_at > ?2 AND outcome_status = 0");
     s.bind(1, r.owner).bind(2, now);
     if (s.step()) {
       res.open_sessions = static_cast<std::size_t>(s.i64(0));
@@ -81,7 +82,7 @@ CreateUploadSessionResult SqliteMapStore::create_upload_session(const UploadSess
     }
     ins.bind(5, now).bind(6, expires).bind(7, id).run();
     res.status = CreateUploadSessionResult::Status::Created;
-    res.session = {id, r.owner, r.length_bytes, 0, r.sha256, now, expires, file};
+    res.session = {id, r.owner, r.length_bytes, 0, r.sha256, now, expires, file, std::nullopt};
     return res;
   });
   if (out.status == CreateUploadSessionResult::Status::Created) guard.release();
@@ -116,7 +117,9 @@ bool SqliteMapStore::advance_upload_offset(std::string_view id, std::uint64_t fr
       throw ValidationError("advance_upload_offset: offset " + std::to_string(to) +
                             " beyond the session's length " + std::to_string(length));
     }
-    c.stmt("UPDATE upload_sessions SET offset_bytes = ?1 WHERE id = ?2 AND offset_bytes = ?3")
+    c.stmt(
+         "UPDATE upload_sessions SET offset_bytes = ?1 WHERE id = ?2 AND offset_bytes = ?3 AND "
+         "outcome_status = 0")
         .bind(1, static_cast<std::int64_t>(to))
         .bind(2, id)
         .bind(3, static_cast<std::int64_t>(from))
@@ -135,6 +138,31 @@ bool SqliteMapStore::delete_upload_session(std::string_view id) {
       file = impl_->uploads_dir / s.text(0);
     }
     c.stmt("DELETE FROM upload_sessions WHERE id = ?1").bind(1, id).run();
+  });
+  if (!file) return false;
+  std::error_code ec;
+  fs::remove(*file, ec);  // after commit; a failure leaves an orphan swept on open
+  return true;
+}
+
+bool SqliteMapStore::complete_upload_session(std::string_view id, const UploadOutcome& outcome) {
+  validate_upload_outcome(outcome);
+  std::optional<fs::path> file;
+  impl_->write([&](Connection& c) {
+    {
+      auto s = c.stmt("SELECT file_path FROM upload_sessions WHERE id = ?1 AND outcome_status = 0");
+      s.bind(1, id);
+      if (!s.step()) return;
+      file = impl_->uploads_dir / s.text(0);
+    }
+    c.stmt(
+         "UPDATE upload_sessions SET outcome_status = ?1, outcome_location = ?2, outcome_body = "
+         "?3 WHERE id = ?4")
+        .bind(1, static_cast<std::int64_t>(outcome.http_status))
+        .bind(2, outcome.location)
+        .bind(3, outcome.body)
+        .bind(4, id)
+        .run();
   });
   if (!file) return false;
   std::error_code ec;

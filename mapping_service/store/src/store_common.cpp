@@ -443,6 +443,13 @@ void validate_upload_request(const UploadSessionRequest& r) {
   if (r.ttl_s <= 0) throw ValidationError("create_upload_session: ttl_s must be positive");
 }
 
+void validate_upload_outcome(const UploadOutcome& o) {
+  if (o.http_status < 200 || o.http_status > 499) {
+    throw ValidationError("complete_upload_session: http_status must be 200-499, got " +
+                          std::to_string(o.http_status));
+  }
+}
+
 }  // namespace store_detail
 }  // namespace polmap::mapping
 

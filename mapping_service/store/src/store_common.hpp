@@ -91,6 +91,8 @@ std::string random_session_id();
 void create_session_file(const std::filesystem::path& path);
 /// The checks of create_upload_session shared by the backends (ValidationError).
 void validate_upload_request(const UploadSessionRequest& r);
+/// The checks of complete_upload_session (ValidationError).
+void validate_upload_outcome(const UploadOutcome& o);
 /// Build jobs: state names, the checks of enqueue_build_jobs, the lease clock (SQLite: the
 /// host's wall clock in seconds since the epoch; PostgreSQL uses the server's).
 BuildJobState parse_build_job_state(std::string_view s);

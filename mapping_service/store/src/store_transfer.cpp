@@ -171,7 +171,10 @@ const std::vector<TableSpec>& table_specs() {
         {"sha256", T},
         {"created_at", T},
         {"expires_at", T},
-        {"file_path", T}},
+        {"file_path", T},
+        {"outcome_status", I},
+        {"outcome_location", T},
+        {"outcome_body", T}},
        {"id"}},
       {"gridmap_sum_inputs",
        {{"content_hash", T}, {"tiles", I}, {"added_at", T}, {"placement", T}},
@@ -987,8 +990,10 @@ StoreTransferReport transfer_store(const std::string& from, const std::string& t
             const int id = column_index(t, "drive_id"), rel = column_index(t, "package_path");
             for (const auto& r : rows) packages.push_back({r[id].s, r[rel].s});
           } else if (std::string_view(t.name) == "upload_sessions") {
-            const int f = column_index(t, "file_path");
-            for (const auto& r : rows) upload_files.push_back(r[f].s);
+            const int f = column_index(t, "file_path"), st = column_index(t, "outcome_status");
+            for (const auto& r : rows) {
+              if (r[st].i == 0) upload_files.push_back(r[f].s);  // a completed one has none
+            }
           }
           w->insert(t, rows);
           done += static_cast<std::int64_t>(rows.size());

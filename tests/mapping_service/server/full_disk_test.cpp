@@ -184,6 +184,9 @@ class WriteTriggerStore final : public MapStore {
     return s_.advance_upload_offset(id, from, to);
   }
   bool delete_upload_session(std::string_view id) override { return s_.delete_upload_session(id); }
+  bool complete_upload_session(std::string_view id, const UploadOutcome& o) override {
+    return s_.complete_upload_session(id, o);
+  }
   std::size_t sweep_expired_upload_sessions(std::chrono::system_clock::time_point now) override {
     return s_.sweep_expired_upload_sessions(now);
   }

@@ -119,8 +119,13 @@ TEST_F(ResumableUploadTest, ChunksAtTheOffsetThenTheWholePackageIsStoredOnce) {
   for (const auto& m : read_ustar(tar)) {
     EXPECT_EQ(util::read_file_bytes(d->package_path / m.name), m.data) << m.name;
   }
-  EXPECT_EQ(head(path)->status, 404);
-  EXPECT_FALSE(store_->get_upload_session(id));
+  // The session is complete: its bytes are gone, its answer stays until it expires.
+  auto done = head(path);
+  ASSERT_TRUE(done);
+  EXPECT_EQ(done->status, 200);
+  EXPECT_EQ(done->get_header_value("Upload-Offset"), std::to_string(tar.size()));
+  EXPECT_EQ(done->get_header_value("Upload-Complete"), "201");
+  ASSERT_TRUE(store_->get_upload_session(id)->outcome);
   EXPECT_EQ(session_files(), 0U);
   EXPECT_EQ(upload_leftovers(), 0U);
 
@@ -132,6 +137,44 @@ TEST_F(ResumableUploadTest, ChunksAtTheOffsetThenTheWholePackageIsStoredOnce) {
   EXPECT_EQ(json::parse(r->body)["status"], "already_present");
   EXPECT_EQ(store_->list_drives().size(), 1U);
   EXPECT_EQ(session_files(), 0U);
+}
+
+TEST_F(ResumableUploadTest, ACompletedSessionRepeatsItsAnswerUntilItExpires) {
+  const std::string& tar = scene_tar("scene_drive_2", 13);
+  const std::string path = create(tar);
+  const std::size_t chunk = tar.size() / 2 + 1;
+  auto first = send_all(path, tar, chunk);
+  ASSERT_TRUE(first);
+  ASSERT_EQ(first->status, 201) << first->body;
+  // Say that answer was lost on the way. The client resends its last chunk: the session
+  // refuses more bytes and names its end ...
+  auto resent = patch(path, chunk, std::string_view(tar).substr(chunk));
+  ASSERT_TRUE(resent);
+  EXPECT_EQ(resent->status, 409) << resent->body;
+  EXPECT_EQ(resent->get_header_value("Upload-Offset"), std::to_string(tar.size()));
+  EXPECT_EQ(resent->get_header_value("Upload-Complete"), "201");
+  // ... where an empty PATCH gets the same answer, byte for byte; nothing is stored twice.
+  auto again = patch(path, tar.size(), "");
+  ASSERT_TRUE(again);
+  EXPECT_EQ(again->status, 201);
+  EXPECT_EQ(again->body, first->body);
+  EXPECT_EQ(again->get_header_value("Location"), "/v1/drives/scene_drive_2");
+  EXPECT_EQ(store_->list_drives().size(), 1U);
+  auto status = client().Get(path, auth());
+  ASSERT_TRUE(status);
+  const json j = json::parse(status->body);
+  EXPECT_EQ(j["complete"], true);
+  EXPECT_EQ(j["outcome"]["status"], 201);
+  EXPECT_EQ(j["outcome"]["location"], "/v1/drives/scene_drive_2");
+  EXPECT_EQ(j["outcome"]["response"]["drive_id"], "scene_drive_2");
+  EXPECT_EQ(patch(path, tar.size(), "", kOtherKey)->status, 404);  // the owner's answer only
+  // A completed session no longer counts against the key's quota of open sessions.
+  for (int i = 0; i < 4; ++i) EXPECT_TRUE(create(tar).starts_with("/v1/uploads/")) << i;
+  // Once it expires it is gone like any session.
+  EXPECT_EQ(store_->sweep_expired_upload_sessions(std::chrono::system_clock::now() +
+                                                  std::chrono::hours(48)),
+            5U);
+  EXPECT_EQ(head(path)->status, 404);
 }
 
 TEST_F(ResumableUploadTest, AChunkAtAnotherOffsetIsAConflictAndAppendsNothing) {
@@ -341,7 +384,8 @@ TEST_F(ResumableUploadTest, ACorruptPackageGetsTheAnswerOfPostDrivesAndNothingIs
     ASSERT_TRUE(r);
     EXPECT_EQ(r->status, direct->status) << r->body;
     EXPECT_EQ(json::parse(r->body), json::parse(direct->body));
-    EXPECT_EQ(head(path)->status, 404);  // refused for good: the session is over
+    // Refused for good: the upload is over, with that answer.
+    EXPECT_EQ(head(path)->get_header_value("Upload-Complete"), std::to_string(direct->status));
   }
   // Bytes that are not what the session declared: 422, nothing stored.
   auto h = auth();

@@ -160,6 +160,41 @@ TEST_P(StoreUploads, TheSweepRemovesExpiredSessionsOnly) {
   EXPECT_TRUE(fs::is_empty(upload_dir()));
 }
 
+TEST_P(StoreUploads, ACompletedSessionKeepsItsAnswerUntilItExpiresAndFreesItsQuota) {
+  MapStore& store = this->store();
+  UploadSessionRequest r = request("a", 10);
+  r.max_sessions_per_owner = 1;
+  const auto s = store.create_upload_session(r).session;
+  ASSERT_TRUE(store.advance_upload_offset(s.id, 0, 5));
+  EXPECT_EQ(store.create_upload_session(r).status, Status::TooManySessions);
+  EXPECT_FALSE(store.get_upload_session(s.id)->outcome);
+
+  const UploadOutcome o{201, "/v1/drives/d1", R"({"drive_id":"d1","status":"inserted"})"};
+  ASSERT_TRUE(store.complete_upload_session(s.id, o));
+  const auto got = store.get_upload_session(s.id);
+  ASSERT_TRUE(got && got->outcome);
+  EXPECT_EQ(got->outcome->http_status, 201);
+  EXPECT_EQ(got->outcome->location, o.location);
+  EXPECT_EQ(got->outcome->body, o.body);
+  EXPECT_EQ(got->offset_bytes, 5U);
+  EXPECT_FALSE(fs::exists(s.file));  // the bytes are no longer needed
+  // Complete once: no second outcome, no more bytes.
+  EXPECT_FALSE(store.complete_upload_session(s.id, {200, "", "{}"}));
+  EXPECT_EQ(store.get_upload_session(s.id)->outcome->http_status, 201);
+  EXPECT_FALSE(store.advance_upload_offset(s.id, 5, 10));
+  EXPECT_EQ(store.get_upload_session(s.id)->offset_bytes, 5U);
+  EXPECT_FALSE(store.complete_upload_session(std::string(32, '0'), o));
+  EXPECT_THROW((void)store.complete_upload_session(s.id, {500, "", "{}"}), ValidationError);
+  EXPECT_THROW((void)store.complete_upload_session(s.id, {199, "", "{}"}), ValidationError);
+  // It no longer counts against its owner's limit.
+  const auto next = store.create_upload_session(r);
+  EXPECT_EQ(next.status, Status::Created);
+  // The sweep removes it when it expires, as any session.
+  EXPECT_EQ(store.sweep_expired_upload_sessions(kT0 + std::chrono::seconds(3600)), 2U);
+  EXPECT_FALSE(store.get_upload_session(s.id));
+  EXPECT_TRUE(fs::is_empty(upload_dir()));
+}
+
 TEST_P(StoreUploads, ReopenRemovesSessionFilesWithoutARow) {
   ContractOpenOptions o;
   o.orphan_grace_s = 0;

@@ -237,6 +237,10 @@ class PostgresStoreTransfer : public ::testing::Test {
     }
     ASSERT_TRUE(s.advance_upload_offset(session.session.id, 0, 100));
     session_id_ = session.session.id;
+    // A completed one: its answer, no file.
+    const auto done = s.create_upload_session(r);
+    ASSERT_TRUE(s.complete_upload_session(done.session.id, {201, "/v1/drives/a", R"({"n":1})"}));
+    completed_id_ = done.session.id;
     put_package(s, tmp.path(), w, 0, "x", Eigen::Vector2d(-20.0, 0.0), 7.0);
     ASSERT_TRUE(s.delete_drive("x"));
     ASSERT_TRUE(s.delete_drive("b"));
@@ -260,6 +264,7 @@ class PostgresStoreTransfer : public ::testing::Test {
   }
 
   std::string session_id_;
+  std::string completed_id_;
 };
 
 TEST_F(PostgresStoreTransfer, SqliteToPostgresToSqliteLosesNothingAndBuildsTheSameMap) {
@@ -309,6 +314,12 @@ TEST_F(PostgresStoreTransfer, SqliteToPostgresToSqliteLosesNothingAndBuildsTheSa
       EXPECT_EQ(u->offset_bytes, 100u);
       EXPECT_EQ(u->length_bytes, 1000u);
       EXPECT_EQ(util::read_file_bytes(u->file), std::string(100, 'u'));
+      const auto c = s->get_upload_session(completed_id_);
+      ASSERT_TRUE(c && c->outcome);
+      EXPECT_EQ(c->outcome->http_status, 201);
+      EXPECT_EQ(c->outcome->location, "/v1/drives/a");
+      EXPECT_EQ(c->outcome->body, R"({"n":1})");
+      EXPECT_FALSE(fs::exists(c->file));
     }
 
     // A map built afterwards on each copy equals one built on the source: same new drive,

@@ -150,6 +150,7 @@ class PostgresMapStore final : public MapStore {
   [[nodiscard]] std::optional<UploadSession> get_upload_session(std::string_view id) const override;
   bool advance_upload_offset(std::string_view id, std::uint64_t from, std::uint64_t to) override;
   bool delete_upload_session(std::string_view id) override;
+  bool complete_upload_session(std::string_view id, const UploadOutcome& outcome) override;
   std::size_t sweep_expired_upload_sessions(std::chrono::system_clock::time_point now) override;
 
   [[nodiscard]] std::vector<GridmapSumInput> gridmap_sum_inputs() const override;

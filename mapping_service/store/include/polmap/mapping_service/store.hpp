@@ -267,6 +267,15 @@ struct StoreStats {
 /// A resumable upload in progress (POST /v1/uploads): the package's bytes arrive in chunks
 /// appended to `file`; the first `offset_bytes` of them are durable and acknowledged. The
 /// session lives in the store, so any replica sharing the store can continue it.
+/// The answer the last chunk of a completed upload session got (POST /v1/drives' answer:
+/// stored, already present, or refused for good), kept until the session expires so that a
+/// client whose connection dropped before it arrived can ask again.
+struct UploadOutcome {
+  int http_status = 0;   ///< 200-499
+  std::string location;  ///< the Location header sent with it, or empty
+  std::string body;      ///< the JSON body sent with it
+};
+
 struct UploadSession {
   std::string id;                  ///< 32 lower-case hex digits (128 random bits)
   std::string owner;               ///< fingerprint of the API key that created it, never the key
@@ -276,6 +285,8 @@ struct UploadSession {
   std::string created_at;          ///< ISO 8601 UTC
   std::string expires_at;          ///< ISO 8601 UTC; the session may be swept from then on
   std::filesystem::path file;      ///< absolute path of the session's byte file
+  /// Set once the upload completed (complete_upload_session); its byte file is gone then.
+  std::optional<UploadOutcome> outcome;
 };
 
 /// What create_upload_session needs. The per-owner limits are checked in the same
@@ -556,6 +567,10 @@ class MapStore {
   virtual bool advance_upload_offset(std::string_view id, std::uint64_t from, std::uint64_t to) = 0;
   /// Removes the session's row, then its file. False if unknown.
   virtual bool delete_upload_session(std::string_view id) = 0;
+  /// Records the answer the session's upload got, then removes its byte file; the row stays
+  /// until the session expires, and no longer counts against its owner's limits. False if
+  /// unknown or already complete. ValidationError for a status outside 200-499.
+  virtual bool complete_upload_session(std::string_view id, const UploadOutcome& outcome) = 0;
   /// Removes the sessions whose expires_at is at or before `now` (rows, then files), and
   /// only those; returns how many.
   virtual std::size_t sweep_expired_upload_sessions(std::chrono::system_clock::time_point now) = 0;

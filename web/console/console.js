@@ -213,7 +213,7 @@
         ['lateral σ', Number(p.sigma_lat_m).toFixed(3) + ' m'], ['distance', Number(p.distance_m).toFixed(1) + ' m'],
         ['time', Number(p.t_s).toFixed(2) + ' s']);
     } else if (f.layer.id === 'quality') {
-      rows.splice(0, rows.length, ['kind', 'fleet localization quality'], ['cell', p.tile], ['runs', p.runs],
+      rows.splice(0, rows.length, ['kind', 'fleet localization quality'], ['cell', p.tile], ['runs', p.runs + ' against map v' + p.map_version],
         ['samples', p.samples], ['degraded or lost', (100 * Number(p.degraded_share)).toFixed(1) + ' %'],
         ['mean lateral σ', Number(p.mean_sigma_lat_m).toFixed(3) + ' m'],
         ['lateral RMSE', p.lat_rmse_m !== undefined && p.lat_rmse_m !== null ? Number(p.lat_rmse_m).toFixed(3) + ' m' : 'no reference'],

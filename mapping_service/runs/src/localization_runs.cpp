@@ -210,6 +210,7 @@ json run_cells_geojson(std::span<const LocalizationRunCell> cells, const RunQual
          {{"tile", std::to_string(c.z) + "/" + std::to_string(c.x) + "/" + std::to_string(c.y)},
           {"samples", c.samples},
           {"runs", c.runs},
+          {"map_version", c.map_version},
           {"degraded_share", degraded_share},
           {"mean_sigma_lat_m", sigma},
           {"evaluated", c.evaluated},

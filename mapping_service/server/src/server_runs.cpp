@@ -5,7 +5,7 @@
 //
 //   POST   /v1/runs                 vehicle or operator key; body ≤ max_run_report_bytes
 //   GET    /v1/runs[?limit=N&vehicle=ID]            viewer or operator key
-//   GET    /v1/runs/quality[?bbox=...]              viewer or operator key (GeoJSON cells)
+//   GET    /v1/runs/quality[?bbox=...&runs=newest_map|all] viewer or operator key (GeoJSON)
 //   GET    /v1/runs/{id}[?format=json|geojson]      viewer or operator key
 //   DELETE /v1/runs/{id}                            operator key
 #include "polmap/mapping_service/localization_runs.hpp"
@@ -96,11 +96,18 @@ void Server::Impl::register_run_routes() {
       x1 = se.x;
       y1 = se.y;
     }
-    const auto cells =
-        store.localization_run_cells(z, static_cast<int>(x0), static_cast<int>(y0),
-                                     static_cast<int>(x1), static_cast<int>(y1), kMaxQualityCells);
+    // By default a cell shows the runs against the newest map version that has runs there:
+    // a place a later map fixed is judged by how it localizes now.
+    const std::string which = req.has_param("runs") ? req.get_param_value("runs") : "newest_map";
+    if (which != "newest_map" && which != "all") {
+      return reply_error(res, 400, "runs must be newest_map or all", "runs");
+    }
+    const auto cells = store.localization_run_cells(
+        z, static_cast<int>(x0), static_cast<int>(y0), static_cast<int>(x1), static_cast<int>(y1),
+        kMaxQualityCells, which == "all" ? RunCellRuns::All : RunCellRuns::NewestMapVersion);
     nlohmann::json j = run_cells_geojson(cells);
     j["properties"]["truncated"] = cells.size() >= kMaxQualityCells;
+    j["properties"]["runs"] = which;
     reply_json(res, 200, j);
   });
 

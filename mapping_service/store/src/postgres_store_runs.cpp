@@ -97,15 +97,20 @@ bool PostgresMapStore::delete_localization_run(std::int64_t id) {
 
 std::vector<LocalizationRunCell> PostgresMapStore::localization_run_cells(int z, int x0, int y0,
                                                                           int x1, int y1,
-                                                                          std::size_t limit) const {
+                                                                          std::size_t limit,
+                                                                          RunCellRuns which) const {
   return impl_->read([&](Connection& c) {
     std::vector<LocalizationRunCell> out;
     const Result r = c.run(
-        "SELECT x, y, SUM(samples)::bigint, SUM(degraded)::bigint, SUM(evaluated)::bigint, "
-        "SUM(sum_sigma_lat_m), SUM(sum_err_lat2_m2), MAX(max_abs_err_lat_m), COUNT(*) "
-        "FROM localization_run_cells WHERE z = $1 AND x BETWEEN $2 AND $3 AND y BETWEEN $4 AND "
-        "$5 GROUP BY x, y ORDER BY x, y LIMIT $6",
-        z, x0, x1, y0, y1, static_cast<std::int64_t>(std::min<std::size_t>(limit, 1u << 30)));
+        "SELECT c.x, c.y, SUM(c.samples)::bigint, SUM(c.degraded)::bigint, "
+        "SUM(c.evaluated)::bigint, SUM(c.sum_sigma_lat_m), SUM(c.sum_err_lat2_m2), "
+        "MAX(c.max_abs_err_lat_m), COUNT(*), MAX(r.map_version) FROM localization_run_cells c "
+        "JOIN localization_runs r ON r.id = c.run WHERE c.z = $1 AND c.x BETWEEN $2 AND $3 AND "
+        "c.y BETWEEN $4 AND $5 AND ($7 = 0 OR r.map_version = (SELECT MAX(r2.map_version) FROM "
+        "localization_run_cells c2 JOIN localization_runs r2 ON r2.id = c2.run WHERE c2.z = c.z "
+        "AND c2.x = c.x AND c2.y = c.y)) GROUP BY c.x, c.y ORDER BY c.x, c.y LIMIT $6",
+        z, x0, x1, y0, y1, static_cast<std::int64_t>(std::min<std::size_t>(limit, 1u << 30)),
+        which == RunCellRuns::All ? 0 : 1);
     for (int i = 0; i < r.rows(); ++i) {
       LocalizationRunCell cell;
       cell.z = z;
@@ -118,6 +123,7 @@ std::vector<LocalizationRunCell> PostgresMapStore::localization_run_cells(int z,
       cell.sum_err_lat2_m2 = r.f64(i, 6);
       cell.max_abs_err_lat_m = r.f64(i, 7);
       cell.runs = r.i64(i, 8);  // one row per (run, cell)
+      cell.map_version = r.i64(i, 9);
       out.push_back(cell);
     }
     return out;

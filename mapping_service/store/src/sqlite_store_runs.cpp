@@ -120,16 +120,21 @@ bool SqliteMapStore::delete_localization_run(std::int64_t id) {
 
 std::vector<LocalizationRunCell> SqliteMapStore::localization_run_cells(int z, int x0, int y0,
                                                                         int x1, int y1,
-                                                                        std::size_t limit) const {
+                                                                        std::size_t limit,
+                                                                        RunCellRuns which) const {
   return impl_->read([&](Connection& c) {
     std::vector<LocalizationRunCell> out;
     auto s = c.stmt(
-        "SELECT x, y, SUM(samples), SUM(degraded), SUM(evaluated), SUM(sum_sigma_lat_m), "
-        "SUM(sum_err_lat2_m2), MAX(max_abs_err_lat_m), COUNT(*) FROM localization_run_cells "
-        "WHERE z = ?1 AND x BETWEEN ?2 AND ?3 AND y BETWEEN ?4 AND ?5 GROUP BY x, y "
-        "ORDER BY x, y LIMIT ?6");
+        "SELECT c.x, c.y, SUM(c.samples), SUM(c.degraded), SUM(c.evaluated), "
+        "SUM(c.sum_sigma_lat_m), SUM(c.sum_err_lat2_m2), MAX(c.max_abs_err_lat_m), COUNT(*), "
+        "MAX(r.map_version) FROM localization_run_cells c JOIN localization_runs r ON r.id = "
+        "c.run WHERE c.z = ?1 AND c.x BETWEEN ?2 AND ?3 AND c.y BETWEEN ?4 AND ?5 AND (?7 = 0 "
+        "OR r.map_version = (SELECT MAX(r2.map_version) FROM localization_run_cells c2 JOIN "
+        "localization_runs r2 ON r2.id = c2.run WHERE c2.z = c.z AND c2.x = c.x AND c2.y = "
+        "c.y)) GROUP BY c.x, c.y ORDER BY c.x, c.y LIMIT ?6");
     s.bind(1, z).bind(2, x0).bind(3, x1).bind(4, y0).bind(5, y1);
     s.bind(6, static_cast<std::int64_t>(std::min<std::size_t>(limit, 1u << 30)));
+    s.bind(7, which == RunCellRuns::All ? 0 : 1);
     while (s.step()) {
       LocalizationRunCell cell;
       cell.z = z;
@@ -142,6 +147,7 @@ std::vector<LocalizationRunCell> SqliteMapStore::localization_run_cells(int z, i
       cell.sum_err_lat2_m2 = s.f64(6);
       cell.max_abs_err_lat_m = s.f64(7);
       cell.runs = s.i64(8);  // one row per (run, cell)
+      cell.map_version = s.i64(9);
       out.push_back(cell);
     }
     return out;

@@ -208,8 +208,9 @@ class WriteTriggerStore final : public MapStore {
   }
   bool delete_localization_run(std::int64_t id) override { return s_.delete_localization_run(id); }
   std::vector<LocalizationRunCell> localization_run_cells(int z, int x0, int y0, int x1, int y1,
-                                                          std::size_t limit) const override {
-    return s_.localization_run_cells(z, x0, y0, x1, y1, limit);
+                                                          std::size_t limit,
+                                                          RunCellRuns which) const override {
+    return s_.localization_run_cells(z, x0, y0, x1, y1, limit, which);
   }
   std::vector<GridmapSumInput> gridmap_sum_inputs() const override {
     return s_.gridmap_sum_inputs();

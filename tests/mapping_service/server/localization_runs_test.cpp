@@ -158,6 +158,33 @@ TEST_F(RunsServer, QualityCellsSumTheFleetsRunsAndMarkWeakPlaces) {
   EXPECT_TRUE(json::parse(away->body)["features"].empty());
 }
 
+TEST_F(RunsServer, APlaceALaterMapFixedIsJudgedByTheRunsAgainstThatMap) {
+  post_ok(run_along(80, 0.5));  // weak against map version 2
+  LocalizationRun fixed = run_along(80, 0.03);
+  fixed.map_version = 3;  // the same road against the map that fixed it
+  post_ok(fixed);
+  auto quality = [&](const std::string& query) {
+    const auto res = client().Get("/v1/runs/quality" + query, auth(kViewerKey));
+    EXPECT_EQ(res->status, 200) << res->body;
+    return json::parse(res->body);
+  };
+  const json now = quality("");
+  EXPECT_EQ(now["properties"]["runs"], "newest_map");
+  ASSERT_GE(now["features"].size(), 2u);
+  for (const auto& f : now["features"]) {
+    EXPECT_EQ(f["properties"]["runs"], 1);
+    EXPECT_EQ(f["properties"]["map_version"], 3);
+    EXPECT_NEAR(f["properties"]["lat_rmse_m"].get<double>(), 0.03, 1e-9);
+    EXPECT_FALSE(f["properties"]["weak"].get<bool>());
+  }
+  const json all = quality("?runs=all");
+  for (const auto& f : all["features"]) {
+    EXPECT_EQ(f["properties"]["runs"], 2);
+    EXPECT_TRUE(f["properties"]["weak"].get<bool>());  // the old runs still count there
+  }
+  EXPECT_EQ(client().Get("/v1/runs/quality?runs=some", auth(kViewerKey))->status, 400);
+}
+
 TEST_F(RunsServer, ErasingAVehicleErasesItsRuns) {
   post_ok(run_along(10, 0.01));
   post_ok(run_along(10, 0.01));

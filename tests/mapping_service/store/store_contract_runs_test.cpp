@@ -67,12 +67,12 @@ TEST_P(StoreRuns, PutListGetBodyAndDelete) {
   EXPECT_FALSE(store.get_localization_run(b + 100));
   EXPECT_FALSE(store.localization_run_body(b + 100));
 
-  EXPECT_EQ(store.localization_run_cells(20, 0, 0, 1000, 1000, 100).size(), 1u);
+  EXPECT_EQ(store.localization_run_cells(20, 0, 0, 1000, 1000, 100, RunCellRuns::All).size(), 1u);
   EXPECT_TRUE(store.delete_localization_run(a));
   EXPECT_FALSE(store.delete_localization_run(a));
   EXPECT_FALSE(store.get_localization_run(a));
   // Its cells went with it.
-  EXPECT_TRUE(store.localization_run_cells(20, 0, 0, 1000, 1000, 100).empty());
+  EXPECT_TRUE(store.localization_run_cells(20, 0, 0, 1000, 1000, 100, RunCellRuns::All).empty());
 }
 
 TEST_P(StoreRuns, KeepsOnlyTheNewestRuns) {
@@ -87,7 +87,7 @@ TEST_P(StoreRuns, KeepsOnlyTheNewestRuns) {
   EXPECT_EQ(kept[0].id, ids[4]);
   EXPECT_EQ(kept[2].id, ids[2]);
   EXPECT_FALSE(store.localization_run_body(ids[1]));
-  EXPECT_EQ(store.localization_run_cells(20, 0, 0, 10, 10, 100).size(), 3u);
+  EXPECT_EQ(store.localization_run_cells(20, 0, 0, 10, 10, 100, RunCellRuns::All).size(), 3u);
   EXPECT_THROW(store.put_localization_run(record("v", "x"), "{}", {}, 0), ValidationError);
   LocalizationRunRecord bad = record("v", "x");
   bad.bounds.min_lat_deg = std::nan("");
@@ -104,7 +104,7 @@ TEST_P(StoreRuns, CellsAreSummedOverRunsWithinTheBox) {
       record("v", "a"), "{}", std::vector{cell(10, 20, 10, 1, 0.2), cell(11, 20, 4, 4, 0.9)}, 10);
   (void)store.put_localization_run(
       record("w", "b"), "{}", std::vector{cell(10, 20, 6, 3, 0.5), cell(50, 50, 1, 0, 0.0)}, 10);
-  const auto cells = store.localization_run_cells(20, 0, 0, 20, 30, 100);
+  const auto cells = store.localization_run_cells(20, 0, 0, 20, 30, 100, RunCellRuns::All);
   ASSERT_EQ(cells.size(), 2u);  // (50, 50) is outside the box
   const auto& c = cells[0];
   EXPECT_EQ(c.x, 10);
@@ -119,8 +119,44 @@ TEST_P(StoreRuns, CellsAreSummedOverRunsWithinTheBox) {
   EXPECT_EQ(c.runs, 2);
   EXPECT_EQ(cells[1].x, 11);
   EXPECT_EQ(cells[1].runs, 1);
-  EXPECT_EQ(store.localization_run_cells(20, 0, 0, 100, 100, 1).size(), 1u);   // limit
-  EXPECT_TRUE(store.localization_run_cells(19, 0, 0, 100, 100, 100).empty());  // other zoom
+  EXPECT_EQ(store.localization_run_cells(20, 0, 0, 100, 100, 1, RunCellRuns::All).size(),
+            1u);  // limit
+  EXPECT_TRUE(store.localization_run_cells(19, 0, 0, 100, 100, 100, RunCellRuns::All)
+                  .empty());  // other zoom
+}
+
+TEST_P(StoreRuns, ACellCanBeJudgedByTheRunsAgainstItsNewestMapVersion) {
+  MapStore& store = this->store();
+  auto at_version = [](std::int64_t v, const std::string& label) {
+    LocalizationRunRecord r = record("v", label);
+    r.map_version = v;
+    return r;
+  };
+  // Cell (10, 20): two bad runs against version 3, then one good run against version 4
+  // (the map was fixed there). Cell (11, 20): version 3 only.
+  (void)store.put_localization_run(
+      at_version(3, "a"), "{}", std::vector{cell(10, 20, 10, 8, 0.9), cell(11, 20, 5, 5, 0.9)}, 10);
+  (void)store.put_localization_run(at_version(3, "b"), "{}", std::vector{cell(10, 20, 10, 6, 0.8)},
+                                   10);
+  (void)store.put_localization_run(at_version(4, "c"), "{}", std::vector{cell(10, 20, 10, 0, 0.1)},
+                                   10);
+  const auto all = store.localization_run_cells(20, 0, 0, 20, 30, 100, RunCellRuns::All);
+  ASSERT_EQ(all.size(), 2u);
+  EXPECT_EQ(all[0].runs, 3);
+  EXPECT_EQ(all[0].samples, 30);
+  EXPECT_EQ(all[0].degraded, 14);
+  EXPECT_EQ(all[0].map_version, 4);
+  const auto now =
+      store.localization_run_cells(20, 0, 0, 20, 30, 100, RunCellRuns::NewestMapVersion);
+  ASSERT_EQ(now.size(), 2u);
+  EXPECT_EQ(now[0].runs, 1);  // only the run against version 4
+  EXPECT_EQ(now[0].samples, 10);
+  EXPECT_EQ(now[0].degraded, 0);
+  EXPECT_DOUBLE_EQ(now[0].max_abs_err_lat_m, 0.1);
+  EXPECT_EQ(now[0].map_version, 4);
+  EXPECT_EQ(now[1].x, 11);  // a cell no later run passed keeps its runs
+  EXPECT_EQ(now[1].runs, 1);
+  EXPECT_EQ(now[1].map_version, 3);
 }
 
 POLMAP_STORE_CONTRACT_BACKENDS(StoreRuns);

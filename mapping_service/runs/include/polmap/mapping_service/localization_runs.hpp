@@ -54,8 +54,8 @@ struct RunQualityThresholds {
                                          const LocalizationRunRecord& record);
 
 /// Fleet quality cells (summed over runs) as GeoJSON polygons with samples, runs,
-/// degraded_share, mean_sigma_lat_m, lat_rmse_m (null without evaluated samples),
-/// max_abs_err_lat_m and `weak` by `thresholds`.
+/// map_version (the newest the runs localized against), degraded_share, mean_sigma_lat_m,
+/// lat_rmse_m (null without evaluated samples), max_abs_err_lat_m and `weak` by `thresholds`.
 [[nodiscard]] nlohmann::json run_cells_geojson(std::span<const LocalizationRunCell> cells,
                                                const RunQualityThresholds& thresholds = {});
 

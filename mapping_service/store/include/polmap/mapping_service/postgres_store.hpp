@@ -183,7 +183,7 @@ class PostgresMapStore final : public MapStore {
   [[nodiscard]] std::optional<std::string> localization_run_body(std::int64_t id) const override;
   bool delete_localization_run(std::int64_t id) override;
   [[nodiscard]] std::vector<LocalizationRunCell> localization_run_cells(
-      int z, int x0, int y0, int x1, int y1, std::size_t limit) const override;
+      int z, int x0, int y0, int x1, int y1, std::size_t limit, RunCellRuns which) const override;
   void put_hdmap_comparison(const HdMapComparisonRecord& record) override;
   [[nodiscard]] std::vector<HdMapComparisonRecord> list_hdmap_comparisons(
       std::int64_t version) const override;

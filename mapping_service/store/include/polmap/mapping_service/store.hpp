@@ -379,6 +379,16 @@ struct LocalizationRunCell {
   double sum_err_lat2_m2 = 0.0;    ///< Σ lateral error² of the evaluated samples
   double max_abs_err_lat_m = 0.0;  ///< max |lateral error|
   std::int64_t runs = 0;           ///< aggregated: distinct runs in the cell
+  std::int64_t map_version = 0;    ///< aggregated: the newest map version of those runs
+};
+
+/// Which stored runs a quality cell sums (MapStore::localization_run_cells).
+enum class RunCellRuns {
+  All,  ///< every stored run
+  /// Per cell, only the runs that localized against the newest map version among that
+  /// cell's runs: a place a later map version changed shows how it localizes now, not the
+  /// runs against the map it replaced.
+  NewestMapVersion,
 };
 
 /// A stored HD-map comparison of a published map version (`polmap compare-hdmap --store`,
@@ -635,10 +645,10 @@ class MapStore {
   [[nodiscard]] virtual std::optional<std::string> localization_run_body(std::int64_t id) const = 0;
   /// Deletes a run and its cells; false if unknown.
   virtual bool delete_localization_run(std::int64_t id) = 0;
-  /// The cells of zoom `z` within tile columns [x0, x1] and rows [y0, y1], summed over all
-  /// stored runs (`runs` = distinct runs), ordered by (x, y), at most `limit`.
+  /// The cells of zoom `z` within tile columns [x0, x1] and rows [y0, y1], summed over the
+  /// stored runs `which` selects (`runs` = distinct runs), ordered by (x, y), at most `limit`.
   [[nodiscard]] virtual std::vector<LocalizationRunCell> localization_run_cells(
-      int z, int x0, int y0, int x1, int y1, std::size_t limit) const = 0;
+      int z, int x0, int y0, int x1, int y1, std::size_t limit, RunCellRuns which) const = 0;
   // ------------------------------------------------------------ HD-map comparisons
   /// Stores a comparison of a published version, replacing one of the same (version, name);
   /// created_at is set by the store. NotFoundError if the version is unknown or not

@@ -50,46 +50,61 @@ Exchange parse(const test::TcpProxy::Record& r) {
   return e;
 }
 
-class CliUploadResume : public ServerFixture {};
+class CliUploadResume : public ServerFixture {
+ protected:
+  struct CliRun {
+    int exit_code = -1;  ///< -1: did not exit normally
+    std::string output;
+  };
+  /// Writes `tar` as a package file and runs `polmap upload` on it through `proxy` in 64 KiB
+  /// chunks.
+  CliRun upload_through(const test::TcpProxy& proxy, const std::string& tar) const {
+    const auto pkg = dir_ / "drive.tar";
+    std::ofstream(pkg, std::ios::binary) << tar;
+    const std::string cmd = kPolmap.string() +
+                            " upload --server http://127.0.0.1:" + std::to_string(proxy.port()) +
+                            " --package " + pkg.string() + " --api-key " + kKey +
+                            " --chunk-mb 0.0625 --timeout-s 30 2>&1";
+    CliRun run;
+    FILE* p = ::popen(cmd.c_str(), "r");
+    if (p == nullptr) return run;
+    std::array<char, 4096> buf{};
+    std::size_t n = 0;
+    while ((n = std::fread(buf.data(), 1, buf.size(), p)) > 0) run.output.append(buf.data(), n);
+    const int status = ::pclose(p);
+    if (WIFEXITED(status)) run.exit_code = WEXITSTATUS(status);
+    return run;
+  }
+  /// What the proxy carried, parsed, and how many connections it cut.
+  static std::pair<std::vector<Exchange>, int> exchanges(const test::TcpProxy& proxy) {
+    std::vector<Exchange> ex;
+    int cut = 0;
+    for (const auto& r : proxy.records()) {
+      ex.push_back(parse(r));
+      cut += r.cut ? 1 : 0;
+    }
+    return {ex, cut};
+  }
+};
 
 TEST_F(CliUploadResume, ADroppedConnectionResumesWithoutResendingAcknowledgedBytes) {
   const std::string& tar = scene_tar("scene_drive_0", 11);
   const std::size_t chunk = 64u << 10;
   ASSERT_GT(tar.size(), 4 * chunk);  // at least five chunks: the third is cut
-  const auto pkg = dir_ / "drive.tar";
-  std::ofstream(pkg, std::ios::binary) << tar;
-
   test::TcpProxy::Options po;
   po.target_port = port_;
   po.cut_nth = 3;
   po.cut_after_bytes = 20000;  // the head and part of the third chunk's body
   test::TcpProxy proxy(po);
   ASSERT_GT(proxy.port(), 0);
-
-  const std::string cmd = kPolmap.string() +
-                          " upload --server http://127.0.0.1:" + std::to_string(proxy.port()) +
-                          " --package " + pkg.string() + " --api-key " + kKey +
-                          " --chunk-mb 0.0625 --timeout-s 30 2>&1";
-  std::string output;
-  FILE* p = ::popen(cmd.c_str(), "r");
-  ASSERT_NE(p, nullptr);
-  std::array<char, 4096> buf{};
-  std::size_t n = 0;
-  while ((n = std::fread(buf.data(), 1, buf.size(), p)) > 0) output.append(buf.data(), n);
-  const int status = ::pclose(p);
-  ASSERT_TRUE(WIFEXITED(status)) << output;
-  ASSERT_EQ(WEXITSTATUS(status), 0) << output;
-  EXPECT_NE(output.find("drive scene_drive_0 uploaded"), std::string::npos) << output;
-  EXPECT_NE(output.find("1 retries"), std::string::npos) << output;
+  const CliRun run = upload_through(proxy, tar);
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  EXPECT_NE(run.output.find("drive scene_drive_0 uploaded"), std::string::npos) << run.output;
+  EXPECT_NE(run.output.find("1 retries"), std::string::npos) << run.output;
   ASSERT_EQ(store_->list_drives().size(), 1U);
   EXPECT_EQ(store_->get_drive("scene_drive_0")->content_hash, util::sha256_hex(tar));
 
-  std::vector<Exchange> ex;
-  int cut = 0;
-  for (const auto& r : proxy.records()) {
-    ex.push_back(parse(r));
-    cut += r.cut ? 1 : 0;
-  }
+  const auto [ex, cut] = exchanges(proxy);
   EXPECT_EQ(cut, 1);
   ASSERT_GE(ex.size(), 3U);
   EXPECT_EQ(ex.front().method, "POST");
@@ -129,36 +144,18 @@ TEST_F(CliUploadResume, TheLostAnswerToTheLastChunkIsAskedForAgain) {
   // from an empty PATCH there, without sending a byte twice.
   const std::string& tar = scene_tar("scene_drive_0", 11);
   const std::size_t chunk = 64u << 10;
-  const auto pkg = dir_ / "drive.tar";
-  std::ofstream(pkg, std::ios::binary) << tar;
   test::TcpProxy::Options po;
   po.target_port = port_;
   po.cut_nth = static_cast<int>((tar.size() + chunk - 1) / chunk);  // the last chunk
   po.cut_before_answer = true;
   test::TcpProxy proxy(po);
   ASSERT_GT(proxy.port(), 0);
-  const std::string cmd = kPolmap.string() +
-                          " upload --server http://127.0.0.1:" + std::to_string(proxy.port()) +
-                          " --package " + pkg.string() + " --api-key " + kKey +
-                          " --chunk-mb 0.0625 --timeout-s 30 2>&1";
-  std::string output;
-  FILE* p = ::popen(cmd.c_str(), "r");
-  ASSERT_NE(p, nullptr);
-  std::array<char, 4096> buf{};
-  std::size_t n = 0;
-  while ((n = std::fread(buf.data(), 1, buf.size(), p)) > 0) output.append(buf.data(), n);
-  const int status = ::pclose(p);
-  ASSERT_TRUE(WIFEXITED(status)) << output;
-  ASSERT_EQ(WEXITSTATUS(status), 0) << output;
-  EXPECT_NE(output.find("drive scene_drive_0 uploaded"), std::string::npos) << output;
+  const CliRun run = upload_through(proxy, tar);
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  EXPECT_NE(run.output.find("drive scene_drive_0 uploaded"), std::string::npos) << run.output;
   ASSERT_EQ(store_->list_drives().size(), 1U);
 
-  std::vector<Exchange> ex;
-  int cut = 0;
-  for (const auto& r : proxy.records()) {
-    ex.push_back(parse(r));
-    cut += r.cut ? 1 : 0;
-  }
+  const auto [ex, cut] = exchanges(proxy);
   EXPECT_EQ(cut, 1);
   ASSERT_GE(ex.size(), 3U);
   const Exchange& last = ex[ex.size() - 1];

@@ -60,6 +60,14 @@ TEST(FileBytes, RoundTripAndErrorsNameTheFile) {
     EXPECT_NE(std::string(e.what()).find("missing.bin"), std::string::npos) << e.what();
   }
   EXPECT_THROW(write_file_bytes(d.path() / "no" / "dir" / "x", "a"), IoError);
+  // A full file system is told apart (the server answers it 507): /dev/full answers every
+  // write with ENOSPC.
+  try {
+    write_file_bytes("/dev/full", bytes);
+    ADD_FAILURE() << "wrote to /dev/full";
+  } catch (const StorageFullError& e) {
+    EXPECT_NE(std::string(e.what()).find("/dev/full"), std::string::npos) << e.what();
+  }
 }
 
 TEST(Sync, FilesAndDirectoriesAndErrors) {

@@ -29,11 +29,26 @@ std::string read_file_bytes(const fs::path& path) {
 }
 
 void write_file_bytes(const fs::path& path, std::string_view bytes) {
-  std::ofstream out(path, std::ios::binary | std::ios::trunc);
-  if (!out) throw IoError(path.string() + ": cannot open for writing");
-  out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
-  out.flush();
-  if (!out) throw IoError(path.string() + ": write failed");
+  // write(2), not a stream: a full disk must be told apart (StorageFullError, HTTP 507).
+  auto fail = [&](const char* what, int err) {
+    const std::string msg = path.string() + ": " + what + ": " + std::strerror(err);
+    if (err == ENOSPC || err == EDQUOT) throw StorageFullError(msg);
+    throw IoError(msg);
+  };
+  const int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (fd < 0) fail("cannot open for writing", errno);
+  std::size_t done = 0;
+  while (done < bytes.size()) {
+    const ssize_t w = ::write(fd, bytes.data() + done, bytes.size() - done);
+    if (w < 0 && errno == EINTR) continue;
+    if (w <= 0) {
+      const int err = w < 0 ? errno : ENOSPC;
+      ::close(fd);
+      fail("write failed", err);
+    }
+    done += static_cast<std::size_t>(w);
+  }
+  if (::close(fd) != 0) fail("write failed", errno);
 }
 
 fs::path make_unique_dir(const fs::path& parent, std::string_view stem) {

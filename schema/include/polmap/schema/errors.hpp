@@ -44,6 +44,14 @@ class IoError : public Error {
   using Error::Error;
 };
 
+/// A write found no space (HTTP 507): the database or a file system is full (SQLITE_FULL,
+/// ENOSPC, EDQUOT). The write is rolled back as any failed write is; reads keep working,
+/// and the same write succeeds once space returns.
+class StorageFullError : public IoError {
+ public:
+  using IoError::IoError;
+};
+
 /// A requested object (drive, map version, tile) does not exist.
 class NotFoundError : public Error {
  public:

@@ -11,7 +11,8 @@ namespace polmap::util {
 /// The whole file as bytes. Throws IoError naming the file.
 [[nodiscard]] std::string read_file_bytes(const std::filesystem::path& path);
 
-/// Writes bytes to path (truncating). Throws IoError naming the file.
+/// Writes bytes to path (truncating). Throws IoError naming the file, StorageFullError when
+/// the file system is full (ENOSPC, EDQUOT).
 void write_file_bytes(const std::filesystem::path& path, std::string_view bytes);
 
 /// A new, unique directory `<parent>/<stem>-XXXXXX` (mkdtemp; the system temporary

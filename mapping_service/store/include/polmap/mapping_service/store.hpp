@@ -56,13 +56,8 @@ class ConflictError : public ValidationError {
   using ValidationError::ValidationError;
 };
 
-/// A write found no space (HTTP 507): the database or the drive store's file system is
-/// full (SQLITE_FULL, ENOSPC, EDQUOT). The write is rolled back as any failed write is;
-/// reads keep working, and the same write succeeds once space returns.
-class StorageFullError : public IoError {
- public:
-  using IoError::IoError;
-};
+/// errors.hpp's: the store throws it for SQLITE_FULL, ENOSPC and EDQUOT.
+using polmap::StorageFullError;
 
 /// A geodetic box in degrees (WGS84). Antimeridian-crossing boxes
 /// (min_lon_deg > max_lon_deg) are queried as their two halves.

@@ -153,6 +153,7 @@ TEST_F(CliUploadResume, TheLostAnswerToTheLastChunkIsAskedForAgain) {
   const CliRun run = upload_through(proxy, tar);
   ASSERT_EQ(run.exit_code, 0) << run.output;
   EXPECT_NE(run.output.find("drive scene_drive_0 uploaded"), std::string::npos) << run.output;
+  EXPECT_NE(run.output.find("the lost answer asked for again"), std::string::npos) << run.output;
   ASSERT_EQ(store_->list_drives().size(), 1U);
 
   const auto [ex, cut] = exchanges(proxy);

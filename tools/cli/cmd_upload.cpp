@@ -3,8 +3,9 @@
 // archive, or a .tar file) to the mapping service. Up to --chunk-mb in one POST /v1/drives;
 // larger packages resumably: POST /v1/uploads, then PATCH chunks at the acknowledged offset;
 // after a dropped connection it waits (backoff), asks HEAD for the offset and continues from
-// there, so no byte the server acknowledged is sent again. A server without /v1/uploads (404)
-// gets the single POST.
+// there, so no byte the server acknowledged is sent again; when the answer to the last chunk
+// is what got lost, HEAD shows the session complete and an empty PATCH at its end gets that
+// answer again. A server without /v1/uploads (404) gets the single POST.
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <charconv>
@@ -65,6 +66,9 @@ struct ResumableOutcome {
   httplib::Response response;    ///< the server's answer to the last chunk (201/200)
   int reconnects = 0;            ///< failed requests retried
   std::uint64_t sent_bytes = 0;  ///< chunk bytes handed to the connection, all attempts
+  /// The answer came from an empty PATCH at the end: the session repeated the answer its
+  /// last chunk got, which the dropped connection had lost.
+  bool answer_repeated = false;
 };
 
 /// The resumable protocol (schema/openapi.yaml, /v1/uploads). nullopt: the server has no
@@ -136,6 +140,7 @@ std::optional<ResumableOutcome> upload_resumable(const UploadOptions& o, const s
         "application/offset+octet-stream");
     if (r && (r->status == 201 || r->status == 200)) {
       out.response = *r;
+      out.answer_repeated = n == 0 && r->has_header("Upload-Complete") && out.reconnects > 0;
       return out;
     }
     if (r && r->status == 204) {
@@ -223,6 +228,7 @@ void run(const UploadOptions& o) {
   if (resumable) {
     how = ", resumable: " + std::to_string(resumable->sent_bytes) + " bytes sent, " +
           std::to_string(resumable->reconnects) + " retries";
+    if (resumable->answer_repeated) how += ", the lost answer asked for again";
   }
   std::printf("drive %s %s (%zu bytes%s)\n", id.c_str(),
               res.status == 201 ? "uploaded" : "already present, not changed", body.size(),

@@ -253,6 +253,19 @@ await check('the reported localization run is drawn coloured by error, with its 
   await page.click('#layer-quality');
   await idle();
   assert.ok((await renderedCount('quality')) > 0, 'fleet quality cells drawn');
+  assert.equal(await page.evaluate(() => window.polmapConsole.quality.properties.runs), 'newest_map');
+  // (page.waitForFunction evaluates a string, which the page's CSP refuses: poll instead.)
+  const qualityRuns = async (want) => {
+    for (let i = 0; i < 100; ++i) {
+      if (await page.evaluate(() => window.polmapConsole.quality.properties.runs) === want) return true;
+      await new Promise((r) => setTimeout(r, 50));
+    }
+    return false;
+  };
+  await page.click('#quality-all-runs');  // every stored run, older map versions too
+  assert.ok(await qualityRuns('all'), 'the layer reloads with every run');
+  await page.click('#quality-all-runs');
+  assert.ok(await qualityRuns('newest_map'), 'and back to the newest map version per cell');
   await page.screenshot({ path: path.join(ART, 'console-run-status.png') });
   await page.click('#layer-quality');
   await page.check('input[name="run-colour"][value="error"]');

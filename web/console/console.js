@@ -507,10 +507,13 @@
   }
 
   async function loadQuality() {
-    const g = await getJson('/v1/runs/quality', true);
+    // By default each cell shows the runs against the newest map version that has runs there.
+    const all = $('quality-all-runs').checked;
+    const g = await getJson('/v1/runs/quality' + (all ? '?runs=all' : ''), true);
     await styleReady();
     state.map.getSource('quality').setData(g);
     $('layer-quality').disabled = false;
+    $('quality-all-runs').disabled = false;
     window.polmapConsole.quality = g;
   }
 
@@ -634,6 +637,7 @@
     $('layer-diff').addEventListener('change', (e) => setVisible(['diff-points', 'diff-lines'], e.target.checked));
     $('layer-run').addEventListener('change', (e) => setVisible(['run'], e.target.checked));
     $('layer-quality').addEventListener('change', (e) => setVisible(['quality'], e.target.checked));
+    $('quality-all-runs').addEventListener('change', () => loadQuality().catch((e) => { $('runs-status').textContent = String(e.message || e); }));
     for (const r of document.querySelectorAll('input[name="run-colour"]')) r.addEventListener('change', runColouring);
     $('layer-hdmap').addEventListener('change', (e) => setVisible(HDMAP_LAYERS, e.target.checked));
     $('hdmap-name').addEventListener('change', (e) => showHdmap(e.target.value).catch((err) => { $('hdmap-summary').textContent = String(err.message || err); }));

@@ -50,6 +50,10 @@ void check_name(const std::string& name) {
 
 /// Parses an octal numeric field (NUL/space terminated, leading spaces allowed).
 bool parse_octal(const char* field, std::size_t len, std::uint64_t& out) {
+  // POSIX terminates every numeric field with a space or NUL inside the field; a field of
+  // digits to its last byte is read by some readers and refused by others (GDAL's /vsitar/
+  // stops listing there), so two readers would see two archives.
+  if (len == 0 || (field[len - 1] != '\0' && field[len - 1] != ' ')) return false;
   std::size_t i = 0;
   while (i < len && field[i] == ' ') ++i;
   if (i < len && (static_cast<unsigned char>(field[i]) & 0x80U)) return false;  // base-256

@@ -72,6 +72,22 @@ TEST(Ustar, NumericFieldsAreDigitsOnly) {
   EXPECT_NE(error_of(tar).find("size"), std::string::npos) << error_of(tar);
 }
 
+TEST(Ustar, NumericFieldsEndWithATerminator) {
+  // The second member's mode as eight digits, no NUL: the bytes shuffled so that the header
+  // checksum still holds (found by the ustar fuzzer: GDAL's /vsitar/ stops listing at such a
+  // header, so it would have seen one member where we saw two).
+  constexpr std::size_t kModeOff = 100;
+  const std::string good = archive();
+  const std::size_t second = 1024;  // a.json's header and one data block before it
+  std::string tar = good;
+  ASSERT_EQ(tar.substr(second + kModeOff, 8), std::string("0000644\0", 8));
+  std::memcpy(&tar[second + kModeOff], "00006440", 8);
+  tar[second + 108 + 6] = '\0';  // uid "000000\0\0": the NUL the mode lost
+  EXPECT_EQ(error_of(tar).find("unreadable mode field") != std::string::npos, true)
+      << error_of(tar);
+  EXPECT_EQ(read_ustar(good, "x.tar").size(), 2U);
+}
+
 TEST(Ustar, NamesAreFlatAndPrintable) {
   for (const std::string& name : std::vector<std::string>{"a\nb", "dir/file", "..", "a\x7f"}) {
     std::string tar = archive();

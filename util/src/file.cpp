@@ -28,6 +28,18 @@ std::string read_file_bytes(const fs::path& path) {
   return data;
 }
 
+int write_all(int fd, std::string_view bytes) {
+  std::size_t done = 0;
+  while (done < bytes.size()) {
+    const ssize_t w = ::write(fd, bytes.data() + done, bytes.size() - done);
+    if (w < 0 && errno == EINTR) continue;
+    if (w < 0) return errno;
+    if (w == 0) return ENOSPC;  // no progress: the file system takes no more
+    done += static_cast<std::size_t>(w);
+  }
+  return 0;
+}
+
 void write_file_bytes(const fs::path& path, std::string_view bytes) {
   // write(2), not a stream: a full disk must be told apart (StorageFullError, HTTP 507).
   auto fail = [&](const char* what, int err) {
@@ -37,16 +49,9 @@ void write_file_bytes(const fs::path& path, std::string_view bytes) {
   };
   const int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
   if (fd < 0) fail("cannot open for writing", errno);
-  std::size_t done = 0;
-  while (done < bytes.size()) {
-    const ssize_t w = ::write(fd, bytes.data() + done, bytes.size() - done);
-    if (w < 0 && errno == EINTR) continue;
-    if (w <= 0) {
-      const int err = w < 0 ? errno : ENOSPC;
-      ::close(fd);
-      fail("write failed", err);
-    }
-    done += static_cast<std::size_t>(w);
+  if (const int err = write_all(fd, bytes); err != 0) {
+    ::close(fd);
+    fail("write failed", err);
   }
   if (::close(fd) != 0) fail("write failed", errno);
 }

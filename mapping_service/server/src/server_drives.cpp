@@ -8,7 +8,6 @@
 #include <ctime>
 
 #include "polmap/mapping_service/drive_package_io.hpp"
-#include "polmap/mapping_service/ustar.hpp"
 #include "polmap/schema/errors.hpp"
 #include "polmap/util/file.hpp"
 #include "polmap/util/sha256.hpp"
@@ -35,18 +34,8 @@ class TempUpload {
   TempUpload(const TempUpload&) = delete;
   TempUpload& operator=(const TempUpload&) = delete;
 
-  bool write(const char* data, std::size_t n) {
-    while (n > 0) {
-      const ssize_t w = ::write(fd_, data, n);
-      if (w < 0) {
-        if (errno == EINTR) continue;
-        return false;
-      }
-      data += w;
-      n -= static_cast<std::size_t>(w);
-    }
-    return true;
-  }
+  /// 0, or the errno of the failed write.
+  int write(const char* data, std::size_t n) { return util::write_all(fd_, {data, n}); }
   bool close() {
     const int rc = ::close(fd_);
     fd_ = -1;
@@ -67,31 +56,13 @@ class TempUpload {
 }
 
 /// The members of a validated archive as files in a new directory below `parent`, read by
-/// the same ustar reader that validated them. Unlike unpack_drive_package this keeps the
-/// error number, so a full upload directory is told from other failures (507, not 500).
+/// the same ustar reader that validated them; a full upload directory is StorageFullError
+/// (507, not 500).
 util::ScopedTempDir write_members(std::string_view tar_bytes, const std::filesystem::path& parent) {
   std::string templ = (parent / "polmap-upload-members-XXXXXX").string();
   if (::mkdtemp(templ.data()) == nullptr) throw_file_error(errno, "cannot create " + templ);
   util::ScopedTempDir dir{std::filesystem::path(templ)};
-  for (const TarMemberView& m : read_ustar_views(tar_bytes)) {
-    const std::filesystem::path path = dir.path() / m.name;
-    const int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
-    if (fd < 0) throw_file_error(errno, "cannot create " + path.string());
-    const char* data = m.data.data();
-    std::size_t left = m.data.size();
-    while (left > 0) {
-      const ssize_t w = ::write(fd, data, left);
-      if (w < 0 && errno == EINTR) continue;
-      if (w <= 0) {
-        const int err = w < 0 ? errno : ENOSPC;
-        ::close(fd);
-        throw_file_error(err, "cannot write " + path.string());
-      }
-      data += w;
-      left -= static_cast<std::size_t>(w);
-    }
-    if (::close(fd) != 0) throw_file_error(errno, "cannot write " + path.string());
-  }
+  unpack_drive_package(tar_bytes, dir.path());
   return dir;
 }
 
@@ -289,7 +260,7 @@ void Server::Impl::register_drive_routes() {
       // the client, still sending, gets the answer instead of a reset connection.
       if (write_errno != 0) return true;
       sha.update(std::string_view(data, n));
-      if (!upload.write(data, n)) write_errno = errno != 0 ? errno : EIO;
+      write_errno = upload.write(data, n);
       return true;
     });
     if (too_large) {

@@ -53,18 +53,7 @@ bool scratch_is_full(const std::filesystem::path& dir) {
   const int fd = ::mkstemp(templ.data());
   if (fd < 0) return errno == ENOSPC || errno == EDQUOT;
   const std::string block(64u << 10, '\0');
-  std::size_t done = 0;
-  int err = 0;
-  while (done < block.size() && err == 0) {  // a full disk may take part, then refuse
-    const ssize_t w = ::write(fd, block.data() + done, block.size() - done);
-    if (w > 0) {
-      done += static_cast<std::size_t>(w);
-    } else if (w < 0 && errno != EINTR) {
-      err = errno;
-    } else if (w == 0) {
-      err = ENOSPC;
-    }
-  }
+  const int err = util::write_all(fd, block);  // a full disk may take part, then refuse
   ::close(fd);
   ::unlink(templ.c_str());
   return err == ENOSPC || err == EDQUOT;

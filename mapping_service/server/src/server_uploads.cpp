@@ -362,16 +362,7 @@ void Server::Impl::register_upload_routes() {
     int write_errno = 0;
     const bool complete = reader([&](const char* data, std::size_t n) {
       received += n;
-      while (write_errno == 0 && n > 0) {
-        const ssize_t w = ::write(file.fd(), data, n);
-        if (w < 0 && errno == EINTR) continue;
-        if (w <= 0) {
-          write_errno = w < 0 ? errno : EIO;
-          break;
-        }
-        data += w;
-        n -= static_cast<std::size_t>(w);
-      }
+      if (write_errno == 0) write_errno = util::write_all(file.fd(), {data, n});
       return true;  // after a failed write the rest is drained: the client gets the answer
     });
     if (write_errno == 0 && received > 0 && ::fsync(file.fd()) != 0) write_errno = errno;

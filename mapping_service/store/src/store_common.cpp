@@ -324,15 +324,7 @@ void copy_file_checked(const fs::path& from, const fs::path& to) {
       if (r < 0) err = errno;
       break;
     }
-    for (ssize_t done = 0; done < r && err == 0;) {
-      const ssize_t w = ::write(out, buf.data() + done, static_cast<std::size_t>(r - done));
-      if (w < 0 && errno == EINTR) continue;
-      if (w <= 0) {
-        err = w < 0 ? errno : ENOSPC;
-      } else {
-        done += w;
-      }
-    }
+    err = util::write_all(out, {buf.data(), static_cast<std::size_t>(r)});
     if (err != 0) break;
   }
   ::close(in);

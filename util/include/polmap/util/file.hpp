@@ -11,6 +11,10 @@ namespace polmap::util {
 /// The whole file as bytes. Throws IoError naming the file.
 [[nodiscard]] std::string read_file_bytes(const std::filesystem::path& path);
 
+/// Writes all of `bytes` to the open file `fd` (retrying after EINTR and short writes).
+/// Returns 0, or the errno of the failure (ENOSPC when the file system takes no more).
+[[nodiscard]] int write_all(int fd, std::string_view bytes);
+
 /// Writes bytes to path (truncating). Throws IoError naming the file, StorageFullError when
 /// the file system is full (ENOSPC, EDQUOT).
 void write_file_bytes(const std::filesystem::path& path, std::string_view bytes);

@@ -7,6 +7,9 @@
 // 1 cm, of its line candidates (a decoded line within 1 cm of both ends, same direction
 // within 2°, covering half of it), and the error of cells above 3σ of the noise (every
 // diagonal component ≥ 9σ²: power in dB; off-diagonals with coherence ≥ 0.3: phase).
+// The vehicle extracts a compact package's candidates from the gridmap as sent
+// (process_drive_for_package); "exact" columns: the share of the candidates of the exact
+// gridmap that are among them (what the quantization changes in the candidate set).
 //
 //   bench_package_size [--world urban] [--length-m 1000] [--seed 1] [--pol full,hh-vv,hh]
 #include <CLI/CLI.hpp>
@@ -122,8 +125,9 @@ int main(int argc, char** argv) {
   const util::ScopedTempDir tmp = util::ScopedTempDir::create("bench_package_size");
   std::printf("world %s, %.0f m, seed %llu\n", world_name.c_str(), length_m,
               static_cast<unsigned long long>(seed));
-  std::printf("%-6s %8s %11s %11s %13s %9s %9s %8s %9s %10s\n", "level", "km", "v1 MB/km",
-              "v2 MB/km", "lm-only kB/km", "pts rec", "line rec", "strong", "max dB", "max phase");
+  std::printf("%-6s %8s %11s %11s %13s %9s %9s %9s %9s %8s %9s %10s\n", "level", "km", "v1 MB/km",
+              "v2 MB/km", "lm-only kB/km", "pts rec", "line rec", "pts exact", "line exact",
+              "strong", "max dB", "max phase");
   for (const std::string_view pol_view : util::split_trimmed(pols, ',')) {
     const std::string pol(pol_view);
     const auto level = parse_pol_level(pol);
@@ -137,7 +141,12 @@ int main(int argc, char** argv) {
     sim::DriveSimulator source(world, scfg, 0);
     radar::DriveProcessingConfig pcfg;
     pcfg.gridmap.level = *level;
-    const radar::DriveProcessingResult r = radar::process_drive(source, pcfg);
+    radar::DriveProcessingResult r = radar::process_drive(source, pcfg);
+    const std::vector<PointCandidate> exact_points = r.points;
+    const std::vector<LineCandidate> exact_lines = r.lines;
+    // The compact package's candidates, as `polmap process` extracts them
+    // (process_drive_for_package): from the gridmap as the package sends it.
+    mapping::extract_candidates_as_sent(r, pcfg, codec);
     const double km = r.stats.distance_m / 1000.0;
     std::uint64_t bytes[3] = {0, 0, 0};
     for (int v = 0; v < 3; ++v) {
@@ -154,10 +163,11 @@ int main(int argc, char** argv) {
     const auto pts = radar::extract_points(dec, pcfg.points);
     const auto lines = radar::extract_lines(dec, pcfg.lines);
     const CellErrors e = cell_errors(r.gridmap, dec);
-    std::printf("%-6s %8.3f %11.2f %11.3f %13.1f %9.4f %9.4f %8zu %9.3f %10.2f\n", pol.c_str(), km,
-                bytes[0] / 1e6 / km, bytes[1] / 1e6 / km, bytes[2] / 1e3 / km,
-                point_recall(r.points, pts), line_recall(r.lines, lines), e.strong, e.max_db,
-                e.max_phase_deg);
+    std::printf("%-6s %8.3f %11.2f %11.3f %13.1f %9.4f %9.4f %9.4f %9.4f %8zu %9.3f %10.2f\n",
+                pol.c_str(), km, bytes[0] / 1e6 / km, bytes[1] / 1e6 / km, bytes[2] / 1e3 / km,
+                point_recall(r.points, pts), line_recall(r.lines, lines),
+                point_recall(exact_points, r.points), line_recall(exact_lines, r.lines), e.strong,
+                e.max_db, e.max_phase_deg);
     std::fflush(stdout);
   }
   return 0;

@@ -124,12 +124,12 @@ int main(int argc, char** argv) {
     auto world = sim::load_world(world_name, length_m, seed, scfg);
     sim::DriveSimulator source(world, scfg, 0);
     const auto t0 = std::chrono::steady_clock::now();
-    const radar::DriveProcessingResult r =
-        radar::process_drive(source, radar::DriveProcessingConfig{});
-    km = r.stats.distance_m / 1000.0;
-    const fs::path dir = keep.empty() ? tmp.path() / "pkg" : fs::path(keep);
     mapping::PackageWriteOptions wopts;
     wopts.format_version = 2;  // what `polmap process` writes
+    const radar::DriveProcessingResult r =
+        mapping::process_drive_for_package(source, radar::DriveProcessingConfig{}, wopts);
+    km = r.stats.distance_m / 1000.0;
+    const fs::path dir = keep.empty() ? tmp.path() / "pkg" : fs::path(keep);
     (void)mapping::write_drive_package(r, dir, wopts);
     util::write_file_bytes(tar, mapping::pack_drive_package(dir));
     std::printf("package: %s %.0f m, seed %llu: %.2f km, made in %.0f s\n", world_name.c_str(),

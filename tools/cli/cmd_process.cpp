@@ -65,16 +65,6 @@ void run(const ProcessOptions& o) {
   radar::DriveProcessingConfig cfg;
   cfg.gridmap.level = *level;
   cfg.gridmap.cell_size_m = o.cell_size_m;
-  const double t0 = reader.header().start_time_s;
-  radar::DriveProcessingResult result = [&] {
-    Progress progress("process " + fs::path(o.recording).filename().string(), 0.0);
-    return radar::process_drive(reader, cfg, [&](double time_s) {
-      char note[64];
-      std::snprintf(note, sizeof(note), "s of drive processed");
-      progress.update(time_s - t0, note);
-    });
-  }();
-
   mapping::PackageWriteOptions wopts;
   wopts.overwrite = o.overwrite;
   wopts.mantissa_bits = o.mantissa_bits;
@@ -85,6 +75,17 @@ void run(const ProcessOptions& o) {
   std::snprintf(producer, sizeof(producer), "polmap process 0.1.0 (pol %s, cell %g m)",
                 o.pol.c_str(), o.cell_size_m);
   wopts.producer = producer;
+  const double t0 = reader.header().start_time_s;
+  radar::DriveProcessingResult result = [&] {
+    Progress progress("process " + fs::path(o.recording).filename().string(), 0.0);
+    // A compact package's candidates come from the gridmap as it is sent.
+    return mapping::process_drive_for_package(reader, cfg, wopts, [&](double time_s) {
+      char note[64];
+      std::snprintf(note, sizeof(note), "s of drive processed");
+      progress.update(time_s - t0, note);
+    });
+  }();
+
   std::uint64_t package_bytes = 0;
   mapping::DriveManifest manifest;
   if (o.tar) {

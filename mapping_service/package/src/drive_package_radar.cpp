@@ -1,5 +1,6 @@
 // Drive package writer fed by the radar front end (CovarianceGridmap tiles, processed drives).
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <optional>
 #include <set>
@@ -8,6 +9,8 @@
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/radar/covariance_gridmap.hpp"
 #include "polmap/radar/drive_processor.hpp"
+#include "polmap/radar/line_extractor.hpp"
+#include "polmap/radar/point_extractor.hpp"
 
 namespace polmap::mapping {
 
@@ -218,6 +221,103 @@ radar::CovarianceGridmap read_covariance_gridmap(const DrivePackage& pkg) {
     }
   });
   return map;
+}
+
+radar::CovarianceGridmap compact_round_trip(const radar::CovarianceGridmap& gridmap,
+                                            const GridmapCodecConfig& codec_cfg) {
+  radar::GridmapConfig cfg;
+  cfg.cell_size_m = gridmap.cell_size_m();
+  cfg.level = gridmap.level();
+  radar::CovarianceGridmap out(cfg);
+  out.set_noise_power(gridmap.noise_power());
+  if (!(gridmap.noise_power() > 0.0)) {
+    throw ValidationError("compact_round_trip: the gridmap has no noise power");
+  }
+  const int q = pol_dimension(cfg.level);
+  const int L = q * (q + 1) / 2;
+  const GridmapCodec codec(q, gridmap.noise_power(), codec_cfg);
+  constexpr int ts = radar::kTileSizeCells;
+  const double cs = cfg.cell_size_m;
+  std::vector<std::uint32_t> count(ts * ts), hits(ts * ts);
+  std::vector<std::complex<float>> layers(static_cast<std::size_t>(L) * ts * ts);
+  std::vector<std::complex<float>> cell(static_cast<std::size_t>(L));
+  std::vector<std::uint16_t> codes(static_cast<std::size_t>(codec.codes_per_cell()));
+  for (const auto& [tx, ty] : gridmap.tile_indices()) {
+    const radar::CellBox box{tx * ts, ty * ts, (tx + 1) * ts, (ty + 1) * ts};
+    const radar::CovarianceRaster r = gridmap.raster(box);
+    const std::size_t plane = r.plane_size();
+    std::fill(count.begin(), count.end(), 0U);
+    std::fill(hits.begin(), hits.end(), 0U);
+    std::fill(layers.begin(), layers.end(), std::complex<float>{});
+    bool any = false;
+    for (std::size_t i = 0; i < plane; ++i) {
+      if (r.count[i] == 0) continue;
+      for (int l = 0; l < L; ++l) cell[l] = r.layers[l * plane + i];
+      codec.encode_cell(r.count[i], r.hits[i], cell, codes);
+      // As the reader does it: decoded in double, stored as float (block_to_raster,
+      // read_covariance_gridmap).
+      const GridmapCodec::Cell d = codec.decode_cell(codes);
+      if (d.n == 0) continue;
+      any = true;
+      count[i] = d.n;
+      hits[i] = d.hits;
+      for (int l = 0; l < L; ++l) layers[l * plane + i] = std::complex<float>(d.layers[l]);
+    }
+    if (!any) continue;
+    radar::CovarianceTileView v;
+    v.tile_x = tx;
+    v.tile_y = ty;
+    v.size_cells = ts;
+    v.origin_x_m = tx * ts * cs;
+    v.origin_y_m = ty * ts * cs;
+    v.cell_size_m = cs;
+    v.level = cfg.level;
+    v.q = q;
+    v.num_layers = L;
+    v.count = count;
+    v.layers = layers;
+    v.hits = hits;
+    out.merge_tile(v);
+  }
+  return out;
+}
+
+void extract_candidates_as_sent(radar::DriveProcessingResult& result,
+                                const radar::DriveProcessingConfig& cfg,
+                                const GridmapCodecConfig& codec) {
+  if (!cfg.extract_points && !cfg.extract_lines) return;
+  using Clock = std::chrono::steady_clock;
+  const auto t_start = Clock::now();
+  const radar::CovarianceGridmap sent = compact_round_trip(result.gridmap, codec);
+  if (cfg.extract_points) {
+    const auto t0 = Clock::now();
+    result.points = radar::extract_points(sent, cfg.points);
+    result.stats.points_seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+  }
+  if (cfg.extract_lines) {
+    const auto t0 = Clock::now();
+    result.lines = radar::extract_lines(sent, cfg.lines);
+    result.stats.lines_seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+  }
+  result.stats.total_seconds += std::chrono::duration<double>(Clock::now() - t_start).count();
+}
+
+bool sends_compact_gridmap(const PackageWriteOptions& options) {
+  return options.format_version >= 2 && !options.landmarks_only;
+}
+
+radar::DriveProcessingResult process_drive_for_package(
+    RecordSource& source, radar::DriveProcessingConfig cfg, const PackageWriteOptions& options,
+    const std::function<void(double time_s)>& progress) {
+  const bool as_sent = sends_compact_gridmap(options);
+  const bool points = cfg.extract_points, lines = cfg.extract_lines;
+  if (as_sent) cfg.extract_points = cfg.extract_lines = false;
+  radar::DriveProcessingResult result = radar::process_drive(source, cfg, progress);
+  if (!as_sent) return result;
+  cfg.extract_points = points;
+  cfg.extract_lines = lines;
+  extract_candidates_as_sent(result, cfg, options.codec);
+  return result;
 }
 
 }  // namespace polmap::mapping

@@ -69,11 +69,12 @@ ProcessedDrive process_to_package(RecordSource& source, const StudyConfig& cfg, 
   pcfg.gridmap.window_s = 0.0;
   pcfg.points = cfg.points;
   pcfg.lines = cfg.lines;
-  const radar::DriveProcessingResult r = radar::process_drive(source, pcfg, progress);
   mapping::PackageWriteOptions wo;
   wo.overwrite = true;
   wo.format_version = cfg.package_format;
   wo.landmarks_only = cfg.landmarks_only;
+  const radar::DriveProcessingResult r =
+      mapping::process_drive_for_package(source, pcfg, wo, progress);
   mapping::write_drive_package(r, dir, wo);
   return {r.header.drive_id, dir, static_cast<std::int64_t>(r.points.size()),
           static_cast<std::int64_t>(r.lines.size())};

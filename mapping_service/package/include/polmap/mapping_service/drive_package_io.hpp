@@ -25,6 +25,7 @@
 namespace polmap::radar {
 class CovarianceGridmap;
 struct DriveProcessingResult;
+struct DriveProcessingConfig;
 }  // namespace polmap::radar
 
 namespace polmap::mapping {
@@ -228,6 +229,35 @@ void for_each_gridmap_block(const DrivePackage& pkg,
 /// detectors can be re-run on what was uploaded. Format 1 packages carry no hits (every
 /// look counts as a hit) and no noise power (0). Throws NotFoundError without a gridmap.
 [[nodiscard]] radar::CovarianceGridmap read_covariance_gridmap(const DrivePackage& pkg);
+
+/// The gridmap exactly as a compact (format 2) package carries it: every cell encoded with
+/// `codec` and decoded again, as read_covariance_gridmap gives it back to the backend
+/// (noise power set). Memory: one more gridmap.
+[[nodiscard]] radar::CovarianceGridmap compact_round_trip(const radar::CovarianceGridmap& gridmap,
+                                                          const GridmapCodecConfig& codec = {});
+
+/// Replaces the candidates of a processed drive by those cfg.points / cfg.lines find in
+/// compact_round_trip(result.gridmap, codec) (only the kinds cfg extracts); updates the
+/// extraction times. process_drive_for_package calls it.
+void extract_candidates_as_sent(radar::DriveProcessingResult& result,
+                                const radar::DriveProcessingConfig& cfg,
+                                const GridmapCodecConfig& codec);
+
+/// True when a package written with these options carries the compact gridmap (format 2,
+/// not landmarks-only): its candidates must then be extracted from what it sends.
+[[nodiscard]] bool sends_compact_gridmap(const PackageWriteOptions& options);
+
+/// radar::process_drive for a package written with `options`. When the package carries the
+/// compact gridmap, the candidates are extracted from compact_round_trip(gridmap), not from
+/// the exact gridmap: what the package sends is then exactly what the backend re-extracts
+/// from it. (The line extractor's threshold decisions flip on a ~0.002 dB change of the
+/// power image, the codec's power step: candidates of the exact gridmap were reproduced
+/// from the decoded one at 0.98-0.99 for dual and single polarization, not 1.) The result's
+/// gridmap stays the exact one; the package is written from it and its codes are the ones
+/// decoded here. Otherwise this is process_drive.
+[[nodiscard]] radar::DriveProcessingResult process_drive_for_package(
+    RecordSource& source, radar::DriveProcessingConfig cfg, const PackageWriteOptions& options,
+    const std::function<void(double time_s)>& progress = {});
 
 /// Parses manifest.json text with the validator's strict parser (e.g. the copy a store
 /// kept of a validated package). Throws PackageFormatError / PackageValidationError.

@@ -746,6 +746,10 @@ int main(int argc, char** argv) {
   app.add_option("--sim-cache", sim_cache,
                  "simulated packages are kept here and reused (default: KEEP/packages)");
   bool merged = false;
+  int partition_zoom = -1;
+  app.add_option("--partition-zoom", partition_zoom,
+                 "build partitioned into regions of this zoom (the jobs run in this process; "
+                 "-1: one-process build)");
   app.add_flag("--merged", merged,
                "simulated drives with their gridmaps: also extract landmarks from the merged "
                "gridmap (pCFAR, lines) and compare them with candidate consensus");
@@ -932,6 +936,10 @@ int main(int argc, char** argv) {
     const double ingest_s = seconds_since(t0);
     MapBuildRequest req;
     req.build_gridmap = merged;
+    if (partition_zoom >= 0) {
+      req.partition = BuildPartition{};
+      req.partition->zoom = partition_zoom;
+    }
     if (view_fraction)
       req.points.support.min_view_fraction = req.lines.support.min_view_fraction = *view_fraction;
     req.points.filter.co_presence = filter.co_presence;

@@ -23,6 +23,25 @@ nlohmann::json request_json(const MapBuildRequest& r, const MapBuilderConfig& c)
 /// The drive rows a build uses (all drives but the excluded ones), ascending.
 std::vector<std::int64_t> drive_rows(const std::vector<DriveRecord>& drives,
                                      const std::vector<std::string>& excluded);
+/// How far outside a build region candidates still change its landmarks (twice the
+/// largest consensus association distance).
+double consensus_margin_m(const MapBuildRequest& req);
+/// Incremental build plan: when the current version was built with the same request
+/// (whole store, same exclusions and parameters) from a subset of today's drives, only
+/// the area the new drives can influence is rebuilt: their boxes, grown by the largest
+/// view range (their passes change verdicts that far) and the consensus margin.
+/// nullopt: a full build (drives were removed, parameters changed, or the new drives
+/// touch most of the map). request_params: the version parameters (request_json).
+struct IncrementalPlan {
+  tiles::GeoBox area;                ///< rebuilt; the rest is copied
+  std::int64_t previous_points = 0;  ///< landmark counts of the current version
+  std::int64_t previous_lines = 0;
+};
+std::optional<IncrementalPlan> incremental_plan(const MapStore& store, const MapBuildRequest& req,
+                                                const nlohmann::json& request_params,
+                                                std::int64_t current,
+                                                const std::vector<DriveRecord>& drives,
+                                                double margin_m);
 std::vector<TaggedPointCandidate> tagged_points(const CandidateSet& cands,
                                                 const tiles::LocalFrame& frame);
 std::vector<TaggedLineCandidate> tagged_lines(const CandidateSet& cands,

@@ -462,17 +462,11 @@ std::vector<std::int64_t> drive_rows(const std::vector<DriveRecord>& drives,
   return rows;
 }
 
-/// Incremental build plan: when the current version was built with the same request
-/// (whole store, same exclusions and parameters) from a subset of today's drives, only
-/// the area the new drives can influence is rebuilt: their boxes, grown by the largest
-/// view range (their passes change verdicts that far) and the consensus margin.
-/// nullopt: a full build (drives were removed, parameters changed, or the new drives
-/// touch most of the map).
-struct IncrementalPlan {
-  tiles::GeoBox area;                ///< rebuilt; the rest is copied
-  std::int64_t previous_points = 0;  ///< landmark counts of the current version
-  std::int64_t previous_lines = 0;
-};
+double consensus_margin_m(const MapBuildRequest& req) {
+  return 2.0 * std::max(req.points.max_pair_distance_m,
+                        req.lines.max_projection_distance_m + req.lines.max_hull_distance_m);
+}
+
 std::optional<IncrementalPlan> incremental_plan(const MapStore& store, const MapBuildRequest& req,
                                                 const nlohmann::json& request_params,
                                                 std::int64_t current,
@@ -829,9 +823,7 @@ std::int64_t MapBuilder::begin(MapStore& store, const MapBuildRequest& request) 
     throw ValidationError("region: min_lat_deg > max_lat_deg");
   }
   if (const auto& p = request.partition) {
-    const double margin_m =
-        2.0 * std::max(request.points.max_pair_distance_m,
-                       request.lines.max_projection_distance_m + request.lines.max_hull_distance_m);
+    const double margin_m = detail::consensus_margin_m(request);
     if (p->zoom < 0 || p->zoom > cfg_.tile_zoom) {
       throw ValidationError("partition.zoom: must be in [0, " + std::to_string(cfg_.tile_zoom) +
                             "] (the localization tile zoom)");
@@ -866,9 +858,7 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version, const MapB
   try {
     // ---------------------------------------------------------------- load
     stage("load", 0.0);
-    const double margin_m =
-        2.0 * std::max(req.points.max_pair_distance_m,
-                       req.lines.max_projection_distance_m + req.lines.max_hull_distance_m);
+    const double margin_m = consensus_margin_m(req);
     // The version this build follows: tiles are reused from it and changes recorded
     // against it (read once, so both refer to the same version).
     const std::optional<std::int64_t> current = store.current_map_version();

@@ -140,6 +140,56 @@ std::set<tiles::TileKey> plan_regions(const MapStore& store, const std::vector<D
   return regions;
 }
 
+/// What an incremental partitioned build copied from the version it follows: the landmarks
+/// and localization tiles of every region the new drives cannot change.
+struct Carried {
+  std::int64_t regions = 0;
+  std::int64_t points = 0;
+  std::int64_t lines = 0;
+  std::int64_t tiles = 0;
+};
+
+/// Copies into `version` everything of `previous` outside the `rebuilt` regions (landmarks
+/// by the region that owns them, as region_job selects a region's previous landmarks;
+/// tiles by the region they lie in). Memory: the rebuilt regions' landmarks and the
+/// previous version's tile list, never its landmarks elsewhere.
+Carried carry_regions(MapStore& store, std::int64_t previous, std::int64_t version,
+                      const std::set<tiles::TileKey>& rebuilt, std::int64_t carried_regions) {
+  Carried c;
+  c.regions = carried_regions;
+  std::set<std::int64_t> except;
+  std::int64_t except_points = 0, except_lines = 0;
+  for (const tiles::TileKey& k : rebuilt) {
+    const LandmarkSet s = store.landmarks_in(previous, tiles::tile_bounds(k), false);
+    for (const auto& p : s.points) {
+      if (tiles::tile_at(p.position.lat_deg, p.position.lon_deg, k.z) == k &&
+          except.insert(p.id).second) {
+        ++except_points;
+      }
+    }
+    for (const auto& l : s.lines) {
+      if (owner_of_line(l.polyline, k.z) == k && except.insert(l.id).second) ++except_lines;
+    }
+  }
+  const auto info = store.get_map_version(previous);
+  const nlohmann::json& ps = info ? info->statistics : nlohmann::json();
+  const std::vector<std::int64_t> ids(except.begin(), except.end());
+  (void)store.copy_landmarks(previous, version, ids);
+  c.points = ps.value("point_landmarks", std::int64_t{0}) - except_points;
+  c.lines = ps.value("line_landmarks", std::int64_t{0}) - except_lines;
+  std::vector<tiles::TileKey> except_tiles;
+  for (const auto& t : store.list_tiles(previous, TileLayer::Localization)) {
+    for (const tiles::TileKey& k : rebuilt) {
+      if (inside(t.key, k)) {
+        except_tiles.push_back(t.key);
+        break;
+      }
+    }
+  }
+  c.tiles = store.copy_tiles(previous, version, TileLayer::Localization, except_tiles);
+  return c;
+}
+
 }  // namespace
 
 MapBuildRequest request_from_json(const nlohmann::json& p) {
@@ -384,6 +434,28 @@ void publish_job(MapStore& store, std::int64_t version, const MapBuildRequest& r
     }
   }
   st.drives_used = static_cast<std::int64_t>(drives.size());
+  std::int64_t regions_carried = 0;
+  if (job.spec.contains("carried") && previous) {
+    // Regions copied from the previous version: their landmarks and tiles, and the drives
+    // the previous version used (a new drive can only be in a rebuilt region).
+    const nlohmann::json& c = job.spec["carried"];
+    regions_carried = c.value("regions", std::int64_t{0});
+    st.point_landmarks += c.value("point_landmarks", std::int64_t{0});
+    st.line_landmarks += c.value("line_landmarks", std::int64_t{0});
+    st.tiles_reused += c.value("tiles", std::int64_t{0});
+    st.landmarks_copied =
+        c.value("point_landmarks", std::int64_t{0}) + c.value("line_landmarks", std::int64_t{0});
+    st.incremental_from = previous;
+    const auto before = store.get_map_version(*previous);
+    if (before) {
+      std::set<std::int64_t> rows;
+      for (const auto& r : before->statistics.value("drive_rows", nlohmann::json::array()))
+        rows.insert(r.get<std::int64_t>());
+      std::int64_t new_drives = 0;
+      for (const std::int64_t d : drives) new_drives += rows.contains(d) ? 0 : 1;
+      st.drives_used = before->statistics.value("drives_used", std::int64_t{0}) + new_drives;
+    }
+  }
   std::set<tiles::TileKey> now;
   for (const auto& t : store.list_tiles(version, TileLayer::Localization)) now.insert(t.key);
   st.tiles_total = static_cast<std::int64_t>(now.size());
@@ -397,7 +469,8 @@ void publish_job(MapStore& store, std::int64_t version, const MapBuildRequest& r
   nlohmann::json stats = to_json(st);
   stats["drive_rows"] = job.spec.value("drive_rows", nlohmann::json::array());
   stats["gridmap"] = gridmap_info;
-  stats["partition"] = {{"regions", regions}, {"job_seconds", job_seconds}};
+  stats["partition"] = {
+      {"regions", regions}, {"regions_carried", regions_carried}, {"job_seconds", job_seconds}};
   store.publish_map_version(version, stats, req.make_current);
 }
 
@@ -420,14 +493,39 @@ MapBuildResult run_partitioned(MapStore& store, std::int64_t version, const MapB
     const nlohmann::json base = {
         {"previous", current ? nlohmann::json(*current) : nlohmann::json()},
         {"max_drive_row", rows.empty() ? 0 : rows.back()}};
+    // Incremental (the one-process build's plan, incremental_plan): only regions whose
+    // halo meets the area the new drives can change are rebuilt; the others are copied
+    // from the current version now, before any job runs (so a retried job never copies
+    // twice, and a planner that dies leaves a version the abandoned-build check fails).
+    const auto self = store.get_map_version(version);
+    if (!self) throw NotFoundError("map version " + std::to_string(version) + " was deleted");
+    const std::optional<IncrementalPlan> inc =
+        current
+            ? incremental_plan(store, req, self->parameters, *current, all, consensus_margin_m(req))
+            : std::nullopt;
+    std::set<tiles::TileKey> rebuilt;
+    std::int64_t carried_regions = 0;
+    for (const auto& k : plan_regions(store, included, *req.partition)) {
+      if (inc && !inc->area.intersects(grow_box(tiles::tile_bounds(k), req.partition->halo_m))) {
+        ++carried_regions;
+      } else {
+        rebuilt.insert(k);
+      }
+    }
     std::vector<BuildJobSpec> jobs;
     // The gridmap job first: it is the longest, and runs beside the regions.
     if (req.build_gridmap) jobs.push_back({"gridmap", {0, 0, 0}, base});
-    for (const auto& k : plan_regions(store, included, *req.partition)) {
-      jobs.push_back({"region", k, base});
-    }
+    for (const auto& k : rebuilt) jobs.push_back({"region", k, base});
     nlohmann::json pub = base;
     pub["drive_rows"] = rows;
+    if (inc) {
+      if (ctl.progress) ctl.progress("carry", 0.0);
+      const Carried c = carry_regions(store, *current, version, rebuilt, carried_regions);
+      pub["carried"] = {{"regions", c.regions},
+                        {"point_landmarks", c.points},
+                        {"line_landmarks", c.lines},
+                        {"tiles", c.tiles}};
+    }
     jobs.push_back({"publish", {0, 0, 0}, pub});
     store.enqueue_build_jobs(version, jobs);
 
@@ -452,6 +550,10 @@ MapBuildResult run_partitioned(MapStore& store, std::int64_t version, const MapB
         st.tile_bytes = s.value("tile_bytes", std::int64_t{0});
         st.gridmap_tiles = s.value("gridmap_tiles", std::int64_t{0});
         st.drives_used = s.value("drives_used", std::int64_t{0});
+        st.landmarks_copied = s.value("landmarks_copied", std::int64_t{0});
+        if (s.contains("incremental_from") && s["incremental_from"].is_number_integer()) {
+          st.incremental_from = s["incremental_from"].get<std::int64_t>();
+        }
         st.previous_version = current;
         st.seconds_total = seconds_since(t0);
         result.status = MapBuildResult::Status::Published;

@@ -305,5 +305,51 @@ TEST_F(PartitionedBuild, ASecondBuildKeepsTheBlobsOfUnchangedTiles) {
   EXPECT_GT(info->statistics.value("tiles_reused", 0), 0);
 }
 
+TEST_F(PartitionedBuild, ANewDriveRebuildsOnlyTheRegionsItCanChange) {
+  TempDir tmp;
+  SqliteMapStore store(tmp.path() / "map.db");
+  put_drives(store, tmp.path(), *world_, 3);
+  const MapBuildResult r1 = MapBuilder{}.build(store, partitioned());
+  ASSERT_EQ(r1.status, MapBuildResult::Status::Published) << r1.error;
+  const double h = kExtentM / 2;
+  put_drive_along(store, tmp.path(), *world_, "corner", 200, {-h, -h}, {-h + 150, -h + 150},
+                  {{-h, -h + 20}, {-h + 150, -h + 20}}, 5, 9000.0);
+  const MapBuildResult r2 = MapBuilder{}.build(store, partitioned());
+  ASSERT_EQ(r2.status, MapBuildResult::Status::Published) << r2.error;
+  auto region_jobs = [&](std::int64_t v) {
+    int n = 0;
+    for (const auto& j : store.build_jobs(v)) n += j.kind == "region" ? 1 : 0;
+    return n;
+  };
+  const auto s1 = store.get_map_version(r1.version)->statistics;
+  const auto s2 = store.get_map_version(r2.version)->statistics;
+  const int carried = s2["partition"].value("regions_carried", 0);
+  EXPECT_GT(carried, 0);
+  EXPECT_LT(region_jobs(r2.version), region_jobs(r1.version));
+  EXPECT_EQ(region_jobs(r2.version) + carried, region_jobs(r1.version));
+  EXPECT_EQ(s2.value("incremental_from", 0), r1.version);
+
+  // The same drives built in full: the same landmarks, tiles and counts.
+  MapBuildRequest full = partitioned();
+  full.incremental = false;
+  const MapBuildResult r3 = MapBuilder{}.build(store, full);
+  ASSERT_EQ(r3.status, MapBuildResult::Status::Published) << r3.error;
+  const auto s3 = store.get_map_version(r3.version)->statistics;
+  EXPECT_EQ(s3["partition"].value("regions_carried", 0), 0);
+  const Served a = served(store, r2.version), b = served(store, r3.version);
+  EXPECT_EQ(a.landmarks.size(), b.landmarks.size());
+  EXPECT_TRUE(a.landmarks == b.landmarks);
+  std::set<std::pair<int, tiles::TileKey>> ka, kb;
+  for (const auto& [k, e] : a.tiles) ka.insert(k);
+  for (const auto& [k, e] : b.tiles) kb.insert(k);
+  EXPECT_TRUE(ka == kb);
+  for (const char* key : {"point_landmarks", "line_landmarks", "drives_used", "tiles_total"}) {
+    EXPECT_EQ(s2.value(key, -1), s3.value(key, -2)) << key;
+  }
+  // The new drive changed its corner (support of the landmarks it saw), nothing else.
+  EXPECT_FALSE(served(store, r1.version).landmarks == a.landmarks);
+  EXPECT_GT(s2.value("tiles_reused", 0), s1.value("tiles_total", 0) / 2);
+}
+
 }  // namespace
 }  // namespace polmap::mapping

@@ -58,13 +58,14 @@ class CliUploadResume : public ServerFixture {
   };
   /// Writes `tar` as a package file and runs `polmap upload` on it through `proxy` in 64 KiB
   /// chunks.
-  CliRun upload_through(const test::TcpProxy& proxy, const std::string& tar) const {
+  CliRun upload_through(const test::TcpProxy& proxy, const std::string& tar,
+                        const std::string& extra = "") const {
     const auto pkg = dir_ / "drive.tar";
-    std::ofstream(pkg, std::ios::binary) << tar;
+    if (!std::filesystem::exists(pkg)) std::ofstream(pkg, std::ios::binary) << tar;
     const std::string cmd = kPolmap.string() +
                             " upload --server http://127.0.0.1:" + std::to_string(proxy.port()) +
                             " --package " + pkg.string() + " --api-key " + kKey +
-                            " --chunk-mb 0.0625 --timeout-s 30 2>&1";
+                            " --chunk-mb 0.0625 --timeout-s 30 " + extra + " 2>&1";
     CliRun run;
     FILE* p = ::popen(cmd.c_str(), "r");
     if (p == nullptr) return run;
@@ -173,6 +174,63 @@ TEST_F(CliUploadResume, TheLostAnswerToTheLastChunkIsAskedForAgain) {
   std::uint64_t sent = 0;
   for (const auto& e : ex) sent += e.method == "PATCH" ? e.body_bytes : 0;
   EXPECT_EQ(sent, tar.size()) << "bytes sent twice: " << sent - tar.size();
+}
+
+TEST_F(CliUploadResume, AnUploadThatGaveUpIsContinuedByTheNextRun) {
+  // The first run gives up when the third chunk's connection is cut (--retries 0); the
+  // session stays remembered beside the package, and the next run of the same command asks
+  // HEAD where it stands and sends only the rest: over both runs every byte went once.
+  const std::string& tar = scene_tar("scene_drive_0", 11);
+  const auto state = dir_ / "drive.tar.upload-session";
+  test::TcpProxy::Options po;
+  po.target_port = port_;
+  po.cut_nth = 3;
+  po.cut_after_bytes = 20000;
+  test::TcpProxy proxy(po);  // cuts its third connection only: the rerun goes through
+  const CliRun gave_up = upload_through(proxy, tar, "--retries 0");
+  ASSERT_NE(gave_up.exit_code, 0) << gave_up.output;
+  EXPECT_NE(gave_up.output.find("the session is kept in"), std::string::npos) << gave_up.output;
+  ASSERT_TRUE(std::filesystem::exists(state));
+  EXPECT_TRUE(store_->list_drives().empty());
+  const std::size_t first_run = proxy.records().size();
+
+  const CliRun run = upload_through(proxy, tar);
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  EXPECT_NE(run.output.find("drive scene_drive_0 uploaded"), std::string::npos) << run.output;
+  EXPECT_NE(run.output.find("continued the session of an earlier run"), std::string::npos)
+      << run.output;
+  EXPECT_FALSE(std::filesystem::exists(state));  // the upload ended: nothing to continue
+  ASSERT_EQ(store_->list_drives().size(), 1U);
+  EXPECT_EQ(store_->get_drive("scene_drive_0")->content_hash, util::sha256_hex(tar));
+
+  const auto [ex, cut] = exchanges(proxy);
+  EXPECT_EQ(cut, 1);
+  ASSERT_GT(ex.size(), first_run);
+  std::uint64_t sent = 0, kept = 0;
+  for (std::size_t i = 0; i < first_run; ++i) {
+    if (ex[i].method == "PATCH") {
+      sent += ex[i].body_bytes;
+      kept = *ex[i].offset + ex[i].body_bytes;  // the server keeps what reached it
+    }
+  }
+  EXPECT_GT(kept, 0U);
+  const Exchange& head = ex[first_run];
+  EXPECT_EQ(head.method, "HEAD");  // the rerun asks where the session stands
+  ASSERT_TRUE(head.acked);
+  EXPECT_EQ(*head.acked, kept);
+  for (std::size_t i = first_run; i < ex.size(); ++i) {
+    if (ex[i].method == "POST") ADD_FAILURE() << "the rerun opened a new session";
+    if (ex[i].method == "PATCH") sent += ex[i].body_bytes;
+  }
+  EXPECT_EQ(sent, tar.size()) << "bytes sent twice: " << sent - tar.size();
+
+  // A state file that is not one is ignored (and replaced), not trusted.
+  std::ofstream(state) << "{\"version\": 1, \"location\": \"/v1/drives\"}";
+  const CliRun again = upload_through(proxy, tar);
+  EXPECT_EQ(again.exit_code, 0) << again.output;
+  EXPECT_NE(again.output.find("ignoring"), std::string::npos) << again.output;
+  EXPECT_NE(again.output.find("already present"), std::string::npos) << again.output;
+  EXPECT_FALSE(std::filesystem::exists(state));
 }
 
 TEST_F(CliUploadResume, SmallPackagesStillGoInOnePost) {

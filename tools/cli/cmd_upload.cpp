@@ -5,7 +5,10 @@
 // after a dropped connection it waits (backoff), asks HEAD for the offset and continues from
 // there, so no byte the server acknowledged is sent again; when the answer to the last chunk
 // is what got lost, HEAD shows the session complete and an empty PATCH at its end gets that
-// answer again. A server without /v1/uploads (404) gets the single POST.
+// answer again. A server without /v1/uploads (404) gets the single POST. The session is
+// remembered in a state file (--state, default PACKAGE.upload-session) until the upload
+// ends, so a run that gave up or was killed is continued by the next run of the same
+// command: it asks HEAD where the session stands and sends only the rest.
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <charconv>
@@ -23,6 +26,7 @@
 #include "command.hpp"
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/schema/errors.hpp"
+#include "polmap/util/file.hpp"
 #include "polmap/util/sha256.hpp"
 #include "progress.hpp"
 
@@ -43,8 +47,76 @@ struct UploadOptions {
   int retries = 10;
   /// First wait after a failure; doubled per failure in a row, at most 30 s.
   double backoff_s = 0.5;
+  /// Where the resumable session is remembered until the upload ends (empty: nowhere).
+  std::string state;
+  bool no_state = false;
   bool json = false;
 };
+
+/// The resumable session a run left behind (the state file): it is continued when the
+/// same package goes to the same server again.
+struct SessionState {
+  std::string server;
+  std::string location;  ///< /v1/uploads/ID
+  std::uint64_t length = 0;
+  std::string sha256;
+};
+
+constexpr std::uintmax_t kMaxStateBytes = 4096;
+
+/// The state file, if it holds a session of this package on this server. A file that is
+/// not one (foreign, damaged, too large) is ignored with a note and later overwritten.
+std::optional<SessionState> read_state(const std::filesystem::path& file, const std::string& server,
+                                       std::uint64_t length, const std::string& sha256) {
+  std::error_code ec;
+  if (file.empty() || !std::filesystem::is_regular_file(file, ec)) return std::nullopt;
+  const auto size = std::filesystem::file_size(file, ec);
+  if (ec || size > kMaxStateBytes) {
+    std::fprintf(stderr, "upload: ignoring %s (not an upload session state)\n", file.c_str());
+    return std::nullopt;
+  }
+  try {
+    const nlohmann::json j = nlohmann::json::parse(util::read_file_bytes(file));
+    SessionState st{j.at("server").get<std::string>(), j.at("location").get<std::string>(),
+                    j.at("length").get<std::uint64_t>(), j.at("sha256").get<std::string>()};
+    const bool id_ok = st.location.size() > 12 && st.location.size() <= 140 &&
+                       st.location.starts_with("/v1/uploads/") &&
+                       std::all_of(st.location.begin() + 12, st.location.end(), [](char c) {
+                         return (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') ||
+                                (c >= '0' && c <= '9') || c == '-' || c == '_';
+                       });
+    if (j.value("version", 0) != 1 || !id_ok) throw std::runtime_error("bad fields");
+    if (st.server != server || st.length != length || st.sha256 != sha256) return std::nullopt;
+    return st;
+  } catch (const std::exception&) {
+    std::fprintf(stderr, "upload: ignoring %s (not an upload session state)\n", file.c_str());
+    return std::nullopt;
+  }
+}
+
+/// Remembers the session (written beside, then renamed: a crash leaves the old file or the
+/// new one). A state that cannot be written only costs the resumption: noted, not fatal.
+void write_state(const std::filesystem::path& file, const SessionState& st) {
+  if (file.empty()) return;
+  const nlohmann::json j{{"version", 1},
+                         {"server", st.server},
+                         {"location", st.location},
+                         {"length", st.length},
+                         {"sha256", st.sha256}};
+  try {
+    const std::filesystem::path tmp = file.string() + ".tmp";
+    util::write_file_bytes(tmp, j.dump() + "\n");
+    std::filesystem::rename(tmp, file);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "upload: cannot remember the session in %s (%s)\n", file.c_str(),
+                 e.what());
+  }
+}
+
+void remove_state(const std::filesystem::path& file) {
+  std::error_code ec;
+  if (!file.empty()) std::filesystem::remove(file, ec);
+}
 
 std::string read_file(const std::filesystem::path& p) {
   std::ifstream in(p, std::ios::binary);
@@ -69,6 +141,8 @@ struct ResumableOutcome {
   /// The answer came from an empty PATCH at the end: the session repeated the answer its
   /// last chunk got, which the dropped connection had lost.
   bool answer_repeated = false;
+  /// A session an earlier run left (the state file) was continued from this offset.
+  std::optional<std::uint64_t> resumed_from;
 };
 
 /// The resumable protocol (schema/openapi.yaml, /v1/uploads). nullopt: the server has no
@@ -78,12 +152,18 @@ std::optional<ResumableOutcome> upload_resumable(const UploadOptions& o, const s
   auto cli = make_client(o.server, o.timeout_s);
   const httplib::Headers auth{{"Authorization", "Bearer " + o.api_key}};
   ResumableOutcome out;
+  const std::filesystem::path state_file =
+      o.no_state ? std::filesystem::path() : std::filesystem::path(o.state);
   int failures = 0;
   // A failed request: wait, or give up after --retries in a row.
   auto fail = [&](const std::string& why) {
     if (++failures > o.retries) {
       throw IoError("upload of " + o.package + ": giving up after " + std::to_string(o.retries) +
-                    " retries (" + why + ")");
+                    " retries (" + why + ")" +
+                    (!state_file.empty() && std::filesystem::exists(state_file)
+                         ? "; the session is kept in " + state_file.string() +
+                               ": run the same command again to continue it"
+                         : std::string()));
     }
     ++out.reconnects;
     const double wait =
@@ -100,11 +180,34 @@ std::optional<ResumableOutcome> upload_resumable(const UploadOptions& o, const s
              : "connection failed: " + httplib::to_string(r.error());
   };
 
+  const std::string sha256 = util::sha256_hex(body);
+  std::string location;
+  std::uint64_t offset = 0;
+  // A session an earlier run of this upload left: where does it stand?
+  if (const auto st = read_state(state_file, o.server, body.size(), sha256)) {
+    for (;;) {
+      const auto s = cli->Head(st->location, auth);
+      if (s && s->status == 200) {
+        const auto at = parse_offset(s->get_header_value("Upload-Offset"));
+        if (at && *at <= body.size()) {
+          location = st->location;
+          offset = *at;
+          out.resumed_from = offset;
+        }
+        break;
+      }
+      if (transient(s)) {
+        fail(why(s));
+        continue;
+      }
+      break;  // expired, deleted, another key's: a new session
+    }
+    failures = 0;
+  }
   httplib::Headers create = auth;
   create.emplace("Upload-Length", std::to_string(body.size()));
-  create.emplace("Upload-Sha256", util::sha256_hex(body));
-  std::string location;
-  for (;;) {
+  create.emplace("Upload-Sha256", sha256);
+  while (location.empty()) {
     const auto r = cli->Post("/v1/uploads", create, "", "application/json");
     if (r && (r->status == 404 || r->status == 405)) return std::nullopt;
     if (transient(r)) {
@@ -116,13 +219,12 @@ std::optional<ResumableOutcome> upload_resumable(const UploadOptions& o, const s
       throw Error("upload of " + o.package + ": the server's Location '" + location +
                   "' is not an upload session");
     }
-    break;
+    write_state(state_file, {o.server, location, body.size(), sha256});
   }
   failures = 0;
 
   Progress progress("upload " + std::filesystem::path(o.package).filename().string(),
                     static_cast<double>(body.size()));
-  std::uint64_t offset = 0;
   for (;;) {
     const std::size_t n = std::min<std::size_t>(chunk_bytes, body.size() - offset);
     httplib::Headers h = auth;
@@ -140,7 +242,9 @@ std::optional<ResumableOutcome> upload_resumable(const UploadOptions& o, const s
         "application/offset+octet-stream");
     if (r && (r->status == 201 || r->status == 200)) {
       out.response = *r;
-      out.answer_repeated = n == 0 && r->has_header("Upload-Complete") && out.reconnects > 0;
+      out.answer_repeated = n == 0 && r->has_header("Upload-Complete") &&
+                            (out.reconnects > 0 || out.resumed_from.has_value());
+      remove_state(state_file);
       return out;
     }
     if (r && r->status == 204) {
@@ -228,6 +332,10 @@ void run(const UploadOptions& o) {
   if (resumable) {
     how = ", resumable: " + std::to_string(resumable->sent_bytes) + " bytes sent, " +
           std::to_string(resumable->reconnects) + " retries";
+    if (resumable->resumed_from) {
+      how += ", continued the session of an earlier run from byte " +
+             std::to_string(*resumable->resumed_from);
+    }
     if (resumable->answer_repeated) how += ", the lost answer asked for again";
   }
   std::printf("drive %s %s (%zu bytes%s)\n", id.c_str(),
@@ -253,8 +361,20 @@ void setup(CLI::App& app) {
   cmd->add_option("--backoff-s", opts->backoff_s,
                   "First wait after a failure (doubled per failure in a row, at most 30 s)")
       ->capture_default_str();
+  cmd->add_option("--state", opts->state,
+                  "Where a resumable upload's session is remembered until it ends, so that the "
+                  "next run of the same upload continues it (default: PACKAGE.upload-session)");
+  cmd->add_flag("--no-state", opts->no_state, "Do not remember the session (each run starts anew)");
   cmd->add_flag("--json", opts->json, "Print the server's JSON answer");
-  cmd->callback([opts] { run(*opts); });
+  cmd->callback([opts] {
+    if (opts->state.empty()) {
+      // Beside the package (a directory's trailing slash dropped).
+      std::string p = opts->package;
+      while (p.size() > 1 && p.back() == '/') p.pop_back();
+      opts->state = p + ".upload-session";
+    }
+    run(*opts);
+  });
 }
 
 }  // namespace

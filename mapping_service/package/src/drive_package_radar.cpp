@@ -28,6 +28,35 @@ void check_package_destination(const fs::path& dir, bool overwrite);
 util::ScopedTempDir make_package_temp_dir(const fs::path& dir);
 }  // namespace detail
 
+namespace {
+
+/// Adds one tile's cells (count, layer-major layers, hits; kTileSizeCells² each) to a
+/// mapping-mode gridmap of the map's level and cell size.
+void merge_tile_cells(radar::CovarianceGridmap& map, int tx, int ty,
+                      std::span<const std::uint32_t> count,
+                      std::span<const std::complex<float>> layers,
+                      std::span<const std::uint32_t> hits) {
+  constexpr int ts = radar::kTileSizeCells;
+  const double cs = map.cell_size_m();
+  const int q = pol_dimension(map.level());
+  radar::CovarianceTileView v;
+  v.tile_x = tx;
+  v.tile_y = ty;
+  v.size_cells = ts;
+  v.origin_x_m = tx * ts * cs;
+  v.origin_y_m = ty * ts * cs;
+  v.cell_size_m = cs;
+  v.level = map.level();
+  v.q = q;
+  v.num_layers = q * (q + 1) / 2;
+  v.count = count;
+  v.layers = layers;
+  v.hits = hits;
+  map.merge_tile(v);
+}
+
+}  // namespace
+
 DriveManifest write_drive_package(const DrivePackage& pkg, const radar::CovarianceGridmap& gridmap,
                                   const fs::path& dir, const PackageWriteOptions& options) {
   detail::ensure_gdal();
@@ -202,21 +231,7 @@ radar::CovarianceGridmap read_covariance_gridmap(const DrivePackage& pkg) {
             }
           }
         }
-        if (!any) continue;
-        radar::CovarianceTileView v;
-        v.tile_x = tx;
-        v.tile_y = ty;
-        v.size_cells = ts;
-        v.origin_x_m = tx * ts * cs;
-        v.origin_y_m = ty * ts * cs;
-        v.cell_size_m = cs;
-        v.level = cfg.level;
-        v.q = q;
-        v.num_layers = L;
-        v.count = count;
-        v.layers = layers;
-        v.hits = hits;
-        map.merge_tile(v);
+        if (any) merge_tile_cells(map, tx, ty, count, layers, hits);
       }
     }
   });
@@ -237,7 +252,6 @@ radar::CovarianceGridmap compact_round_trip(const radar::CovarianceGridmap& grid
   const int L = q * (q + 1) / 2;
   const GridmapCodec codec(q, gridmap.noise_power(), codec_cfg);
   constexpr int ts = radar::kTileSizeCells;
-  const double cs = cfg.cell_size_m;
   std::vector<std::uint32_t> count(ts * ts), hits(ts * ts);
   std::vector<std::complex<float>> layers(static_cast<std::size_t>(L) * ts * ts);
   std::vector<std::complex<float>> cell(static_cast<std::size_t>(L));
@@ -263,21 +277,7 @@ radar::CovarianceGridmap compact_round_trip(const radar::CovarianceGridmap& grid
       hits[i] = d.hits;
       for (int l = 0; l < L; ++l) layers[l * plane + i] = std::complex<float>(d.layers[l]);
     }
-    if (!any) continue;
-    radar::CovarianceTileView v;
-    v.tile_x = tx;
-    v.tile_y = ty;
-    v.size_cells = ts;
-    v.origin_x_m = tx * ts * cs;
-    v.origin_y_m = ty * ts * cs;
-    v.cell_size_m = cs;
-    v.level = cfg.level;
-    v.q = q;
-    v.num_layers = L;
-    v.count = count;
-    v.layers = layers;
-    v.hits = hits;
-    out.merge_tile(v);
+    if (any) merge_tile_cells(out, tx, ty, count, layers, hits);
   }
   return out;
 }

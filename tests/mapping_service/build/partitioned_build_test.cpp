@@ -279,17 +279,26 @@ TEST_F(PartitionedBuild, AgreesWithTheOneFrameBuild) {
   EXPECT_NEAR(length(b.lines), length(a.lines), 0.01 * length(a.lines));
 }
 
+/// Three drives built, then a fourth over one corner only and a second build.
+struct TwoBuilds {
+  MapBuildResult r1, r2;
+};
+TwoBuilds build_then_add_a_corner_drive(MapStore& store, const fs::path& tmp, const World& w) {
+  put_drives(store, tmp, w, 3);
+  TwoBuilds b;
+  b.r1 = MapBuilder{}.build(store, partitioned());
+  const double h = kExtentM / 2;
+  put_drive_along(store, tmp, w, "corner", 200, {-h, -h}, {-h + 150, -h + 150},
+                  {{-h, -h + 20}, {-h + 150, -h + 20}}, 5, 9000.0);
+  b.r2 = MapBuilder{}.build(store, partitioned());
+  return b;
+}
+
 TEST_F(PartitionedBuild, ASecondBuildKeepsTheBlobsOfUnchangedTiles) {
   TempDir tmp;
   SqliteMapStore store(tmp.path() / "map.db");
-  put_drives(store, tmp.path(), *world_, 3);
-  const MapBuildResult r1 = MapBuilder{}.build(store, partitioned());
+  const auto [r1, r2] = build_then_add_a_corner_drive(store, tmp.path(), *world_);
   ASSERT_EQ(r1.status, MapBuildResult::Status::Published) << r1.error;
-  // A fourth drive over one corner only.
-  const double h = kExtentM / 2;
-  put_drive_along(store, tmp.path(), *world_, "corner", 200, {-h, -h}, {-h + 150, -h + 150},
-                  {{-h, -h + 20}, {-h + 150, -h + 20}}, 5, 9000.0);
-  const MapBuildResult r2 = MapBuilder{}.build(store, partitioned());
   ASSERT_EQ(r2.status, MapBuildResult::Status::Published) << r2.error;
   const auto t1 = served(store, r1.version).tiles, t2 = served(store, r2.version).tiles;
   int same = 0, changed = 0;
@@ -308,13 +317,8 @@ TEST_F(PartitionedBuild, ASecondBuildKeepsTheBlobsOfUnchangedTiles) {
 TEST_F(PartitionedBuild, ANewDriveRebuildsOnlyTheRegionsItCanChange) {
   TempDir tmp;
   SqliteMapStore store(tmp.path() / "map.db");
-  put_drives(store, tmp.path(), *world_, 3);
-  const MapBuildResult r1 = MapBuilder{}.build(store, partitioned());
+  const auto [r1, r2] = build_then_add_a_corner_drive(store, tmp.path(), *world_);
   ASSERT_EQ(r1.status, MapBuildResult::Status::Published) << r1.error;
-  const double h = kExtentM / 2;
-  put_drive_along(store, tmp.path(), *world_, "corner", 200, {-h, -h}, {-h + 150, -h + 150},
-                  {{-h, -h + 20}, {-h + 150, -h + 20}}, 5, 9000.0);
-  const MapBuildResult r2 = MapBuilder{}.build(store, partitioned());
   ASSERT_EQ(r2.status, MapBuildResult::Status::Published) << r2.error;
   auto region_jobs = [&](std::int64_t v) {
     int n = 0;

@@ -120,6 +120,14 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--relative-step", codec.relative_step, "compact codec: factor step")
       ->capture_default_str();
+  app.add_option("--power-step", codec.power_step, "compact codec: relative step of trace(C)")
+      ->capture_default_str();
+  app.add_option("--empty-count-bits", codec.empty_count_bits,
+                 "compact codec: significant bits of N kept in empty cells")
+      ->capture_default_str();
+  app.add_option("--zero-step-noise", codec.zero_step_noise,
+                 "compact codec: step of the factor entries at zero (noise sigmas)")
+      ->capture_default_str();
   CLI11_PARSE(app, argc, argv);
 
   const util::ScopedTempDir tmp = util::ScopedTempDir::create("bench_package_size");

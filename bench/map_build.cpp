@@ -28,6 +28,8 @@
 //                   object of the nearest nominal place, up to M away)
 //                   [--sliding 0|1 --sliding-min-along-m M --sliding-ratio R
 //                    --sliding-min-support N] (point_filter.hpp SlidingRule)
+//                   [--mirror-ghosts 0|1 --mirror-image-radius-m R --mirror-image-drives N]
+//                   (point_filter.hpp MirrorGhostRule)
 //                   [--explain] [--dump DIR] (simulator: what false landmarks are near, and
 //                   each 200 m window's own fit to truth; the map, line candidates and world
 //                   objects as CSV for offline analysis)
@@ -781,6 +783,14 @@ int main(int argc, char** argv) {
                  "sliding: min along/across spread ratio");
   app.add_option("--sliding-min-support", filter.sliding.min_support_drives,
                  "sliding: judged from this many supporting drives");
+  int mirror_ghosts = 1;
+  app.add_option("--mirror-ghosts", mirror_ghosts,
+                 "remove point landmarks that are mirror images behind a line landmark (1, "
+                 "default) or not (0)");
+  app.add_option("--mirror-image-radius-m", filter.mirror_ghosts.image_radius_m,
+                 "mirror ghosts: candidates within this radius of the image");
+  app.add_option("--mirror-image-drives", filter.mirror_ghosts.min_image_drives,
+                 "mirror ghosts: distinct drives needed at the image");
   std::string gnss = "rtk";
   int rtk_drives = 0;
   app.add_option("--gnss", gnss,
@@ -948,6 +958,8 @@ int main(int argc, char** argv) {
     req.points.filter.co_presence.enabled = co_presence != 0;
     req.points.filter.sliding = filter.sliding;
     req.points.filter.sliding.enabled = sliding != 0;
+    req.points.filter.mirror_ghosts = filter.mirror_ghosts;
+    req.points.filter.mirror_ghosts.enabled = mirror_ghosts != 0;
     MapBuilderConfig builder_cfg;
     builder_cfg.alignment = alignment;
     const MapBuilder builder(builder_cfg);

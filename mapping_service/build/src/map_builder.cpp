@@ -104,7 +104,15 @@ nlohmann::json request_json(const MapBuildRequest& r, const MapBuilderConfig& c)
                    {"max_detection_share", f.sliding.max_detection_share}}},
                  {"out_of_view",
                   {{"enabled", f.out_of_view.enabled},
-                   {"min_view_fraction", f.out_of_view.min_view_fraction}}}};
+                   {"min_view_fraction", f.out_of_view.min_view_fraction}}},
+                 {"mirror_ghosts",
+                  {{"enabled", f.mirror_ghosts.enabled},
+                   {"max_reflector_distance_m", f.mirror_ghosts.max_reflector_distance_m},
+                   {"segment_margin_m", f.mirror_ghosts.segment_margin_m},
+                   {"min_image_offset_m", f.mirror_ghosts.min_image_offset_m},
+                   {"image_radius_m", f.mirror_ghosts.image_radius_m},
+                   {"min_image_drives", f.mirror_ghosts.min_image_drives},
+                   {"min_image_support_share", f.mirror_ghosts.min_image_support_share}}}};
   j["lines"] = {{"max_hull_distance_m", r.lines.max_hull_distance_m},
                 {"max_projection_distance_m", r.lines.max_projection_distance_m},
                 {"support", support_json(r.lines.support)},
@@ -193,6 +201,7 @@ nlohmann::json to_json(const MapBuildStats& s) {
   j["point_temporary"] = s.point_temporary;
   j["point_sliding"] = s.point_sliding;
   j["point_out_of_view"] = s.point_out_of_view;
+  j["point_mirror_ghosts"] = s.point_mirror_ghosts;
   j["tiles_total"] = s.tiles_total;
   j["tiles_written"] = s.tiles_written;
   j["tiles_reused"] = s.tiles_reused;
@@ -904,6 +913,7 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version, const MapB
     st.point_temporary = static_cast<std::int64_t>(pf.temporary);
     st.point_sliding = static_cast<std::int64_t>(pf.sliding);
     st.point_out_of_view = static_cast<std::int64_t>(pf.out_of_view);
+    st.point_mirror_ghosts = static_cast<std::int64_t>(pf.mirror_ghosts);
     st.point_consensus = pc.stats;
     st.line_consensus = lc.stats;
     st.seconds_consensus = clock.lap();

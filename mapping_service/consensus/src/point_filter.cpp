@@ -1,4 +1,5 @@
-// Precision of fleet point consensus: line peaks and temporary objects (point_filter.hpp).
+// Precision of fleet point consensus: line and surface peaks, temporary and sliding objects,
+// out-of-view returns and mirror images (point_filter.hpp).
 #include "polmap/mapping_service/point_filter.hpp"
 
 #include <algorithm>
@@ -42,6 +43,25 @@ class SegmentGrid {
         const auto [x1, y1] = key(a.cwiseMax(b));
         for (auto x = x0; x <= x1; ++x) {
           for (auto y = y0; y <= y1; ++y) cells_[pack(x, y)].push_back(s);
+        }
+      }
+    }
+  }
+  /// Calls fn(a, b) for every segment within `radius` of p (radius <= the cell size).
+  template <class Fn>
+  void for_each_within(const Eigen::Vector2d& p, double radius, Fn&& fn) const {
+    const auto [cx, cy] = key(p);
+    std::vector<std::size_t> seen;
+    for (std::int64_t dx = -1; dx <= 1; ++dx) {
+      for (std::int64_t dy = -1; dy <= 1; ++dy) {
+        const auto it = cells_.find(pack(cx + dx, cy + dy));
+        if (it == cells_.end()) continue;
+        for (std::size_t s : it->second) {
+          const auto& [a, b] = segs_[s];
+          if ((b - a).squaredNorm() <= 0.0 || point_segment_distance(p, a, b) > radius) continue;
+          if (std::find(seen.begin(), seen.end(), s) != seen.end()) continue;  // in two cells
+          seen.push_back(s);
+          fn(a, b);
         }
       }
     }
@@ -108,6 +128,54 @@ AlongAcross spread_along(std::span<const std::int64_t> support_ids,
     out.across_m = std::sqrt(sc / static_cast<double>(out.m));
   }
   return out;
+}
+
+/// Point candidates in a uniform grid: the distinct drives with a candidate within a radius.
+class CandidateGrid {
+ public:
+  CandidateGrid(std::span<const TaggedPointCandidate> candidates, double cell)
+      : cands_(candidates), cell_(cell) {
+    for (std::size_t i = 0; i < candidates.size(); ++i) {
+      cells_[key(candidates[i].candidate.position_m)].push_back(i);
+    }
+  }
+  /// Distinct drives with a candidate within radius (<= the cell size) of p.
+  [[nodiscard]] std::size_t drives_within(const Eigen::Vector2d& p, double radius) const {
+    const auto cx = static_cast<std::int64_t>(std::floor(p.x() / cell_));
+    const auto cy = static_cast<std::int64_t>(std::floor(p.y() / cell_));
+    std::vector<std::int64_t> drives;
+    for (std::int64_t dx = -1; dx <= 1; ++dx) {
+      for (std::int64_t dy = -1; dy <= 1; ++dy) {
+        const auto it = cells_.find(pack(cx + dx, cy + dy));
+        if (it == cells_.end()) continue;
+        for (std::size_t i : it->second) {
+          if ((cands_[i].candidate.position_m - p).norm() <= radius) {
+            drives.push_back(cands_[i].drive);
+          }
+        }
+      }
+    }
+    std::sort(drives.begin(), drives.end());
+    return static_cast<std::size_t>(std::unique(drives.begin(), drives.end()) - drives.begin());
+  }
+
+ private:
+  [[nodiscard]] std::uint64_t key(const Eigen::Vector2d& p) const {
+    return pack(static_cast<std::int64_t>(std::floor(p.x() / cell_)),
+                static_cast<std::int64_t>(std::floor(p.y() / cell_)));
+  }
+  static std::uint64_t pack(std::int64_t x, std::int64_t y) {
+    return (static_cast<std::uint64_t>(x) << 32U) ^ (static_cast<std::uint64_t>(y) & 0xffffffffU);
+  }
+  std::span<const TaggedPointCandidate> cands_;
+  double cell_;
+  std::unordered_map<std::uint64_t, std::vector<std::size_t>> cells_;
+};
+
+/// Which side of the line through a and b p lies on (sign of the cross product).
+double side_of(const Eigen::Vector2d& a, const Eigen::Vector2d& b, const Eigen::Vector2d& p) {
+  const Eigen::Vector2d ab = b - a, ap = p - a;
+  return ab.x() * ap.y() - ab.y() * ap.x();
 }
 
 }  // namespace
@@ -333,6 +401,44 @@ PointFilterResult filter_point_landmarks(PointConsensusResult& points,
     }
   }
 
+  // ---------------------------------------------------------------- mirror images
+  if (const MirrorGhostRule& rule = cfg.mirror_ghosts;
+      rule.enabled && view != nullptr && !view->empty() && !lines.landmarks.empty()) {
+    const SegmentGrid reflectors(lines, rule.max_reflector_distance_m);
+    const CandidateGrid cands(candidates, std::max(1.0, rule.image_radius_m));
+    for (std::size_t i = 0; i < n; ++i) {
+      PointEvidence& ev = out.evidence[i];
+      if (ev.verdict != PointEvidence::Verdict::Kept) continue;
+      const Eigen::Vector2d p = points.landmarks[i].position_m;
+      const std::optional<Eigen::Vector2d> road = view->nearest_path_point(p);
+      if (!road) continue;
+      const double need = std::max(
+          static_cast<double>(rule.min_image_drives),
+          std::ceil(rule.min_image_support_share * static_cast<double>(support[i].size()) - 1e-9));
+      reflectors.for_each_within(
+          p, rule.max_reflector_distance_m,
+          [&](const Eigen::Vector2d& a, const Eigen::Vector2d& b) {
+            if (ev.mirror_image_drives > 0) return;
+            const double side_road = side_of(a, b, *road);
+            // p behind the reflector, seen from the road.
+            if (side_of(a, b, p) * side_road >= 0.0) return;
+            const Eigen::Vector2d ab = b - a;
+            const double len = ab.norm();
+            const double t = (p - a).dot(ab) / (len * len);
+            if (t * len < -rule.segment_margin_m || (t - 1.0) * len > rule.segment_margin_m) return;
+            const Eigen::Vector2d foot = a + t * ab;
+            const Eigen::Vector2d image = 2.0 * foot - p;
+            if ((image - p).norm() < rule.min_image_offset_m) return;
+            if (side_of(a, b, image) * side_road <= 0.0) return;
+            const std::size_t drives = cands.drives_within(image, rule.image_radius_m);
+            if (static_cast<double>(drives) >= need) {
+              ev.mirror_image_drives = static_cast<std::uint32_t>(drives);
+            }
+          });
+      if (ev.mirror_image_drives > 0) ev.verdict = PointEvidence::Verdict::MirrorGhost;
+    }
+  }
+
   // ---------------------------------------------------------------- remove
   PointConsensusResult kept_result;
   kept_result.stats = points.stats;
@@ -355,6 +461,9 @@ PointFilterResult filter_point_landmarks(PointConsensusResult& points,
       case PointEvidence::Verdict::OutOfView:
         ++out.out_of_view;
         continue;
+      case PointEvidence::Verdict::MirrorGhost:
+        ++out.mirror_ghosts;
+        continue;
       case PointEvidence::Verdict::Kept:
         break;
     }
@@ -364,8 +473,8 @@ PointFilterResult filter_point_landmarks(PointConsensusResult& points,
     kept_result.support.push_back(std::move(points.support[i]));
     if (i < points.verdicts.size()) kept_result.verdicts.push_back(points.verdicts[i]);
   }
-  kept_result.stats.rejected_groups +=
-      out.line_peaks + out.surface_peaks + out.temporary + out.sliding + out.out_of_view;
+  kept_result.stats.rejected_groups += out.line_peaks + out.surface_peaks + out.temporary +
+                                       out.sliding + out.out_of_view + out.mirror_ghosts;
   points = std::move(kept_result);
   return out;
 }

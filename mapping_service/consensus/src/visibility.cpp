@@ -128,22 +128,35 @@ std::vector<std::size_t> VisibilityIndex::passes_in_view(const Eigen::Vector2d& 
   return out;
 }
 
-std::optional<Eigen::Vector2d> VisibilityIndex::nearest_path_direction(
-    const Eigen::Vector2d& p) const {
+const VisibilityIndex::Piece* VisibilityIndex::nearest_piece(const Eigen::Vector2d& p) const {
   const std::vector<Piece>* pieces = pieces_at(p);
-  if (pieces == nullptr) return std::nullopt;
+  if (pieces == nullptr) return nullptr;
   double best = std::numeric_limits<double>::infinity();
-  std::optional<Eigen::Vector2d> out;
+  const Piece* out = nullptr;
   for (const Piece& piece : *pieces) {
-    const Eigen::Vector2d ab = piece.b - piece.a;
-    if (ab.squaredNorm() <= 0.0) continue;
+    if ((piece.b - piece.a).squaredNorm() <= 0.0) continue;
     const double d = point_segment_distance(p, piece.a, piece.b);
     if (d <= range_m_[piece.pass] && d < best) {
       best = d;
-      out = ab.normalized();
+      out = &piece;
     }
   }
   return out;
+}
+
+std::optional<Eigen::Vector2d> VisibilityIndex::nearest_path_direction(
+    const Eigen::Vector2d& p) const {
+  const Piece* piece = nearest_piece(p);
+  if (piece == nullptr) return std::nullopt;
+  return (piece->b - piece->a).normalized();
+}
+
+std::optional<Eigen::Vector2d> VisibilityIndex::nearest_path_point(const Eigen::Vector2d& p) const {
+  const Piece* piece = nearest_piece(p);
+  if (piece == nullptr) return std::nullopt;
+  const Eigen::Vector2d ab = piece->b - piece->a;
+  const double t = std::clamp((p - piece->a).dot(ab) / ab.squaredNorm(), 0.0, 1.0);
+  return piece->a + t * ab;
 }
 
 std::vector<std::int64_t> VisibilityIndex::drives_in_view(const Eigen::Vector2d& p) const {

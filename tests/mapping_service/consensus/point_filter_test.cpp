@@ -461,5 +461,81 @@ TEST(PointFilter, ObjectsStandingElsewhereEachDriveSlideAlongTheRoadAndGo) {
   }
 }
 
+TEST(PointFilter, MirrorImagesBehindAReflectorGoRealObjectsBehindItStay) {
+  // Eight passes along y = 0; a wall (line landmark) along y = 5 from x = -30 to 30.
+  const int n = 8;
+  const VisibilityIndex view = passes_along_x(n);
+  std::vector<TaggedPointCandidate> in;
+  auto object = [&](Eigen::Vector2d p, int drives) {
+    for (int d = 1; d <= drives; ++d) {
+      add_candidate(in, d, p + Eigen::Vector2d(0.01 * (d % 3), -0.01 * (d % 2)));
+    }
+  };
+  object({10.0, 3.0}, 8);   // 0: a pole 2 m in front of the wall
+  object({10.0, 7.0}, 8);   // 1: its image 2 m behind the wall: removed
+  object({-10.0, 2.0}, 6);  // 2: another pole, seen by 6 passes
+  object({-10.0, 8.0}, 5);  // 3: its image (the pole's image is weaker): removed
+  object({20.0, 9.0}, 5);   // 4: behind the wall, nothing at its image (20, 1): kept
+  object({0.0, 9.0}, 5);    // 5: behind the wall; its image (0, 1) has 1 drive only: kept
+  object({0.0, 1.0}, 1);
+  object({40.0, 9.0}, 5);  // 6: beyond the wall's end: no reflector there, kept
+  object({40.0, 1.0}, 5);  // 7: (the object at 6's would-be image)
+  LineConsensusResult lines;
+  LineLandmark wall;
+  wall.polyline_m = {{-30.0, 5.0}, {30.0, 5.0}};
+  lines.landmarks.push_back(wall);
+  PointConsensusResult pc = consensus_points(in, {}, &view);
+  ASSERT_EQ(pc.landmarks.size(), 8U);  // the single-drive candidate at (0, 1) makes none
+  std::vector<Eigen::Vector2d> before;
+  for (const auto& l : pc.landmarks) before.push_back(l.position_m);
+  auto index_of = [&](const Eigen::Vector2d& p) {
+    for (std::size_t i = 0; i < before.size(); ++i) {
+      if ((before[i] - p).norm() < 0.1) return i;
+    }
+    ADD_FAILURE() << "no landmark at " << p.transpose();
+    return std::size_t{0};
+  };
+  const PointFilterResult f = filter_point_landmarks(pc, lines, in, &view);
+  using V = PointEvidence::Verdict;
+  EXPECT_EQ(f.mirror_ghosts, 2U);
+  EXPECT_EQ(f.evidence[index_of({10.0, 7.0})].verdict, V::MirrorGhost);
+  EXPECT_EQ(f.evidence[index_of({10.0, 7.0})].mirror_image_drives, 8U);
+  EXPECT_EQ(f.evidence[index_of({-10.0, 8.0})].verdict, V::MirrorGhost);
+  EXPECT_EQ(f.evidence[index_of({-10.0, 8.0})].mirror_image_drives, 6U);
+  for (const Eigen::Vector2d& p :
+       {Eigen::Vector2d(10.0, 3.0), Eigen::Vector2d(-10.0, 2.0), Eigen::Vector2d(20.0, 9.0),
+        Eigen::Vector2d(0.0, 9.0), Eigen::Vector2d(40.0, 9.0), Eigen::Vector2d(40.0, 1.0)}) {
+    EXPECT_EQ(f.evidence[index_of(p)].verdict, V::Kept) << p.transpose();
+    EXPECT_TRUE(has_landmark_near(pc, p)) << p.transpose();
+  }
+  EXPECT_EQ(pc.landmarks.size(), 6U);
+
+  // The same scene seen from beyond the wall (passes along y = 10): now the objects in
+  // front of the wall are the images' side, and only an object on the far side whose
+  // image is populated can go: (10, 3) has its image (10, 7) populated by 8 drives.
+  std::vector<DrivePass> far;
+  for (int d = 1; d <= n; ++d) {
+    DrivePass p;
+    p.drive = d;
+    p.view_range_m = 30.0;
+    p.start_time_s = 1000.0 * d;
+    p.path_m = {{-100.0, 10.0}, {100.0, 10.0}};
+    far.push_back(p);
+  }
+  const VisibilityIndex far_view(std::move(far));
+  PointConsensusResult again = consensus_points(in, {}, &far_view);
+  const PointFilterResult g = filter_point_landmarks(again, lines, in, &far_view);
+  EXPECT_EQ(g.evidence[index_of({10.0, 3.0})].verdict, V::MirrorGhost);
+  EXPECT_EQ(g.evidence[index_of({10.0, 7.0})].verdict, V::Kept);
+
+  // Off, or without passes: nothing is judged.
+  PointConsensusResult off_result = consensus_points(in, {}, &view);
+  PointFilterConfig off;
+  off.mirror_ghosts.enabled = false;
+  EXPECT_EQ(filter_point_landmarks(off_result, lines, in, &view, off).mirror_ghosts, 0U);
+  PointConsensusResult no_view = consensus_points(in, {}, nullptr);
+  EXPECT_EQ(filter_point_landmarks(no_view, lines, in, nullptr).mirror_ghosts, 0U);
+}
+
 }  // namespace
 }  // namespace polmap::mapping

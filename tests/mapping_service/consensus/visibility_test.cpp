@@ -101,6 +101,12 @@ TEST(Visibility, NearestPathDirectionIsThatOfTheNearestPassInView) {
   // Out of every pass's range: no direction.
   EXPECT_FALSE(view.nearest_path_direction({40, 30}).has_value());
   EXPECT_FALSE(view.nearest_path_direction({5000, 5000}).has_value());
+  // The nearest path point: the foot on the nearer leg, clamped to its ends.
+  EXPECT_TRUE(view.nearest_path_point({40, 3})->isApprox(Eigen::Vector2d(40, 0)));
+  EXPECT_TRUE(view.nearest_path_point({97, 60})->isApprox(Eigen::Vector2d(100, 60)));
+  EXPECT_TRUE(view.nearest_path_point({96, 2})->isApprox(Eigen::Vector2d(96, 0)));
+  EXPECT_TRUE(view.nearest_path_point({-5, 1})->isApprox(Eigen::Vector2d(0, 0)));
+  EXPECT_FALSE(view.nearest_path_point({40, 30}).has_value());
 }
 
 TEST(Visibility, LongDiagonalSegmentsAreIndexedAlongTheirLength) {

@@ -76,6 +76,8 @@ class VisibilityIndex {
   /// had p in view: the direction of the road there. nullopt when no pass had p in view.
   [[nodiscard]] std::optional<Eigen::Vector2d> nearest_path_direction(
       const Eigen::Vector2d& p) const;
+  /// The point of that nearest path piece closest to p: where the road is, seen from p.
+  [[nodiscard]] std::optional<Eigen::Vector2d> nearest_path_point(const Eigen::Vector2d& p) const;
   [[nodiscard]] std::size_t count_in_view(const Eigen::Vector2d& p) const {
     return passes_in_view(p).size();
   }
@@ -90,6 +92,8 @@ class VisibilityIndex {
   };
   /// The pieces indexed in p's cell (every piece within its pass's range of p is there).
   [[nodiscard]] const std::vector<Piece>* pieces_at(const Eigen::Vector2d& p) const;
+  /// The nearest non-degenerate piece among the passes that had p in view (nullptr: none).
+  [[nodiscard]] const Piece* nearest_piece(const Eigen::Vector2d& p) const;
   std::vector<DrivePass> passes_;
   std::vector<double> range_m_;
   double cell_m_;

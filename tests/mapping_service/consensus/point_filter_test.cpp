@@ -478,14 +478,18 @@ TEST(PointFilter, MirrorImagesBehindAReflectorGoRealObjectsBehindItStay) {
   object({20.0, 9.0}, 5);   // 4: behind the wall, nothing at its image (20, 1): kept
   object({0.0, 9.0}, 5);    // 5: behind the wall; its image (0, 1) has 1 drive only: kept
   object({0.0, 1.0}, 1);
-  object({40.0, 9.0}, 5);  // 6: beyond the wall's end: no reflector there, kept
-  object({40.0, 1.0}, 5);  // 7: (the object at 6's would-be image)
+  object({40.0, 9.0}, 5);   // 6: beyond the wall's end: no reflector there, kept
+  object({40.0, 1.0}, 5);   // 7: (the object at 6's would-be image)
+  object({70.0, 5.0}, 8);   // 8: a pole in front of a second wall at y = 20 ...
+  object({70.0, 35.0}, 8);  // 9: ... and its image, beyond every pass's 30 m view: removed
   LineConsensusResult lines;
   LineLandmark wall;
   wall.polyline_m = {{-30.0, 5.0}, {30.0, 5.0}};
   lines.landmarks.push_back(wall);
+  wall.polyline_m = {{60.0, 20.0}, {80.0, 20.0}};
+  lines.landmarks.push_back(wall);
   PointConsensusResult pc = consensus_points(in, {}, &view);
-  ASSERT_EQ(pc.landmarks.size(), 8U);  // the single-drive candidate at (0, 1) makes none
+  ASSERT_EQ(pc.landmarks.size(), 10U);  // the single-drive candidate at (0, 1) makes none
   std::vector<Eigen::Vector2d> before;
   for (const auto& l : pc.landmarks) before.push_back(l.position_m);
   auto index_of = [&](const Eigen::Vector2d& p) {
@@ -497,18 +501,21 @@ TEST(PointFilter, MirrorImagesBehindAReflectorGoRealObjectsBehindItStay) {
   };
   const PointFilterResult f = filter_point_landmarks(pc, lines, in, &view);
   using V = PointEvidence::Verdict;
-  EXPECT_EQ(f.mirror_ghosts, 2U);
+  EXPECT_EQ(f.mirror_ghosts, 3U);
+  EXPECT_EQ(f.evidence[index_of({70.0, 35.0})].verdict, V::MirrorGhost);  // seen from its
+  EXPECT_EQ(f.evidence[index_of({70.0, 35.0})].passes_in_view, 8U);       // supporters' paths
   EXPECT_EQ(f.evidence[index_of({10.0, 7.0})].verdict, V::MirrorGhost);
   EXPECT_EQ(f.evidence[index_of({10.0, 7.0})].mirror_image_drives, 8U);
   EXPECT_EQ(f.evidence[index_of({-10.0, 8.0})].verdict, V::MirrorGhost);
   EXPECT_EQ(f.evidence[index_of({-10.0, 8.0})].mirror_image_drives, 6U);
   for (const Eigen::Vector2d& p :
        {Eigen::Vector2d(10.0, 3.0), Eigen::Vector2d(-10.0, 2.0), Eigen::Vector2d(20.0, 9.0),
-        Eigen::Vector2d(0.0, 9.0), Eigen::Vector2d(40.0, 9.0), Eigen::Vector2d(40.0, 1.0)}) {
+        Eigen::Vector2d(0.0, 9.0), Eigen::Vector2d(40.0, 9.0), Eigen::Vector2d(40.0, 1.0),
+        Eigen::Vector2d(70.0, 5.0)}) {
     EXPECT_EQ(f.evidence[index_of(p)].verdict, V::Kept) << p.transpose();
     EXPECT_TRUE(has_landmark_near(pc, p)) << p.transpose();
   }
-  EXPECT_EQ(pc.landmarks.size(), 6U);
+  EXPECT_EQ(pc.landmarks.size(), 7U);
 
   // The same scene seen from beyond the wall (passes along y = 10): now the objects in
   // front of the wall are the images' side, and only an object on the far side whose

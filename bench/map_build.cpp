@@ -791,6 +791,8 @@ int main(int argc, char** argv) {
                  "mirror ghosts: candidates within this radius of the image");
   app.add_option("--mirror-image-drives", filter.mirror_ghosts.min_image_drives,
                  "mirror ghosts: distinct drives needed at the image");
+  app.add_option("--mirror-segment-margin-m", filter.mirror_ghosts.segment_margin_m,
+                 "mirror ghosts: the mirror point's foot may lie this far beyond a line's ends");
   std::string gnss = "rtk";
   int rtk_drives = 0;
   app.add_option("--gnss", gnss,

@@ -146,16 +146,21 @@ struct OutOfViewRule {
 /// the support rule keeps it like a real object. A point landmark on the far side of a line
 /// landmark from the passes that had it in view, whose mirror image across that line lies
 /// on the passes' side and holds candidates of enough drives, is such an image. Judged only
-/// with a VisibilityIndex (the passes' side). Measured on the simulated urban route under
-/// the realistic preset (multipath ghosts on; 16 drives): 51 of the 82 false point
-/// landmarks are such images and no true one (README "Fleet map production").
+/// with a VisibilityIndex (the passes' side; a landmark beyond every pass's modelled view is
+/// judged from its supporting drives' paths). Measured on the simulated urban route under
+/// the realistic preset (multipath ghosts on; 16 drives): point precision 0.73 -> 0.91, no
+/// true landmark removed (README "Fleet map production").
 struct MirrorGhostRule {
   bool enabled = true;
   /// Reflectors examined: segments of line landmarks within this distance of the landmark
   /// (an image lies as far behind the reflector as its object stands in front of it).
   double max_reflector_distance_m = 20.0;
-  /// The mirror point's foot must lie on the segment, or this far beyond its ends.
-  double segment_margin_m = 1.0;
+  /// The mirror point's foot must lie on the segment, or this far beyond its ends: a line
+  /// landmark is the part of a wall the fleet mapped, and the wall (the reflector) often
+  /// goes on past it (occluded ends). Simulated urban route, realistic preset, point
+  /// precision with 16 drives (seed 1 / seed 2): 0.88 / 0.93 at 1 m, 0.91 at 5 m,
+  /// 0.91 / 0.96 at 10 m, 0.92 at 20 m; recall the same at every margin.
+  double segment_margin_m = 10.0;
   /// An image is at least this far from its object (a point on the line is not one).
   double min_image_offset_m = 1.0;
   /// The object at the image: candidates within this radius of it ...

@@ -3,8 +3,8 @@
 /// Precision of fleet point consensus: point landmarks that are not permanent point
 /// objects, judged after point and line consensus (consensus.hpp).
 ///
-/// Two kinds of repeatable but wrong point landmarks survive the support rule in a
-/// realistic fleet (README "Fleet map production"):
+/// Repeatable but wrong point landmarks survive the support rule in a realistic fleet
+/// (README "Fleet map production"):
 ///  - line peaks: peaks of a curb or facade return that the front end finds in most
 ///    passes. They lie on a consensus LINE landmark and their candidates scatter
 ///    ALONG the line (where on the line the peak falls depends on the viewing
@@ -20,6 +20,12 @@
 ///    the number of passes, so precision holds as the fleet grows; with very few
 ///    passes only perfect co-presence (two or more shared misses, no discordant pass)
 ///    counts.
+///  - mirror images: multipath off a wall, facade or guardrail shows a strong object a
+///    second time behind the reflector, at the same place in every pass. A landmark
+///    behind a line landmark whose mirror image across it holds candidates of enough
+///    drives on the road's side is removed (MirrorGhostRule).
+/// Surface peaks, objects that stand elsewhere each drive (sliding) and returns beyond
+/// the modelled view have rules of their own below.
 ///
 /// Pure core: values in, values out; positions in the consensus frame (metres).
 ///

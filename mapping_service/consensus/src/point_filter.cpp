@@ -28,64 +28,30 @@ struct NearestLine {
   std::size_t line = 0;  ///< index of the line landmark
 };
 
-/// Line segments in a uniform grid for nearest-segment queries within a radius.
-class SegmentGrid {
+/// Indices in a uniform grid of square cells; a query visits the 3x3 cells around a point,
+/// so it finds everything within one cell size of it.
+class CellIndex {
  public:
-  SegmentGrid(const LineConsensusResult& lines, double cell) : cell_(cell) {
-    for (std::size_t li = 0; li < lines.landmarks.size(); ++li) {
-      const auto& l = lines.landmarks[li];
-      for (std::size_t i = 0; i + 1 < l.polyline_m.size(); ++i) {
-        const Eigen::Vector2d a = l.polyline_m[i], b = l.polyline_m[i + 1];
-        const std::size_t s = segs_.size();
-        segs_.push_back({a, b});
-        seg_line_.push_back(li);
-        const auto [x0, y0] = key(a.cwiseMin(b));
-        const auto [x1, y1] = key(a.cwiseMax(b));
-        for (auto x = x0; x <= x1; ++x) {
-          for (auto y = y0; y <= y1; ++y) cells_[pack(x, y)].push_back(s);
-        }
-      }
+  explicit CellIndex(double cell) : cell_(cell) {}
+  /// Index i in every cell the box [lo, hi] touches.
+  void add(const Eigen::Vector2d& lo, const Eigen::Vector2d& hi, std::size_t i) {
+    const auto [x0, y0] = key(lo);
+    const auto [x1, y1] = key(hi);
+    for (auto x = x0; x <= x1; ++x) {
+      for (auto y = y0; y <= y1; ++y) cells_[pack(x, y)].push_back(i);
     }
   }
-  /// Calls fn(a, b) for every segment within `radius` of p (radius <= the cell size).
+  /// fn(i) for every index in the 3x3 cells around p (an index in two cells comes twice).
   template <class Fn>
-  void for_each_within(const Eigen::Vector2d& p, double radius, Fn&& fn) const {
-    const auto [cx, cy] = key(p);
-    std::vector<std::size_t> seen;
-    for (std::int64_t dx = -1; dx <= 1; ++dx) {
-      for (std::int64_t dy = -1; dy <= 1; ++dy) {
-        const auto it = cells_.find(pack(cx + dx, cy + dy));
-        if (it == cells_.end()) continue;
-        for (std::size_t s : it->second) {
-          const auto& [a, b] = segs_[s];
-          if ((b - a).squaredNorm() <= 0.0 || point_segment_distance(p, a, b) > radius) continue;
-          if (std::find(seen.begin(), seen.end(), s) != seen.end()) continue;  // in two cells
-          seen.push_back(s);
-          fn(a, b);
-        }
-      }
-    }
-  }
-  /// Nearest segment within one cell of p (cell >= the query radius).
-  [[nodiscard]] NearestLine nearest(const Eigen::Vector2d& p) const {
-    NearestLine out;
+  void for_each_near(const Eigen::Vector2d& p, Fn&& fn) const {
     const auto [cx, cy] = key(p);
     for (std::int64_t dx = -1; dx <= 1; ++dx) {
       for (std::int64_t dy = -1; dy <= 1; ++dy) {
         const auto it = cells_.find(pack(cx + dx, cy + dy));
         if (it == cells_.end()) continue;
-        for (std::size_t s : it->second) {
-          const auto& [a, b] = segs_[s];
-          const double d = point_segment_distance(p, a, b);
-          if (d < out.distance_m && (b - a).norm() > 0.0) {
-            out.distance_m = d;
-            out.direction = (b - a).normalized();
-            out.line = seg_line_[s];
-          }
-        }
+        for (std::size_t i : it->second) fn(i);
       }
     }
-    return out;
   }
 
  private:
@@ -97,9 +63,54 @@ class SegmentGrid {
     return (static_cast<std::uint64_t>(x) << 32U) ^ (static_cast<std::uint64_t>(y) & 0xffffffffU);
   }
   double cell_;
+  std::unordered_map<std::uint64_t, std::vector<std::size_t>> cells_;
+};
+
+/// Line segments in a uniform grid for nearest-segment queries within a radius.
+class SegmentGrid {
+ public:
+  SegmentGrid(const LineConsensusResult& lines, double cell) : index_(cell) {
+    for (std::size_t li = 0; li < lines.landmarks.size(); ++li) {
+      const auto& l = lines.landmarks[li];
+      for (std::size_t i = 0; i + 1 < l.polyline_m.size(); ++i) {
+        const Eigen::Vector2d a = l.polyline_m[i], b = l.polyline_m[i + 1];
+        index_.add(a.cwiseMin(b), a.cwiseMax(b), segs_.size());
+        segs_.push_back({a, b});
+        seg_line_.push_back(li);
+      }
+    }
+  }
+  /// Calls fn(a, b) for every segment within `radius` of p (radius <= the cell size).
+  template <class Fn>
+  void for_each_within(const Eigen::Vector2d& p, double radius, Fn&& fn) const {
+    std::vector<std::size_t> seen;
+    index_.for_each_near(p, [&](std::size_t s) {
+      const auto& [a, b] = segs_[s];
+      if ((b - a).squaredNorm() <= 0.0 || point_segment_distance(p, a, b) > radius) return;
+      if (std::find(seen.begin(), seen.end(), s) != seen.end()) return;  // in two cells
+      seen.push_back(s);
+      fn(a, b);
+    });
+  }
+  /// Nearest segment within one cell of p (cell >= the query radius).
+  [[nodiscard]] NearestLine nearest(const Eigen::Vector2d& p) const {
+    NearestLine out;
+    index_.for_each_near(p, [&](std::size_t s) {
+      const auto& [a, b] = segs_[s];
+      const double d = point_segment_distance(p, a, b);
+      if (d < out.distance_m && (b - a).norm() > 0.0) {
+        out.distance_m = d;
+        out.direction = (b - a).normalized();
+        out.line = seg_line_[s];
+      }
+    });
+    return out;
+  }
+
+ private:
+  CellIndex index_;
   std::vector<std::pair<Eigen::Vector2d, Eigen::Vector2d>> segs_;
   std::vector<std::size_t> seg_line_;
-  std::unordered_map<std::uint64_t, std::vector<std::size_t>> cells_;
 };
 
 /// RMS spread of a landmark's candidates along unit direction u and across it, about p
@@ -134,42 +145,25 @@ AlongAcross spread_along(std::span<const std::int64_t> support_ids,
 class CandidateGrid {
  public:
   CandidateGrid(std::span<const TaggedPointCandidate> candidates, double cell)
-      : cands_(candidates), cell_(cell) {
+      : cands_(candidates), index_(cell) {
     for (std::size_t i = 0; i < candidates.size(); ++i) {
-      cells_[key(candidates[i].candidate.position_m)].push_back(i);
+      const Eigen::Vector2d& p = candidates[i].candidate.position_m;
+      index_.add(p, p, i);
     }
   }
   /// Distinct drives with a candidate within radius (<= the cell size) of p.
   [[nodiscard]] std::size_t drives_within(const Eigen::Vector2d& p, double radius) const {
-    const auto cx = static_cast<std::int64_t>(std::floor(p.x() / cell_));
-    const auto cy = static_cast<std::int64_t>(std::floor(p.y() / cell_));
     std::vector<std::int64_t> drives;
-    for (std::int64_t dx = -1; dx <= 1; ++dx) {
-      for (std::int64_t dy = -1; dy <= 1; ++dy) {
-        const auto it = cells_.find(pack(cx + dx, cy + dy));
-        if (it == cells_.end()) continue;
-        for (std::size_t i : it->second) {
-          if ((cands_[i].candidate.position_m - p).norm() <= radius) {
-            drives.push_back(cands_[i].drive);
-          }
-        }
-      }
-    }
+    index_.for_each_near(p, [&](std::size_t i) {
+      if ((cands_[i].candidate.position_m - p).norm() <= radius) drives.push_back(cands_[i].drive);
+    });
     std::sort(drives.begin(), drives.end());
     return static_cast<std::size_t>(std::unique(drives.begin(), drives.end()) - drives.begin());
   }
 
  private:
-  [[nodiscard]] std::uint64_t key(const Eigen::Vector2d& p) const {
-    return pack(static_cast<std::int64_t>(std::floor(p.x() / cell_)),
-                static_cast<std::int64_t>(std::floor(p.y() / cell_)));
-  }
-  static std::uint64_t pack(std::int64_t x, std::int64_t y) {
-    return (static_cast<std::uint64_t>(x) << 32U) ^ (static_cast<std::uint64_t>(y) & 0xffffffffU);
-  }
   std::span<const TaggedPointCandidate> cands_;
-  double cell_;
-  std::unordered_map<std::uint64_t, std::vector<std::size_t>> cells_;
+  CellIndex index_;
 };
 
 /// The point of the supporting drives' paths nearest to p (a landmark beyond the modelled

@@ -47,7 +47,8 @@ TEST(BuildRequestJson, AWorkerReadsBackEverySettingTheVersionRecorded) {
   const nlohmann::json recorded = detail::request_json(unusual_request(), cfg);
   const MapBuildRequest back = detail::request_from_json(recorded);
   EXPECT_EQ(detail::request_json(back, cfg), recorded)
-      << "recorded: " << recorded.dump() << "\nread back: " << detail::request_json(back, cfg).dump();
+      << "recorded: " << recorded.dump()
+      << "\nread back: " << detail::request_json(back, cfg).dump();
   // And the defaults stay the defaults.
   const nlohmann::json plain = detail::request_json(MapBuildRequest{}, cfg);
   EXPECT_EQ(detail::request_json(detail::request_from_json(plain), cfg), plain);

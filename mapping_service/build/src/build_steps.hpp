@@ -4,6 +4,7 @@
 // compute landmarks, changes and tiles the same way. Definitions in map_builder.cpp.
 #include <functional>
 #include <map>
+#include <nlohmann/json.hpp>
 #include <optional>
 #include <unordered_map>
 #include <vector>
@@ -11,6 +12,29 @@
 #include "gridmap_build.hpp"
 #include "polmap/mapping_service/map_builder.hpp"
 #include "polmap/tiles/local_frame.hpp"
+
+namespace polmap::mapping {
+
+// The point filter's rules in a version's parameters (request_json writes them,
+// request_from_json reads them back for build workers): one key per field, a missing key
+// keeps the default.
+NLOHMANN_DEFINE_TYPE_NON_INTRUSIVE_WITH_DEFAULT(LinePeakRule, enabled, max_line_distance_m,
+                                                min_along_across_ratio, min_along_spread_m)
+NLOHMANN_DEFINE_TYPE_NON_INTRUSIVE_WITH_DEFAULT(SurfacePeakRule, enabled, max_line_distance_m,
+                                                min_vertex_distance_m, min_detection_share)
+NLOHMANN_DEFINE_TYPE_NON_INTRUSIVE_WITH_DEFAULT(CoPresenceRule, enabled, neighbour_radius_m,
+                                                max_p_value, min_phi, min_passes_for_test,
+                                                min_shared_misses, max_detection_share)
+NLOHMANN_DEFINE_TYPE_NON_INTRUSIVE_WITH_DEFAULT(SlidingRule, enabled, min_support_drives,
+                                                min_along_spread_m, min_along_across_ratio,
+                                                max_detection_share)
+NLOHMANN_DEFINE_TYPE_NON_INTRUSIVE_WITH_DEFAULT(OutOfViewRule, enabled, min_view_fraction)
+NLOHMANN_DEFINE_TYPE_NON_INTRUSIVE_WITH_DEFAULT(MirrorGhostRule, enabled, max_reflector_distance_m,
+                                                segment_margin_m, min_image_offset_m,
+                                                image_radius_m, min_image_drives,
+                                                min_image_support_share)
+
+}  // namespace polmap::mapping
 
 namespace polmap::mapping::detail {
 

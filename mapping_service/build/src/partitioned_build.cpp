@@ -221,57 +221,12 @@ MapBuildRequest request_from_json(const nlohmann::json& p) {
       // The point filter's rules as the version recorded them (request_json), so that
       // every worker filters as the one-process build would.
       PointFilterConfig& f = r.points.filter;
-      auto rule = [&](const char* name, auto&& read) {
-        if (j.contains(name)) read(j[name]);
-      };
-      rule("line_peaks", [&](const nlohmann::json& k) {
-        auto& x = f.line_peaks;
-        x.enabled = k.value("enabled", x.enabled);
-        x.max_line_distance_m = k.value("max_line_distance_m", x.max_line_distance_m);
-        x.min_along_across_ratio = k.value("min_along_across_ratio", x.min_along_across_ratio);
-        x.min_along_spread_m = k.value("min_along_spread_m", x.min_along_spread_m);
-      });
-      rule("surface_peaks", [&](const nlohmann::json& k) {
-        auto& x = f.surface_peaks;
-        x.enabled = k.value("enabled", x.enabled);
-        x.max_line_distance_m = k.value("max_line_distance_m", x.max_line_distance_m);
-        x.min_vertex_distance_m = k.value("min_vertex_distance_m", x.min_vertex_distance_m);
-        x.min_detection_share = k.value("min_detection_share", x.min_detection_share);
-      });
-      rule("co_presence", [&](const nlohmann::json& k) {
-        auto& x = f.co_presence;
-        x.enabled = k.value("enabled", x.enabled);
-        x.neighbour_radius_m = k.value("neighbour_radius_m", x.neighbour_radius_m);
-        x.max_p_value = k.value("max_p_value", x.max_p_value);
-        x.min_phi = k.value("min_phi", x.min_phi);
-        x.min_passes_for_test = k.value("min_passes_for_test", x.min_passes_for_test);
-        x.min_shared_misses = k.value("min_shared_misses", x.min_shared_misses);
-        x.max_detection_share = k.value("max_detection_share", x.max_detection_share);
-      });
-      rule("sliding", [&](const nlohmann::json& k) {
-        auto& x = f.sliding;
-        x.enabled = k.value("enabled", x.enabled);
-        x.min_support_drives = k.value("min_support_drives", x.min_support_drives);
-        x.min_along_spread_m = k.value("min_along_spread_m", x.min_along_spread_m);
-        x.min_along_across_ratio = k.value("min_along_across_ratio", x.min_along_across_ratio);
-        x.max_detection_share = k.value("max_detection_share", x.max_detection_share);
-      });
-      rule("out_of_view", [&](const nlohmann::json& k) {
-        auto& x = f.out_of_view;
-        x.enabled = k.value("enabled", x.enabled);
-        x.min_view_fraction = k.value("min_view_fraction", x.min_view_fraction);
-      });
-      rule("mirror_ghosts", [&](const nlohmann::json& k) {
-        auto& x = f.mirror_ghosts;
-        x.enabled = k.value("enabled", x.enabled);
-        x.max_reflector_distance_m =
-            k.value("max_reflector_distance_m", x.max_reflector_distance_m);
-        x.segment_margin_m = k.value("segment_margin_m", x.segment_margin_m);
-        x.min_image_offset_m = k.value("min_image_offset_m", x.min_image_offset_m);
-        x.image_radius_m = k.value("image_radius_m", x.image_radius_m);
-        x.min_image_drives = k.value("min_image_drives", x.min_image_drives);
-        x.min_image_support_share = k.value("min_image_support_share", x.min_image_support_share);
-      });
+      f.line_peaks = j.value("line_peaks", f.line_peaks);
+      f.surface_peaks = j.value("surface_peaks", f.surface_peaks);
+      f.co_presence = j.value("co_presence", f.co_presence);
+      f.sliding = j.value("sliding", f.sliding);
+      f.out_of_view = j.value("out_of_view", f.out_of_view);
+      f.mirror_ghosts = j.value("mirror_ghosts", f.mirror_ghosts);
     }
     if (p.contains("lines")) {
       const auto& j = p["lines"];

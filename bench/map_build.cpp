@@ -30,6 +30,9 @@
 //                    --sliding-min-support N] (point_filter.hpp SlidingRule)
 //                   [--mirror-ghosts 0|1 --mirror-image-radius-m R --mirror-image-drives N]
 //                   (point_filter.hpp MirrorGhostRule)
+//                   [--line-overhead 0|1 --range-streaks 0|1 --streak-share S
+//                    --streak-max-length-m L --streak-angle-deg A --line-out-of-view 0|1]
+//                   (line_filter.hpp)
 //                   [--explain] [--dump DIR] (simulator: what false landmarks are near, and
 //                   each 200 m window's own fit to truth; the map, line candidates and world
 //                   objects as CSV for offline analysis)
@@ -793,6 +796,24 @@ int main(int argc, char** argv) {
                  "mirror ghosts: distinct drives needed at the image");
   app.add_option("--mirror-segment-margin-m", filter.mirror_ghosts.segment_margin_m,
                  "mirror ghosts: the mirror point's foot may lie this far beyond a line's ends");
+  LineFilterConfig line_filter;
+  int line_overhead = 1, range_streaks = 1, line_out_of_view = 1;
+  double streak_angle_deg = line_filter.range_streaks.max_line_of_sight_angle_rad * 180.0 / M_PI;
+  app.add_option("--line-overhead", line_overhead,
+                 "remove line landmarks the supporting drives drove through (overhead "
+                 "structures: 1, default) or not (0)");
+  app.add_option("--range-streaks", range_streaks,
+                 "short lines along the line of sight need nearly every pass (1, default) or "
+                 "are judged like other lines (0)");
+  app.add_option("--streak-share", line_filter.range_streaks.min_detection_share,
+                 "range streaks: the share of the passes in view they must exceed");
+  app.add_option("--streak-max-length-m", line_filter.range_streaks.max_length_m,
+                 "range streaks: judged up to this length");
+  app.add_option("--streak-angle-deg", streak_angle_deg,
+                 "range streaks: judged within this angle of the line of sight");
+  app.add_option("--line-out-of-view", line_out_of_view,
+                 "judge lines beyond most supporters' modelled view against every pass as "
+                 "close (1, default) or not (0)");
   std::string gnss = "rtk";
   int rtk_drives = 0;
   app.add_option("--gnss", gnss,
@@ -962,6 +983,11 @@ int main(int argc, char** argv) {
     req.points.filter.sliding.enabled = sliding != 0;
     req.points.filter.mirror_ghosts = filter.mirror_ghosts;
     req.points.filter.mirror_ghosts.enabled = mirror_ghosts != 0;
+    req.lines.filter = line_filter;
+    req.lines.filter.overhead.enabled = line_overhead != 0;
+    req.lines.filter.range_streaks.enabled = range_streaks != 0;
+    req.lines.filter.range_streaks.max_line_of_sight_angle_rad = streak_angle_deg * M_PI / 180.0;
+    req.lines.filter.out_of_view.enabled = line_out_of_view != 0;
     MapBuilderConfig builder_cfg;
     builder_cfg.alignment = alignment;
     const MapBuilder builder(builder_cfg);
@@ -971,6 +997,19 @@ int main(int argc, char** argv) {
       return 1;
     }
     const Accuracy acc = accuracy(store, r.version, source->truth(), source->frame(), radius_m);
+    std::printf(
+        "  filters (%d drives): points removed: %lld line peaks, %lld surface peaks, %lld "
+        "temporary, %lld sliding, %lld out of view, %lld mirror images; lines removed: %lld "
+        "overhead, %lld range streaks, %lld out of view\n",
+        n, static_cast<long long>(r.stats.point_line_peaks),
+        static_cast<long long>(r.stats.point_surface_peaks),
+        static_cast<long long>(r.stats.point_temporary),
+        static_cast<long long>(r.stats.point_sliding),
+        static_cast<long long>(r.stats.point_out_of_view),
+        static_cast<long long>(r.stats.point_mirror_ghosts),
+        static_cast<long long>(r.stats.line_overhead),
+        static_cast<long long>(r.stats.line_range_streaks),
+        static_cast<long long>(r.stats.line_out_of_view));
     if (const auto* sim_source = dynamic_cast<const SimSource*>(source.get())) {
       // The map's geometry against truth (absolute offset; relative after a rigid fit per
       // 200 m window) and what the drive alignment did.

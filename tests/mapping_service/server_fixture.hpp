@@ -38,8 +38,10 @@ inline std::vector<Eigen::Vector2d> true_points() {
   for (int i = 0; i < 12; ++i) p.emplace_back(-8.0 + 2.2 * i, 10.0 - 1.5 * i);
   return p;
 }
+/// (Clear of the drives' path, which passes (0, 11.2): a line the drives drove through is
+/// an overhead structure to the line filter.)
 inline std::vector<std::pair<Eigen::Vector2d, Eigen::Vector2d>> true_lines() {
-  return {{{-8.0, -5.0}, {8.0, -5.0}}, {{0.0, 0.0}, {0.0, 12.0}}, {{10.0, -8.0}, {18.0, -8.0}}};
+  return {{{-8.0, -5.0}, {8.0, -5.0}}, {{0.0, 0.0}, {0.0, 10.0}}, {{10.0, -8.0}, {18.0, -8.0}}};
 }
 
 /// A package directory of drive `drive_id` that sees the true landmarks with

@@ -15,7 +15,7 @@
 
 namespace polmap::mapping {
 
-// The point filter's rules in a version's parameters (request_json writes them,
+// The point and line filters' rules in a version's parameters (request_json writes them,
 // request_from_json reads them back for build workers): one key per field, a missing key
 // keeps the default.
 NLOHMANN_DEFINE_TYPE_NON_INTRUSIVE_WITH_DEFAULT(LinePeakRule, enabled, max_line_distance_m,
@@ -33,6 +33,12 @@ NLOHMANN_DEFINE_TYPE_NON_INTRUSIVE_WITH_DEFAULT(MirrorGhostRule, enabled, max_re
                                                 segment_margin_m, min_image_offset_m,
                                                 image_radius_m, min_image_drives,
                                                 min_image_support_share)
+NLOHMANN_DEFINE_TYPE_NON_INTRUSIVE_WITH_DEFAULT(OverheadRule, enabled, min_crossing_share,
+                                                min_crossing_drives)
+NLOHMANN_DEFINE_TYPE_NON_INTRUSIVE_WITH_DEFAULT(RangeStreakRule, enabled, max_length_m,
+                                                max_line_of_sight_angle_rad, reflector_margin_m,
+                                                min_overhang_m, min_detection_share)
+NLOHMANN_DEFINE_TYPE_NON_INTRUSIVE_WITH_DEFAULT(OutOfViewLineRule, enabled, min_view_fraction)
 
 }  // namespace polmap::mapping
 

@@ -88,7 +88,10 @@ nlohmann::json request_json(const MapBuildRequest& r, const MapBuilderConfig& c)
                 {"max_projection_distance_m", r.lines.max_projection_distance_m},
                 {"support", support_json(r.lines.support)},
                 {"polyline_max_error_m", r.lines.polyline_max_error_m},
-                {"snap_max_gap_m", r.lines.snap_max_gap_m}};
+                {"snap_max_gap_m", r.lines.snap_max_gap_m},
+                {"overhead", r.lines.filter.overhead},
+                {"range_streaks", r.lines.filter.range_streaks},
+                {"out_of_view", r.lines.filter.out_of_view}};
   j["visibility"] = {{"default_view_range_m", r.visibility.default_view_range_m},
                      {"min_view_range_m", r.visibility.min_view_range_m},
                      {"max_view_range_m", r.visibility.max_view_range_m},
@@ -173,6 +176,9 @@ nlohmann::json to_json(const MapBuildStats& s) {
   j["point_sliding"] = s.point_sliding;
   j["point_out_of_view"] = s.point_out_of_view;
   j["point_mirror_ghosts"] = s.point_mirror_ghosts;
+  j["line_overhead"] = s.line_overhead;
+  j["line_range_streaks"] = s.line_range_streaks;
+  j["line_out_of_view"] = s.line_out_of_view;
   j["tiles_total"] = s.tiles_total;
   j["tiles_written"] = s.tiles_written;
   j["tiles_reused"] = s.tiles_reused;
@@ -877,7 +883,11 @@ MapBuildResult MapBuilder::run(MapStore& store, std::int64_t version, const MapB
     // ---------------------------------------------------------------- consensus
     stage("consensus", 0.1);
     PointConsensusResult pc = consensus_points(tp, req.points, &view);
-    const LineConsensusResult lc = consensus_lines(tl, req.lines, &view);
+    LineConsensusResult lc = consensus_lines(tl, req.lines, &view);
+    const LineFilterResult lf = filter_line_landmarks(lc, tl, &view, req.lines.filter);
+    st.line_overhead = static_cast<std::int64_t>(lf.overhead);
+    st.line_range_streaks = static_cast<std::int64_t>(lf.range_streaks);
+    st.line_out_of_view = static_cast<std::int64_t>(lf.out_of_view);
     const PointFilterResult pf = filter_point_landmarks(pc, lc, tp, &view, req.points.filter);
     st.point_line_peaks = static_cast<std::int64_t>(pf.line_peaks);
     st.point_surface_peaks = static_cast<std::int64_t>(pf.surface_peaks);

@@ -237,6 +237,9 @@ MapBuildRequest request_from_json(const nlohmann::json& p) {
       l.polyline_max_error_m = j.value("polyline_max_error_m", l.polyline_max_error_m);
       l.snap_max_gap_m = j.value("snap_max_gap_m", l.snap_max_gap_m);
       if (j.contains("support")) support(j["support"], l.support);
+      l.filter.overhead = j.value("overhead", l.filter.overhead);
+      l.filter.range_streaks = j.value("range_streaks", l.filter.range_streaks);
+      l.filter.out_of_view = j.value("out_of_view", l.filter.out_of_view);
     }
     if (p.contains("visibility")) {
       const auto& j = p["visibility"];
@@ -291,7 +294,8 @@ BuildJobOutput region_job(const MapStore& store, std::int64_t version, const Map
   std::erase_if(passes, [&](const DrivePass& p) { return p.drive > max_row; });
   const VisibilityIndex view(std::move(passes), req.visibility);
   PointConsensusResult pc = consensus_points(tp, req.points, &view);
-  const LineConsensusResult lc = consensus_lines(tl, req.lines, &view);
+  LineConsensusResult lc = consensus_lines(tl, req.lines, &view);
+  (void)filter_line_landmarks(lc, tl, &view, req.lines.filter);
   (void)filter_point_landmarks(pc, lc, tp, &view, req.points.filter);
 
   std::unordered_map<std::int64_t, SupportVerdict> verdicts;

@@ -166,31 +166,6 @@ class CandidateGrid {
   CellIndex index_;
 };
 
-/// The point of the supporting drives' paths nearest to p (a landmark beyond the modelled
-/// view of every pass: its supporters saw it from there). nullopt: no such path.
-std::optional<Eigen::Vector2d> nearest_supporter_path_point(const Eigen::Vector2d& p,
-                                                            std::span<const std::int64_t> drives,
-                                                            const VisibilityIndex& view) {
-  std::optional<Eigen::Vector2d> best;
-  double best_d = std::numeric_limits<double>::infinity();
-  for (const DrivePass& pass : view.passes()) {
-    if (!std::binary_search(drives.begin(), drives.end(), pass.drive)) continue;
-    for (std::size_t k = 0; k < pass.path_m.size(); ++k) {
-      const Eigen::Vector2d a = pass.path_m[k];
-      const Eigen::Vector2d b = k + 1 < pass.path_m.size() ? pass.path_m[k + 1] : a;
-      const Eigen::Vector2d ab = b - a;
-      const double l2 = ab.squaredNorm();
-      const double t = l2 > 0.0 ? std::clamp((p - a).dot(ab) / l2, 0.0, 1.0) : 0.0;
-      const Eigen::Vector2d q = a + t * ab;
-      if ((q - p).norm() < best_d) {
-        best_d = (q - p).norm();
-        best = q;
-      }
-    }
-  }
-  return best;
-}
-
 /// Which side of the line through a and b p lies on (sign of the cross product).
 double side_of(const Eigen::Vector2d& a, const Eigen::Vector2d& b, const Eigen::Vector2d& p) {
   const Eigen::Vector2d ab = b - a, ap = p - a;
@@ -430,7 +405,7 @@ PointFilterResult filter_point_landmarks(PointConsensusResult& points,
       if (ev.verdict != PointEvidence::Verdict::Kept) continue;
       const Eigen::Vector2d p = points.landmarks[i].position_m;
       std::optional<Eigen::Vector2d> road = view->nearest_path_point(p);
-      if (!road) road = nearest_supporter_path_point(p, support[i], *view);
+      if (!road) road = view->nearest_path_point(p, support[i]);
       if (!road) continue;
       const double need = std::max(
           static_cast<double>(rule.min_image_drives),

@@ -167,4 +167,52 @@ std::vector<std::int64_t> VisibilityIndex::drives_in_view(const Eigen::Vector2d&
   return out;
 }
 
+std::optional<Eigen::Vector2d> VisibilityIndex::nearest_path_point(
+    const Eigen::Vector2d& p, std::span<const std::int64_t> drives) const {
+  std::optional<Eigen::Vector2d> best;
+  double best_d = std::numeric_limits<double>::infinity();
+  for (const DrivePass& pass : passes_) {
+    if (!std::binary_search(drives.begin(), drives.end(), pass.drive)) continue;
+    for (std::size_t k = 0; k < pass.path_m.size(); ++k) {
+      const Eigen::Vector2d a = pass.path_m[k];
+      const Eigen::Vector2d b = k + 1 < pass.path_m.size() ? pass.path_m[k + 1] : a;
+      const Eigen::Vector2d ab = b - a;
+      const double l2 = ab.squaredNorm();
+      const double t = l2 > 0.0 ? std::clamp((p - a).dot(ab) / l2, 0.0, 1.0) : 0.0;
+      const Eigen::Vector2d q = a + t * ab;
+      if ((q - p).norm() < best_d) {
+        best_d = (q - p).norm();
+        best = q;
+      }
+    }
+  }
+  return best;
+}
+
+std::vector<std::int64_t> VisibilityIndex::drives_crossing(const Eigen::Vector2d& a,
+                                                           const Eigen::Vector2d& b) const {
+  // A piece that crosses [a, b] is within its pass's range of the crossing point, so it is
+  // indexed in that point's cell, one of the cells the segment's box touches.
+  std::vector<std::size_t> hit;
+  const Eigen::Vector2d lo = a.cwiseMin(b), hi = a.cwiseMax(b);
+  const auto cx0 = static_cast<std::int64_t>(std::floor(lo.x() / cell_m_));
+  const auto cx1 = static_cast<std::int64_t>(std::floor(hi.x() / cell_m_));
+  const auto cy0 = static_cast<std::int64_t>(std::floor(lo.y() / cell_m_));
+  const auto cy1 = static_cast<std::int64_t>(std::floor(hi.y() / cell_m_));
+  for (auto cx = cx0; cx <= cx1; ++cx) {
+    for (auto cy = cy0; cy <= cy1; ++cy) {
+      const auto it = cells_.find(cell_key(cx, cy));
+      if (it == cells_.end()) continue;
+      for (const Piece& piece : it->second) {
+        if (segments_intersect(a, b, piece.a, piece.b)) hit.push_back(piece.pass);
+      }
+    }
+  }
+  std::vector<std::int64_t> out;
+  for (std::size_t i : hit) out.push_back(passes_[i].drive);
+  std::sort(out.begin(), out.end());
+  out.erase(std::unique(out.begin(), out.end()), out.end());
+  return out;
+}
+
 }  // namespace polmap::mapping

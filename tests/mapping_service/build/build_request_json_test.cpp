@@ -33,6 +33,9 @@ MapBuildRequest unusual_request() {
   r.lines.polyline_max_error_m = 0.09;
   r.lines.snap_max_gap_m = 1.7;
   r.lines.support.min_drives = 4;
+  r.lines.filter.overhead = {false, 0.7, 3};
+  r.lines.filter.range_streaks = {false, 12.0, 0.4, 1.5, 0.5, 0.8};
+  r.lines.filter.out_of_view = {false, 0.6};
   r.visibility.default_view_range_m = 33.0;
   r.visibility.min_view_range_m = 6.0;
   r.visibility.max_view_range_m = 77.0;

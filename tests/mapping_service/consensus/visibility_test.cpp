@@ -109,6 +109,72 @@ TEST(Visibility, NearestPathDirectionIsThatOfTheNearestPassInView) {
   EXPECT_FALSE(view.nearest_path_point({40, 30}).has_value());
 }
 
+TEST(Visibility, NearestPathPointOfGivenDrivesIgnoresTheirRange) {
+  // Ranges of 10 m; the point is 30 m from pass 1 and 50 m from pass 2: out of view of both.
+  const VisibilityIndex view(
+      {straight_pass(1, {0, 0}, {100, 0}, 10.0), straight_pass(2, {0, -20}, {100, -20}, 10.0)});
+  EXPECT_FALSE(view.nearest_path_point({40, 30}).has_value());
+  const std::vector<std::int64_t> both{1, 2}, second{2}, none{9};
+  EXPECT_TRUE(view.nearest_path_point({40, 30}, both)->isApprox(Eigen::Vector2d(40, 0)));
+  EXPECT_TRUE(view.nearest_path_point({40, 30}, second)->isApprox(Eigen::Vector2d(40, -20)));
+  EXPECT_TRUE(view.nearest_path_point({140, 30}, second)->isApprox(Eigen::Vector2d(100, -20)));
+  EXPECT_FALSE(view.nearest_path_point({40, 30}, none).has_value());
+}
+
+/// Reference: the segments cross or touch iff the parametric solution lies in [0, 1]² (or,
+/// parallel, they are collinear and overlap).
+bool crosses_reference(const Eigen::Vector2d& a, const Eigen::Vector2d& b, const Eigen::Vector2d& c,
+                       const Eigen::Vector2d& d) {
+  const Eigen::Vector2d r = b - a, s = d - c;
+  const double den = r.x() * s.y() - r.y() * s.x();
+  const Eigen::Vector2d q = c - a;
+  if (std::abs(den) < 1e-12) {
+    if (std::abs(q.x() * r.y() - q.y() * r.x()) > 1e-9) return false;  // parallel apart
+    const double t0 = q.dot(r) / r.squaredNorm(), t1 = (d - a).dot(r) / r.squaredNorm();
+    return std::max(t0, t1) >= 0.0 && std::min(t0, t1) <= 1.0;
+  }
+  const double t = (q.x() * s.y() - q.y() * s.x()) / den;
+  const double u = (q.x() * r.y() - q.y() * r.x()) / den;
+  return t >= 0.0 && t <= 1.0 && u >= 0.0 && u <= 1.0;
+}
+
+TEST(Visibility, DrivesCrossingMatchesBruteForceOverRandomZigzags) {
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> pos(0.0, 200.0), off(-40.0, 40.0);
+  std::vector<DrivePass> passes;
+  for (int d = 1; d <= 12; ++d) {
+    DrivePass p;
+    p.drive = d;
+    p.view_range_m = 5.0 + d;
+    // Zigzags with vertices 20 m apart and tens of metres off the chord: the index's 0.5 m
+    // simplification keeps every vertex.
+    for (int k = 0; k <= 10; ++k) p.path_m.emplace_back(20.0 * k, 100.0 + off(rng));
+    passes.push_back(p);
+  }
+  const VisibilityIndex view(passes);
+  int crossings = 0;
+  for (int q = 0; q < 400; ++q) {
+    const Eigen::Vector2d a(pos(rng), pos(rng));
+    const Eigen::Vector2d b = a + Eigen::Vector2d(off(rng), off(rng)) * (q % 2 == 0 ? 1.0 : 0.2);
+    std::vector<std::int64_t> expected;
+    for (const DrivePass& p : passes) {
+      for (std::size_t k = 0; k + 1 < p.path_m.size(); ++k) {
+        if (crosses_reference(a, b, p.path_m[k], p.path_m[k + 1])) {
+          expected.push_back(p.drive);
+          break;
+        }
+      }
+    }
+    crossings += static_cast<int>(expected.size());
+    EXPECT_EQ(view.drives_crossing(a, b), expected) << q;
+  }
+  EXPECT_GT(crossings, 100);  // the sample exercises both answers
+  // Touching counts: a segment ending on a path vertex.
+  const auto touching =
+      view.drives_crossing(passes[0].path_m[3] + Eigen::Vector2d(0, 7), passes[0].path_m[3]);
+  EXPECT_NE(std::find(touching.begin(), touching.end(), 1), touching.end());
+}
+
 TEST(Visibility, LongDiagonalSegmentsAreIndexedAlongTheirLength) {
   DrivePass p;
   p.drive = 1;

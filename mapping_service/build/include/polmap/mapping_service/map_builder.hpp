@@ -165,13 +165,17 @@ struct MapBuildStats {
   std::int64_t point_sliding = 0;
   std::int64_t point_out_of_view = 0;
   std::int64_t point_mirror_ghosts = 0;  ///< point landmarks removed as mirror images
-  std::int64_t tiles_total = 0;          ///< localization tiles of the new version
-  std::int64_t tiles_written = 0;        ///< newly encoded (content changed or new)
-  std::int64_t tiles_reused = 0;         ///< byte-identical to the previous version's tile
-  std::int64_t tiles_removed = 0;        ///< tiles of the previous version now empty
-  std::int64_t tile_bytes = 0;           ///< total payload bytes of the version's tiles
-  std::int64_t gridmap_tiles = 0;        ///< amplitude raster tiles of the new version
-  std::int64_t gridmap_drives = 0;       ///< drives whose gridmap is in the merged sums
+  /// Line landmarks removed by filter_line_landmarks (line_filter.hpp).
+  std::int64_t line_overhead = 0;
+  std::int64_t line_range_streaks = 0;
+  std::int64_t line_out_of_view = 0;
+  std::int64_t tiles_total = 0;     ///< localization tiles of the new version
+  std::int64_t tiles_written = 0;   ///< newly encoded (content changed or new)
+  std::int64_t tiles_reused = 0;    ///< byte-identical to the previous version's tile
+  std::int64_t tiles_removed = 0;   ///< tiles of the previous version now empty
+  std::int64_t tile_bytes = 0;      ///< total payload bytes of the version's tiles
+  std::int64_t gridmap_tiles = 0;   ///< amplitude raster tiles of the new version
+  std::int64_t gridmap_drives = 0;  ///< drives whose gridmap is in the merged sums
   /// Merged gridmap upkeep: drives added to / taken out of / re-placed in the sums (their
   /// alignment moved), sum tiles rewritten, min-zoom regions rendered and raster tiles
   /// copied unchanged from the previous version.

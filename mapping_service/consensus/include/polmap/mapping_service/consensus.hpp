@@ -28,6 +28,7 @@
 #include <span>
 #include <vector>
 
+#include "polmap/mapping_service/line_filter.hpp"
 #include "polmap/mapping_service/point_filter.hpp"
 #include "polmap/mapping_service/visibility.hpp"
 #include "polmap/schema/landmark.hpp"
@@ -156,6 +157,10 @@ struct LineConsensusConfig {
   /// Snapping only between end edges meeting at more than this angle (nearly
   /// parallel edges have ill-conditioned intersections; 20°).
   double snap_min_angle_rad = 0.35;
+  /// Overhead structures, range streaks and out-of-view returns removed after line
+  /// consensus (line_filter.hpp; applied by the map builder through filter_line_landmarks,
+  /// before the point filter, not by consensus_lines).
+  LineFilterConfig filter;
 };
 
 /// Point consensus outcome. landmarks[i] is supported by candidates support[i].

@@ -19,6 +19,23 @@ inline double point_segment_distance(const Eigen::Vector2d& p, const Eigen::Vect
   return (p - (a + t * ab)).norm();
 }
 
+/// Whether the segments [a, b] and [c, d] have a point in common (touching counts; collinear
+/// overlapping segments count).
+inline bool segments_intersect(const Eigen::Vector2d& a, const Eigen::Vector2d& b,
+                               const Eigen::Vector2d& c, const Eigen::Vector2d& d) {
+  auto cross = [](const Eigen::Vector2d& o, const Eigen::Vector2d& p, const Eigen::Vector2d& q) {
+    return (p.x() - o.x()) * (q.y() - o.y()) - (p.y() - o.y()) * (q.x() - o.x());
+  };
+  const double d1 = cross(c, d, a), d2 = cross(c, d, b), d3 = cross(a, b, c), d4 = cross(a, b, d);
+  if (((d1 > 0 && d2 < 0) || (d1 < 0 && d2 > 0)) && ((d3 > 0 && d4 < 0) || (d3 < 0 && d4 > 0)))
+    return true;
+  // Touching or collinear: an end point on the other segment.
+  return (d1 == 0 && point_segment_distance(a, c, d) == 0.0) ||
+         (d2 == 0 && point_segment_distance(b, c, d) == 0.0) ||
+         (d3 == 0 && point_segment_distance(c, a, b) == 0.0) ||
+         (d4 == 0 && point_segment_distance(d, a, b) == 0.0);
+}
+
 /// Distance from p to a polyline (one vertex: to it; none: +infinity).
 inline double point_polyline_distance(const Eigen::Vector2d& p,
                                       std::span<const Eigen::Vector2d> polyline) {

@@ -78,6 +78,15 @@ class VisibilityIndex {
       const Eigen::Vector2d& p) const;
   /// The point of that nearest path piece closest to p: where the road is, seen from p.
   [[nodiscard]] std::optional<Eigen::Vector2d> nearest_path_point(const Eigen::Vector2d& p) const;
+  /// The point of the paths of `drives` (ascending) nearest to p, whether or not they had p in
+  /// view (a return beyond every pass's modelled view: its supporters saw it from there).
+  /// nullopt: none of them has a path here.
+  [[nodiscard]] std::optional<Eigen::Vector2d> nearest_path_point(
+      const Eigen::Vector2d& p, std::span<const std::int64_t> drives) const;
+  /// Drives (ascending, distinct) whose (simplified) path crosses or touches the segment
+  /// [a, b].
+  [[nodiscard]] std::vector<std::int64_t> drives_crossing(const Eigen::Vector2d& a,
+                                                          const Eigen::Vector2d& b) const;
   [[nodiscard]] std::size_t count_in_view(const Eigen::Vector2d& p) const {
     return passes_in_view(p).size();
   }

@@ -37,6 +37,7 @@
 #include "polmap/eval/trajectory_eval.hpp"
 #include "polmap/localization_client/tile_fetcher.hpp"
 #include "polmap/schema/recording_io.hpp"
+#include "polmap/sim/realism.hpp"
 #include "polmap/sim/drive_simulator.hpp"
 #include "polmap/sim/world.hpp"
 #include "polmap/tiles/local_frame.hpp"
@@ -175,6 +176,11 @@ int main(int argc, char** argv) {
   app.add_option("--init-error-deg", init_error_deg, "initial yaw error");
   app.add_option("--recording", recording, "replay a recording instead of simulating");
   app.add_option("--server", server, "mapping service URL (with --recording)");
+  std::string realism = "ideal";
+  app.add_option("--realism", realism,
+                 "simulated drive's error sources: ideal (default) | realistic "
+                 "(tools/sim/README.md)")
+      ->check(CLI::IsMember({"ideal", "realistic"}));
   app.add_flag("--json", json, "one JSON document");
   app.add_flag("-v,--verbose", verbose, "one line per extraction");
   CLI11_PARSE(app, argc, argv);
@@ -206,6 +212,7 @@ int main(int argc, char** argv) {
     sim::SimConfig scfg;
     scfg.seed = seed;
     scfg.duration_s = duration_s;
+    scfg.realism = sim::realism_preset(realism);
     world = sim::load_world(world_name, length_m, seed, scfg);
     auto sim_source = std::make_unique<sim::DriveSimulator>(world, scfg, drive);
     simulator = sim_source.get();
@@ -309,6 +316,7 @@ int main(int argc, char** argv) {
   j["world"] = world_name;
   j["length_m"] = length_m;
   j["seed"] = seed;
+  j["realism"] = recording.empty() ? realism : "recording";
   j["drive"] = drive;
   j["map"] = map_kind;
   j["frames"] = frames;

@@ -19,6 +19,7 @@
 
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/radar/drive_processor.hpp"
+#include "polmap/sim/realism.hpp"
 #include "polmap/sim/drive_simulator.hpp"
 #include "polmap/sim/world.hpp"
 #include "polmap/util/file.hpp"
@@ -128,11 +129,16 @@ int main(int argc, char** argv) {
   app.add_option("--zero-step-noise", codec.zero_step_noise,
                  "compact codec: step of the factor entries at zero (noise sigmas)")
       ->capture_default_str();
+  std::string realism = "ideal";
+  app.add_option("--realism", realism,
+                 "simulated drive's error sources: ideal (default) | realistic "
+                 "(tools/sim/README.md)")
+      ->check(CLI::IsMember({"ideal", "realistic"}));
   CLI11_PARSE(app, argc, argv);
 
   const util::ScopedTempDir tmp = util::ScopedTempDir::create("bench_package_size");
-  std::printf("world %s, %.0f m, seed %llu\n", world_name.c_str(), length_m,
-              static_cast<unsigned long long>(seed));
+  std::printf("world %s, %.0f m, seed %llu, realism %s\n", world_name.c_str(), length_m,
+              static_cast<unsigned long long>(seed), realism.c_str());
   std::printf("%-6s %8s %11s %11s %13s %9s %9s %9s %9s %8s %9s %10s\n", "level", "km", "v1 MB/km",
               "v2 MB/km", "lm-only kB/km", "pts rec", "line rec", "pts exact", "line exact",
               "strong", "max dB", "max phase");
@@ -145,6 +151,7 @@ int main(int argc, char** argv) {
     }
     sim::SimConfig scfg;
     scfg.seed = seed;
+    scfg.realism = sim::realism_preset(realism);
     auto world = sim::load_world(world_name, length_m, seed, scfg);
     sim::DriveSimulator source(world, scfg, 0);
     radar::DriveProcessingConfig pcfg;

@@ -37,8 +37,8 @@
 #include "polmap/eval/trajectory_eval.hpp"
 #include "polmap/localization_client/tile_fetcher.hpp"
 #include "polmap/schema/recording_io.hpp"
-#include "polmap/sim/realism.hpp"
 #include "polmap/sim/drive_simulator.hpp"
+#include "polmap/sim/realism.hpp"
 #include "polmap/sim/world.hpp"
 #include "polmap/tiles/local_frame.hpp"
 

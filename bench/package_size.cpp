@@ -19,8 +19,8 @@
 
 #include "polmap/mapping_service/drive_package_io.hpp"
 #include "polmap/radar/drive_processor.hpp"
-#include "polmap/sim/realism.hpp"
 #include "polmap/sim/drive_simulator.hpp"
+#include "polmap/sim/realism.hpp"
 #include "polmap/sim/world.hpp"
 #include "polmap/util/file.hpp"
 #include "polmap/util/text.hpp"

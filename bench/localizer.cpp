@@ -176,9 +176,9 @@ int main(int argc, char** argv) {
   app.add_option("--init-error-deg", init_error_deg, "initial yaw error");
   app.add_option("--recording", recording, "replay a recording instead of simulating");
   app.add_option("--server", server, "mapping service URL (with --recording)");
-  std::string realism = "ideal";
+  std::string realism = "realistic";
   app.add_option("--realism", realism,
-                 "simulated drive's error sources: ideal (default) | realistic "
+                 "simulated drive's error sources: realistic (default) | ideal "
                  "(tools/sim/README.md)")
       ->check(CLI::IsMember({"ideal", "realistic"}));
   app.add_flag("--json", json, "one JSON document");

@@ -887,10 +887,10 @@ int main(int argc, char** argv) {
   app.add_option("--align-odometry", alignment.use_odometry,
                  "with --gnss consumer: odometry factors between nodes (1, default) or "
                  "smoothness priors only (0)");
-  std::string realism = "ideal";
+  std::string realism = "realistic";
   app.add_option("--realism", realism,
-                 "simulated drives' error sources: ideal (default) | realistic (wheel scale, "
-                 "gyro bias, radar noise, mounts, ...: tools/sim/README.md)")
+                 "simulated drives' error sources: realistic (default: wheel scale, gyro bias, "
+                 "radar noise, mounts, multipath, ...: tools/sim/README.md) | ideal")
       ->check(CLI::IsMember({"ideal", "realistic"}));
   std::string realism_sources;
   app.add_option("--realism-sources", realism_sources,

@@ -129,9 +129,9 @@ int main(int argc, char** argv) {
   app.add_option("--zero-step-noise", codec.zero_step_noise,
                  "compact codec: step of the factor entries at zero (noise sigmas)")
       ->capture_default_str();
-  std::string realism = "ideal";
+  std::string realism = "realistic";
   app.add_option("--realism", realism,
-                 "simulated drive's error sources: ideal (default) | realistic "
+                 "simulated drive's error sources: realistic (default) | ideal "
                  "(tools/sim/README.md)")
       ->check(CLI::IsMember({"ideal", "realistic"}));
   CLI11_PARSE(app, argc, argv);

@@ -28,7 +28,7 @@ fail() { echo "backup_restore_test: FAIL: $*" >&2; exit 1; }
 
 KEY=backup-test-operator-key
 echo "operator $KEY" > "$W/keys"
-"$POLMAP" simulate --world urban --length-m 200 --drives 2 --seed 3 --out "$W/sim" >/dev/null
+"$POLMAP" simulate --realism ideal --world urban --length-m 200 --drives 2 --seed 3 --out "$W/sim" >/dev/null
 for i in 0 1; do
   "$POLMAP" process --recording "$W/sim/drive_$i.pmrec" --out "$W/drive_$i.tar" --tar >/dev/null
 done

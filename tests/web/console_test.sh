@@ -16,7 +16,7 @@ cleanup() { [ -z "$SERVER_PID" ] || kill "$SERVER_PID" 2>/dev/null || true; rm -
 trap cleanup EXIT
 # A world made from a Lanelet2 HD map, so the stored HD-map comparison means something.
 HDMAP=data/hdmaps/autoware_road_shoulder.osm
-"$POLMAP" simulate --world "$HDMAP" --length-m 300 --drives 3 --seed 5 --out "$work/sim" >/dev/null
+"$POLMAP" simulate --realism ideal --world "$HDMAP" --length-m 300 --drives 3 --seed 5 --out "$work/sim" >/dev/null
 for i in 0 1 2; do
   "$POLMAP" process --recording "$work/sim/drive_$i.pmrec" --out "$work/pkg_$i" >/dev/null
 done

@@ -1,6 +1,6 @@
 // `polmap simulate --world urban|industrial|rural|FILE.osm|FILE.xodr [--length-m L]
 //  [--drives N] [--seed S] [--max-speed-mps V] [--duration-s T] [--cube]
-//  [--cube-seconds T] [--realism ideal|realistic] [--realism-sources LIST]
+//  [--cube-seconds T] [--realism realistic|ideal] [--realism-sources LIST]
 //  [--gnss rtk|consumer [--rtk-drives N]] --out DIR
 //  [--dry-run]`: simulates N passes over one world and
 // writes DIR/drive_<k>.pmrec plus the evaluation truth DIR/truth/world.json and
@@ -37,7 +37,7 @@ struct SimulateOptions {
   double cube_seconds = 0.5;
   std::string out;
   bool dry_run = false;
-  std::string realism = "ideal";
+  std::string realism = "realistic";
   std::string realism_sources;
   std::string gnss = "rtk";
   int rtk_drives = 0;
@@ -194,8 +194,8 @@ void setup(CLI::App& app) {
   cmd->add_option("--cube-seconds", opts->cube_seconds, "length of the cube sequence")
       ->capture_default_str();
   cmd->add_option("--realism", opts->realism,
-                  "ideal (exact sensors, as before) | realistic (the error sources of "
-                  "tools/sim/README.md \"Realism\" all on)")
+                  "realistic (the error sources of tools/sim/README.md \"Realism\" all on) | "
+                  "ideal (exact sensors: unit tests, and comparisons with earlier figures)")
       ->check(CLI::IsMember({"ideal", "realistic"}))
       ->capture_default_str();
   cmd->add_option("--realism-sources", opts->realism_sources,

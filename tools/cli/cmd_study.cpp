@@ -33,7 +33,7 @@ struct StudyOptions {
   std::string seeds = "1";
   std::string pol = "full";
   std::string out = "study-out";
-  std::string realism = "ideal";
+  std::string realism = "realistic";
   double slip_gradient_deg = -1.0;
   bool no_common_yaw = false;
   std::string realism_sources;
@@ -194,7 +194,7 @@ void setup(CLI::App& app) {
   cmd->add_flag("--json", opts->json, "print the results as JSON");
   cmd->add_option(
          "--realism", opts->realism,
-         "simulator error sources: ideal (exact sensors) or realistic (tools/sim/README.md)")
+         "simulator error sources: realistic (tools/sim/README.md) or ideal (exact sensors)")
       ->capture_default_str();
   cmd->add_option("--realism-sources", opts->realism_sources,
                   "with --realism realistic: keep only these sources on (comma separated)");

@@ -181,6 +181,10 @@ int main(int argc, char** argv) {
                  "simulated drive's error sources: realistic (default) | ideal "
                  "(tools/sim/README.md)")
       ->check(CLI::IsMember({"ideal", "realistic"}));
+  double slip_gradient_deg = -1.0;
+  app.add_option("--slip-gradient-deg", slip_gradient_deg,
+                 "the localizer's vehicle side-slip gradient, deg per m/s^2 (default: the "
+                 "simulated vehicle's, 0 without slip or for a recording)");
   app.add_flag("--json", json, "one JSON document");
   app.add_flag("-v,--verbose", verbose, "one line per extraction");
   CLI11_PARSE(app, argc, argv);
@@ -229,6 +233,15 @@ int main(int argc, char** argv) {
   };
 
   loc::LocalizerConfig cfg;
+  // The side-slip gradient is a vehicle parameter the localizer is given, like its mounts (the
+  // simulated vehicle's nominal value; polmap study does the same).
+  {
+    const sim::SlipRealism slip = sim::realism_preset(realism).slip;
+    const double deg = slip_gradient_deg >= 0.0 ? slip_gradient_deg
+                       : recording.empty() && slip.enabled ? slip.side_slip_gradient_deg_per_mps2
+                                                           : 0.0;
+    cfg.egomotion.side_slip_gradient_rad_per_mps2 = deg * std::numbers::pi / 180.0;
+  }
   loc::Localizer localizer(cfg, source->header().sensors, *tiles_src);
 
   // Initial pose: exact start + deliberate error.
@@ -317,6 +330,7 @@ int main(int argc, char** argv) {
   j["length_m"] = length_m;
   j["seed"] = seed;
   j["realism"] = recording.empty() ? realism : "recording";
+  j["slip_gradient_deg"] = cfg.egomotion.side_slip_gradient_rad_per_mps2 * 180.0 / std::numbers::pi;
   j["drive"] = drive;
   j["map"] = map_kind;
   j["frames"] = frames;

@@ -237,7 +237,7 @@ int main(int argc, char** argv) {
   // simulated vehicle's nominal value; polmap study does the same).
   {
     const sim::SlipRealism slip = sim::realism_preset(realism).slip;
-    const double deg = slip_gradient_deg >= 0.0 ? slip_gradient_deg
+    const double deg = slip_gradient_deg >= 0.0            ? slip_gradient_deg
                        : recording.empty() && slip.enabled ? slip.side_slip_gradient_deg_per_mps2
                                                            : 0.0;
     cfg.egomotion.side_slip_gradient_rad_per_mps2 = deg * std::numbers::pi / 180.0;

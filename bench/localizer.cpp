@@ -184,7 +184,7 @@ int main(int argc, char** argv) {
   double slip_gradient_deg = -1.0;
   app.add_option("--slip-gradient-deg", slip_gradient_deg,
                  "the localizer's vehicle side-slip gradient, deg per m/s^2 (default: the "
-                 "simulated vehicle's, 0 without slip or for a recording)");
+                 "recording header's, else 0)");
   app.add_flag("--json", json, "one JSON document");
   app.add_flag("-v,--verbose", verbose, "one line per extraction");
   CLI11_PARSE(app, argc, argv);
@@ -234,14 +234,10 @@ int main(int argc, char** argv) {
 
   loc::LocalizerConfig cfg;
   // The side-slip gradient is a vehicle parameter the localizer is given, like its mounts (the
-  // simulated vehicle's nominal value; polmap study does the same).
-  {
-    const sim::SlipRealism slip = sim::realism_preset(realism).slip;
-    const double deg = slip_gradient_deg >= 0.0            ? slip_gradient_deg
-                       : recording.empty() && slip.enabled ? slip.side_slip_gradient_deg_per_mps2
-                                                           : 0.0;
-    cfg.egomotion.side_slip_gradient_rad_per_mps2 = deg * std::numbers::pi / 180.0;
-  }
+  // recording declares it; the simulator writes the simulated car's nominal value).
+  cfg.egomotion.side_slip_gradient_rad_per_mps2 =
+      slip_gradient_deg >= 0.0 ? slip_gradient_deg * std::numbers::pi / 180.0
+                               : source->header().side_slip_gradient_rad_per_mps2.value_or(0.0);
   loc::Localizer localizer(cfg, source->header().sensors, *tiles_src);
 
   // Initial pose: exact start + deliberate error.

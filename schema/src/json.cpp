@@ -237,6 +237,10 @@ void to_json(json& j, const RecordingHeader& v) {
            {"start_time_s", v.start_time_s},
            {"has_cube", v.has_cube},
            {"producer", v.producer}};
+  // Written only when known, so recordings without it stay byte for byte as before.
+  if (v.side_slip_gradient_rad_per_mps2) {
+    j["side_slip_gradient_rad_per_mps2"] = *v.side_slip_gradient_rad_per_mps2;
+  }
 }
 void from_json(const json& j, RecordingHeader& v) {
   require_object(j, "RecordingHeader");
@@ -249,6 +253,16 @@ void from_json(const json& j, RecordingHeader& v) {
   field(j, "start_time_s", v.start_time_s);
   field(j, "has_cube", v.has_cube);
   field(j, "producer", v.producer);
+  if (j.contains("side_slip_gradient_rad_per_mps2")) {
+    double g = 0.0;
+    field(j, "side_slip_gradient_rad_per_mps2", g);
+    if (!std::isfinite(g) || g < 0.0 || g > kMaxSideSlipGradientRadPerMps2) {
+      throw JsonFieldError(
+          "side_slip_gradient_rad_per_mps2",
+          "must be in [0, " + std::to_string(kMaxSideSlipGradientRadPerMps2) + "] rad per m/s^2");
+    }
+    v.side_slip_gradient_rad_per_mps2 = g;
+  }
 }
 
 }  // namespace polmap

@@ -579,6 +579,38 @@ TEST(RecordingIo, WriterRejectsWhatTheFormatCannotRepresent) {
   EXPECT_TRUE(read_all(dir / "w.pmrec").empty());
 }
 
+TEST(RecordingIo, TheVehiclesSideSlipGradientIsAnOptionalHeaderKey) {
+  TempDir dir;
+  // Declared: read back exactly.
+  RecordingHeader h = make_header();
+  h.side_slip_gradient_rad_per_mps2 = 0.0040142572795869575;
+  { RecordingWriter w(dir / "slip.pmrec", h); }
+  EXPECT_EQ(RecordingReader(dir / "slip.pmrec").header().side_slip_gradient_rad_per_mps2,
+            h.side_slip_gradient_rad_per_mps2);
+  // Not declared: absent from the header JSON (older recordings' bytes), read as nullopt.
+  const RecordingHeader plain = make_header();
+  EXPECT_FALSE(nlohmann::json(plain).contains("side_slip_gradient_rad_per_mps2"));
+  { RecordingWriter w(dir / "plain.pmrec", plain); }
+  EXPECT_FALSE(RecordingReader(dir / "plain.pmrec").header().side_slip_gradient_rad_per_mps2);
+  // Out of range or not a number: the header is rejected, naming the key.
+  for (const nlohmann::json& bad : {nlohmann::json(-0.001), nlohmann::json(0.06),
+                                    nlohmann::json("0.004"), nlohmann::json(nullptr)}) {
+    nlohmann::json j = plain;
+    j["side_slip_gradient_rad_per_mps2"] = bad;
+    try {
+      (void)j.get<RecordingHeader>();
+      ADD_FAILURE() << bad.dump();
+    } catch (const JsonFieldError& e) {
+      EXPECT_EQ(e.path(), "side_slip_gradient_rad_per_mps2") << e.what();
+    }
+  }
+  // The writer does not write what the reader would reject.
+  RecordingHeader wrong = make_header();
+  wrong.side_slip_gradient_rad_per_mps2 = 0.5;
+  EXPECT_THROW(RecordingWriter(dir / "wrong.pmrec", wrong), ValidationError);
+  EXPECT_FALSE(fs::exists(dir / "wrong.pmrec"));
+}
+
 TEST(RecordingIo, StreamsManyRecordsOneAtATime) {
   // A long drive: the writer and reader handle it record by record (the
   // reader's state is the header plus one record; here we check the stream

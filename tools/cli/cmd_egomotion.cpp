@@ -34,7 +34,7 @@ struct EgoMotionOptions {
   bool json = false;
   std::string calibrate = "on";
   radar::EgoMotionConfig cfg;
-  double slip_gradient_deg = 0.0;
+  double slip_gradient_deg = -1.0;
   radar::MountCalibrationConfig calib;
 };
 
@@ -90,7 +90,15 @@ void run(const EgoMotionOptions& o) {
       throw ValidationError(o.recording + ": recording header lists no sensors");
     }
     origin = reader.header().origin;
-    runner.emplace(reader.header().sensors, o.cfg, radar::OdometryConfig{}, o.calib);
+    // A vehicle parameter: the recording's declared value unless --slip-gradient-deg is given.
+    radar::EgoMotionConfig cfg = o.cfg;
+    radar::MountCalibrationConfig calib = o.calib;
+    if (o.slip_gradient_deg < 0.0) {
+      cfg.side_slip_gradient_rad_per_mps2 =
+          reader.header().side_slip_gradient_rad_per_mps2.value_or(0.0);
+      calib.side_slip_gradient_rad_per_mps2 = cfg.side_slip_gradient_rad_per_mps2;
+    }
+    runner.emplace(reader.header().sensors, cfg, radar::OdometryConfig{}, calib);
     Progress progress("egomotion " + o.recording, static_cast<double>(reader.file_size()));
     while (auto rec = reader.next()) {
       progress.update(static_cast<double>(reader.offset()));
@@ -307,9 +315,9 @@ void setup(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--seed", opts->cfg.seed, "RANSAC seed")->capture_default_str();
   cmd->add_option("--slip-gradient-deg", opts->slip_gradient_deg,
-                  "the vehicle's rear-axle side-slip gradient, deg per m/s^2 (0: kinematic "
-                  "model; the simulator's realistic preset: 0.23)")
-      ->capture_default_str();
+                  "the vehicle's rear-axle side-slip gradient, deg per m/s^2 (default: the "
+                  "recording header's, else 0 = kinematic model; the simulator's realistic "
+                  "preset: 0.23)");
   cmd->add_option("--calibrate", opts->calibrate,
                   "online mount calibration (relative mount yaws, time offsets): on = estimate "
                   "and apply once converged, off = estimate and report only")
@@ -323,7 +331,8 @@ void setup(CLI::App& app) {
       throw ValidationError("egomotion: give --recording R or --detections CSV --mounts JSON");
     }
     opts->calib.calibrate_mounts = opts->calibrate == "on";
-    opts->cfg.side_slip_gradient_rad_per_mps2 = opts->slip_gradient_deg * std::numbers::pi / 180.0;
+    opts->cfg.side_slip_gradient_rad_per_mps2 =
+        std::max(0.0, opts->slip_gradient_deg) * std::numbers::pi / 180.0;
     opts->calib.side_slip_gradient_rad_per_mps2 = opts->cfg.side_slip_gradient_rad_per_mps2;
     // The calibrator's noise model follows the estimator's.
     opts->calib.vr_sigma_mps = opts->cfg.vr_sigma_mps;

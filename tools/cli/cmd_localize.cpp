@@ -77,7 +77,7 @@ struct LocalizeOptions {
   std::string api_key;
   std::string truth;
   bool report_errors_from_recording = false;
-  double slip_gradient_deg = 0.0;
+  double slip_gradient_deg = -1.0;
   std::string label;
 };
 
@@ -212,7 +212,10 @@ void run(const LocalizeOptions& o) {
 
   loc::LocalizerConfig cfg;
   cfg.gridmap.level = *level;
-  cfg.egomotion.side_slip_gradient_rad_per_mps2 = o.slip_gradient_deg * kDeg;
+  // A vehicle parameter: the recording's declared value unless overridden.
+  cfg.egomotion.side_slip_gradient_rad_per_mps2 =
+      o.slip_gradient_deg >= 0.0 ? o.slip_gradient_deg * kDeg
+                                 : header.side_slip_gradient_rad_per_mps2.value_or(0.0);
   loc::Localizer localizer(cfg, header.sensors, fetcher);
   localizer.set_initial_pose(initial, sigma_xy_m, sigma_yaw_rad);
 
@@ -404,9 +407,9 @@ void setup(CLI::App& app) {
   cmd->add_option("--map-version", o->map_version, "pin a map version (default: current)");
   cmd->add_flag("--json", o->json, "print a JSON summary");
   cmd->add_option("--slip-gradient-deg", o->slip_gradient_deg,
-                  "the vehicle's rear-axle side-slip gradient, deg per m/s^2 (0: kinematic "
-                  "model; a passenger car: about 0.2-0.3)")
-      ->capture_default_str();
+                  "the vehicle's rear-axle side-slip gradient, deg per m/s^2 (default: the "
+                  "recording header's, else 0 = kinematic model; a passenger car: about "
+                  "0.2-0.3)");
   auto* rep = cmd->add_option("--report", o->report,
                               "after the run, send a run report to this mapping service "
                               "(POST /v1/runs; schema/localization_run.md)");

@@ -273,6 +273,19 @@ TEST(Realism, MountYawErrorShowsAsAzimuthBiasAndTheHeaderKeepsTheNominalMount) {
   for (const auto& [id, b] : azimuth_bias_deg(ideal, &truth)) EXPECT_NEAR(b, 0.0, 0.08);
 }
 
+TEST(Realism, TheRecordingDeclaresTheSimulatedCarsSlipGradientOnlyWithSlip) {
+  SimConfig cfg = test::quiet_config();
+  cfg.duration_s = 1.0;
+  const auto world = load_world("urban", 300.0, 1, cfg);
+  EXPECT_FALSE(DriveSimulator(world, cfg, 0).header().side_slip_gradient_rad_per_mps2);
+  cfg.realism = realism_preset("realistic");
+  const auto g = DriveSimulator(world, cfg, 0).header().side_slip_gradient_rad_per_mps2;
+  ASSERT_TRUE(g.has_value());
+  EXPECT_DOUBLE_EQ(*g, cfg.realism.slip.side_slip_gradient_deg_per_mps2 * kDeg);
+  cfg.realism.slip.enabled = false;
+  EXPECT_FALSE(DriveSimulator(world, cfg, 0).header().side_slip_gradient_rad_per_mps2);
+}
+
 TEST(Realism, MountErrorsHaveTheConfiguredSpreadAndChangeLittleBetweenDrives) {
   MountRealism mr;
   mr.enabled = true;

@@ -535,6 +535,13 @@ DriveSimulator::DriveSimulator(std::shared_ptr<const World> world, const SimConf
   header_.has_cube = cfg.cube;
   header_.producer = "polmap simulate 0.1.0 seed=" + std::to_string(cfg.seed) +
                      " drive=" + std::to_string(drive_index);
+  // The simulated car's side-slip gradient, a vehicle parameter its recording declares (the
+  // nominal value, like the nominal mounts); absent without slip, so ideal recordings stay
+  // byte for byte as before.
+  if (cfg.realism.slip.enabled) {
+    header_.side_slip_gradient_rad_per_mps2 =
+        cfg.realism.slip.side_slip_gradient_deg_per_mps2 * std::numbers::pi / 180.0;
+  }
   sensor_order_.resize(cfg.sensors.size());
   std::iota(sensor_order_.begin(), sensor_order_.end(), 0);
   std::stable_sort(sensor_order_.begin(), sensor_order_.end(), [&](std::size_t a, std::size_t b) {

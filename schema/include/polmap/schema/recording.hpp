@@ -101,7 +101,17 @@ struct RecordingHeader {
   double start_time_s = 0.0;
   bool has_cube = false;
   std::string producer;  ///< e.g. "polmap simulate 0.1.0 seed=1"
+  /// The vehicle's rear-axle side-slip gradient (rad per m/s² of lateral acceleration; ISO
+  /// 8855 linear single-track model, β = −gradient · a_y), a vehicle parameter like the
+  /// mounts: the ego-motion's EgoMotionConfig::side_slip_gradient_rad_per_mps2. nullopt:
+  /// not recorded (consumers then use the kinematic model unless told otherwise). Range
+  /// checked by the reader: [0, kMaxSideSlipGradientRadPerMps2].
+  std::optional<double> side_slip_gradient_rad_per_mps2;
 };
+
+/// Largest side-slip gradient a recording may declare (0.05 rad per m/s², 2.9°: ten times a
+/// passenger car's).
+inline constexpr double kMaxSideSlipGradientRadPerMps2 = 0.05;
 
 /// A record of the stream after the header.
 using RecordingRecord = std::variant<TrajectorySample, SensorFrame>;

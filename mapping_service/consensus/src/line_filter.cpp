@@ -112,7 +112,6 @@ LineFilterResult filter_line_landmarks(LineConsensusResult& lines,
   std::unordered_map<std::int64_t, std::int64_t> drive_of;
   drive_of.reserve(candidates.size());
   for (const auto& c : candidates) drive_of[c.candidate_id] = c.drive;
-  const auto& passes = view->passes();
 
   for (std::size_t i = 0; i < n; ++i) {
     const std::vector<Eigen::Vector2d>& pl = lines.landmarks[i].polyline_m;
@@ -178,32 +177,12 @@ LineFilterResult filter_line_landmarks(LineConsensusResult& lines,
     // ------------------------------------------------------------ out of view
     if (cfg.out_of_view.enabled && ev.verdict == LineEvidence::Verdict::Kept &&
         2 * count_in(modelled, support) < support.size()) {
-      // Distance of the line from each pass's path; the farthest supporting drive's sets the
-      // bar (as point_filter.cpp's OutOfViewRule, over samples of the line).
+      // Against every pass that came as close as the farthest supporting drive (as points).
       const std::vector<Eigen::Vector2d> along = samples(pl, 1.0);
-      std::vector<double> dist(passes.size(), std::numeric_limits<double>::infinity());
-      for (std::size_t k = 0; k < passes.size(); ++k) {
-        for (const Eigen::Vector2d& q : along) {
-          dist[k] = std::min(dist[k], point_polyline_distance(q, passes[k].path_m));
-        }
-      }
-      double bar = 0.0;
-      bool unknown_supporter = false;
-      for (std::int64_t d : support) {
-        const auto it = std::find_if(passes.begin(), passes.end(),
-                                     [&](const DrivePass& q) { return q.drive == d; });
-        if (it == passes.end()) {
-          unknown_supporter = true;  // no trajectory: cannot say how close it came
-          break;
-        }
-        bar = std::max(bar, dist[static_cast<std::size_t>(it - passes.begin())]);
-      }
-      if (!unknown_supporter) {
-        std::size_t close = 0;
-        for (double d : dist) close += d <= bar + 1e-9 ? 1U : 0U;
-        ev.passes_as_close = static_cast<std::uint32_t>(close);
+      if (const auto close = view->count_passes_as_close(along, support)) {
+        ev.passes_as_close = static_cast<std::uint32_t>(*close);
         const double need = std::max(
-            2.0, std::ceil(cfg.out_of_view.min_view_fraction * static_cast<double>(close) - 1e-9));
+            2.0, std::ceil(cfg.out_of_view.min_view_fraction * static_cast<double>(*close) - 1e-9));
         if (static_cast<double>(support.size()) < need) {
           ev.verdict = LineEvidence::Verdict::OutOfView;
         }

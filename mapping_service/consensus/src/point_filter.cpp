@@ -355,7 +355,6 @@ PointFilterResult filter_point_landmarks(PointConsensusResult& points,
 
   // ---------------------------------------------------------------- out of view
   if (cfg.out_of_view.enabled && view != nullptr && !view->empty()) {
-    const auto& passes = view->passes();
     for (std::size_t i = 0; i < n; ++i) {
       PointEvidence& ev = out.evidence[i];
       if (ev.verdict != PointEvidence::Verdict::Kept) continue;
@@ -366,26 +365,10 @@ PointFilterResult filter_point_landmarks(PointConsensusResult& points,
         supported_in_view += std::binary_search(modelled.begin(), modelled.end(), d) ? 1U : 0U;
       }
       if (2 * supported_in_view >= support[i].size()) continue;
-      // Distance of p from each pass's path; the farthest supporting drive's sets the bar.
-      std::vector<double> dist(passes.size(), std::numeric_limits<double>::infinity());
-      double bar = 0.0;
-      bool unknown_supporter = false;
-      for (std::size_t k = 0; k < passes.size(); ++k) {
-        dist[k] = passes[k].path_m.size() == 1 ? (passes[k].path_m[0] - p).norm()
-                                               : point_polyline_distance(p, passes[k].path_m);
-      }
-      for (std::int64_t d : support[i]) {
-        const auto it = std::find_if(passes.begin(), passes.end(),
-                                     [&](const DrivePass& q) { return q.drive == d; });
-        if (it == passes.end()) {
-          unknown_supporter = true;  // no trajectory: cannot say how close it came
-          continue;
-        }
-        bar = std::max(bar, dist[static_cast<std::size_t>(it - passes.begin())]);
-      }
-      if (unknown_supporter) continue;
-      std::size_t close = 0;
-      for (double d : dist) close += d <= bar + 1e-9 ? 1U : 0U;
+      // Against every pass that came as close as the farthest supporting drive.
+      const std::optional<std::size_t> as_close = view->count_passes_as_close({&p, 1}, support[i]);
+      if (!as_close) continue;  // a supporter without trajectory: cannot say how close it came
+      const std::size_t close = *as_close;
       ev.passes_as_close = static_cast<std::uint32_t>(close);
       const double need = std::max(
           2.0, std::ceil(cfg.out_of_view.min_view_fraction * static_cast<double>(close) - 1e-9));

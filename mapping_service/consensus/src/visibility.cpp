@@ -215,4 +215,24 @@ std::vector<std::int64_t> VisibilityIndex::drives_crossing(const Eigen::Vector2d
   return out;
 }
 
+std::optional<std::size_t> VisibilityIndex::count_passes_as_close(
+    std::span<const Eigen::Vector2d> places, std::span<const std::int64_t> drives) const {
+  std::vector<double> dist(passes_.size(), std::numeric_limits<double>::infinity());
+  for (std::size_t k = 0; k < passes_.size(); ++k) {
+    for (const Eigen::Vector2d& q : places) {
+      dist[k] = std::min(dist[k], point_polyline_distance(q, passes_[k].path_m));
+    }
+  }
+  double bar = 0.0;
+  for (std::int64_t d : drives) {
+    const auto it = std::find_if(passes_.begin(), passes_.end(),
+                                 [&](const DrivePass& q) { return q.drive == d; });
+    if (it == passes_.end()) return std::nullopt;
+    bar = std::max(bar, dist[static_cast<std::size_t>(it - passes_.begin())]);
+  }
+  std::size_t close = 0;
+  for (double d : dist) close += d <= bar + 1e-9 ? 1U : 0U;
+  return close;
+}
+
 }  // namespace polmap::mapping

@@ -175,6 +175,34 @@ TEST(Visibility, DrivesCrossingMatchesBruteForceOverRandomZigzags) {
   EXPECT_NE(std::find(touching.begin(), touching.end(), 1), touching.end());
 }
 
+TEST(Visibility, PassesAsCloseAsTheFarthestOfGivenDrivesMatchBruteForce) {
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> off(-30.0, 30.0);
+  std::vector<DrivePass> passes;
+  for (int d = 1; d <= 20; ++d) {
+    const double y = off(rng);
+    passes.push_back(straight_pass(d, {0, y}, {100, y + off(rng) / 10.0}, 10.0));
+  }
+  const VisibilityIndex view(passes);
+  for (int q = 0; q < 50; ++q) {
+    const std::vector<Eigen::Vector2d> places{{50 + off(rng), off(rng)}, {50 + off(rng), off(rng)}};
+    std::vector<std::int64_t> drives{1 + q % 20, 1 + (q * 7) % 20};
+    auto dist = [&](const DrivePass& p) {
+      return std::min(path_distance(p.path_m, places[0]), path_distance(p.path_m, places[1]));
+    };
+    double bar = 0.0;
+    for (std::int64_t d : drives)
+      bar = std::max(bar, dist(passes[static_cast<std::size_t>(d - 1)]));
+    std::size_t expected = 0;
+    for (const DrivePass& p : passes) expected += dist(p) <= bar + 1e-9 ? 1U : 0U;
+    EXPECT_EQ(view.count_passes_as_close(places, drives), expected) << q;
+    EXPECT_GE(expected, 1U);
+  }
+  const std::vector<Eigen::Vector2d> one{{50, 0}};
+  const std::vector<std::int64_t> unknown{3, 99};
+  EXPECT_FALSE(view.count_passes_as_close(one, unknown).has_value());
+}
+
 TEST(Visibility, LongDiagonalSegmentsAreIndexedAlongTheirLength) {
   DrivePass p;
   p.drive = 1;

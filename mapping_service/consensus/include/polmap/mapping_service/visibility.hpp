@@ -87,6 +87,12 @@ class VisibilityIndex {
   /// [a, b].
   [[nodiscard]] std::vector<std::int64_t> drives_crossing(const Eigen::Vector2d& a,
                                                           const Eigen::Vector2d& b) const;
+  /// How many passes come at least as close to `places` as the farthest of `drives`
+  /// (ascending) does, a pass's distance being its path's nearest approach to any of them:
+  /// the denominator of a return beyond the modelled view (point_filter.hpp OutOfViewRule).
+  /// nullopt: one of `drives` has no pass here (it cannot be said how close it came).
+  [[nodiscard]] std::optional<std::size_t> count_passes_as_close(
+      std::span<const Eigen::Vector2d> places, std::span<const std::int64_t> drives) const;
   [[nodiscard]] std::size_t count_in_view(const Eigen::Vector2d& p) const {
     return passes_in_view(p).size();
   }

@@ -35,6 +35,7 @@ extern "C" int LLVMFuzzerInitialize(int*, char***) {
       m.sensor_id = 0;
       m.name = "front";
       h.sensors.push_back(m);
+      h.side_slip_gradient_rad_per_mps2 = 0.004;  // the optional vehicle key, too
       RecordingWriter w(path, h);
       for (int i = 0; i < 3; ++i) {
         TrajectorySample t;

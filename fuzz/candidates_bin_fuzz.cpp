@@ -56,6 +56,7 @@ extern "C" int LLVMFuzzerInitialize(int*, char***) {
     }
     fuzz::write_seed(dir, "small.bin", encode_candidates(c));
     fuzz::write_seed(dir, "empty.bin", encode_candidates({}));
+    fuzz::write_seed(dir, "small_v1.bin", encode_candidates(c, 1));  // older vehicles' files
   }
   return 0;
 }

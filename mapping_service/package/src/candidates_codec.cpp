@@ -20,7 +20,17 @@ namespace {
 
 constexpr const char* kFile = "candidates.bin";
 constexpr std::array<char, 4> kMagic{'P', 'M', 'C', 'B'};
-constexpr std::uint32_t kVersion = 1;
+/// Quanta that differ by version. Version 2 coarsened what nothing needs (trajectory time
+/// 100 µs is 3 mm at 30 m/s; 10 µrad is 0.0006°).
+/// Candidate strength and power are kept for display and export only (consensus and
+/// alignment use positions), so version 2 stores them at 2 % and 0.25 dB.
+struct Quanta {
+  double time_s, yaw_rad, yaw_rate_rps, std_yaw_rad, strength_scale, power_db;
+};
+Quanta quanta(std::uint32_t version) {
+  return version == 1 ? Quanta{1e-6, 1e-6, 1e-6, 1e-6, 200.0, 0.05}
+                      : Quanta{1e-4, 1e-5, 1e-5, 1e-5, 50.0, 0.25};
+}
 constexpr std::size_t kHeaderBytes = 32;
 // Columns per element (each costs at least one byte of body): the inflated size is at
 // least counts x columns, checked before anything is reserved.
@@ -29,18 +39,19 @@ constexpr std::uint64_t kPointColumns = 6, kLineColumns = 5, kTrajectoryColumns 
 // µs until the year 2112; 2^50 rejected times after 2005-09 and was raised, a relaxation that
 // every earlier file still meets). Exact in a double, far from int64 overflow in the deltas.
 constexpr std::int64_t kMaxAbs = std::int64_t{1} << 52;
-constexpr std::uint64_t kMaxStrengthCode = 200 * 50;  // strength ≤ e^50
+constexpr double kMaxLogStrength = 50.0;  // strength ≤ e^50
 
 [[noreturn]] void bad(const std::string& field, const std::string& msg) {
   throw PackageFormatError(kFile, field, msg);
 }
 
-/// Strength (a Wishart distance or ridgeness, 0 .. ~1e7) to 0.5 % relative: round(200·ln(1+s)).
-std::uint64_t strength_code(double v) {
+/// Strength (a Wishart distance or ridgeness, 0 .. ~1e7) to a relative step:
+/// round(scale·ln(1+s)) (scale 200: 0.5 %; 50: 2 %).
+std::uint64_t strength_code(double v, double scale) {
   POLMAP_EXPECT(std::isfinite(v));
-  return static_cast<std::uint64_t>(std::llround(200.0 * std::log1p(std::max(0.0, v))));
+  return static_cast<std::uint64_t>(std::llround(scale * std::log1p(std::max(0.0, v))));
 }
-double strength_value(std::uint64_t k) { return std::expm1(double(k) / 200.0); }
+double strength_value(std::uint64_t k, double scale) { return std::expm1(double(k) / scale); }
 
 std::int64_t q(double v, double unit) {
   POLMAP_EXPECT(std::isfinite(v) && std::abs(v / unit) < double(kMaxAbs));
@@ -138,34 +149,36 @@ std::vector<std::uint64_t> read_unsigned(Reader& r, std::size_t n, const char* f
 
 }  // namespace
 
-std::string encode_candidates(const CandidatesContent& c) {
+std::string encode_candidates(const CandidatesContent& c, std::uint32_t version) {
+  POLMAP_EXPECT(version == 1 || version == 2);
+  const Quanta tq = quanta(version);
   Writer w;
   const auto& P = c.points;
   const auto& L = c.lines;
   const auto& T = c.trajectory;
   column(w, P.size(), 1, [&](std::size_t i) { return q(P[i].position_m.x(), 1e-3); });
   column(w, P.size(), 1, [&](std::size_t i) { return q(P[i].position_m.y(), 1e-3); });
-  for (const auto& p : P) w.u(strength_code(p.strength));
-  for (const auto& p : P) w.s(q(p.power_db, 0.05));
+  for (const auto& p : P) w.u(strength_code(p.strength, tq.strength_scale));
+  for (const auto& p : P) w.s(q(p.power_db, tq.power_db));
   for (const auto& p : P) w.u(static_cast<std::uint64_t>(p.scattering));
   for (const auto& p : P) w.u(p.num_cells);
   column(w, L.size(), 1, [&](std::size_t i) { return q(L[i].start_m.x(), 1e-2); });
   column(w, L.size(), 1, [&](std::size_t i) { return q(L[i].start_m.y(), 1e-2); });
   for (const auto& l : L) w.s(q(l.end_m.x(), 1e-2) - q(l.start_m.x(), 1e-2));
   for (const auto& l : L) w.s(q(l.end_m.y(), 1e-2) - q(l.start_m.y(), 1e-2));
-  for (const auto& l : L) w.u(strength_code(l.strength));
-  column(w, T.size(), 2, [&](std::size_t i) { return q(T[i].time_s, 1e-6); });
+  for (const auto& l : L) w.u(strength_code(l.strength, tq.strength_scale));
+  column(w, T.size(), 2, [&](std::size_t i) { return q(T[i].time_s, tq.time_s); });
   column(w, T.size(), 2, [&](std::size_t i) { return q(T[i].lat_deg, 1e-8); });
   column(w, T.size(), 2, [&](std::size_t i) { return q(T[i].lon_deg, 1e-8); });
-  column(w, T.size(), 1, [&](std::size_t i) { return q(T[i].yaw_enu_rad, 1e-6); });
+  column(w, T.size(), 1, [&](std::size_t i) { return q(T[i].yaw_enu_rad, tq.yaw_rad); });
   column(w, T.size(), 1, [&](std::size_t i) { return q(T[i].speed_mps, 1e-3); });
-  column(w, T.size(), 1, [&](std::size_t i) { return q(T[i].yaw_rate_rps, 1e-6); });
+  column(w, T.size(), 1, [&](std::size_t i) { return q(T[i].yaw_rate_rps, tq.yaw_rate_rps); });
   for (const auto& t : T)
     w.u(static_cast<std::uint64_t>(std::max<std::int64_t>(0, q(t.std_east_m, 1e-3))));
   for (const auto& t : T)
     w.u(static_cast<std::uint64_t>(std::max<std::int64_t>(0, q(t.std_north_m, 1e-3))));
   for (const auto& t : T)
-    w.u(static_cast<std::uint64_t>(std::max<std::int64_t>(0, q(t.std_yaw_rad, 1e-6))));
+    w.u(static_cast<std::uint64_t>(std::max<std::int64_t>(0, q(t.std_yaw_rad, tq.std_yaw_rad))));
   for (const auto& t : T) w.u(static_cast<std::uint64_t>(t.solution));
 
   uLongf packed_len = compressBound(static_cast<uLong>(w.out.size()));
@@ -177,7 +190,7 @@ std::string encode_candidates(const CandidatesContent& c) {
   packed.resize(packed_len);
 
   std::string out(kMagic.begin(), kMagic.end());
-  put_u32(out, kVersion);
+  put_u32(out, version);
   put_u32(out, static_cast<std::uint32_t>(w.out.size()));
   put_u32(out, static_cast<std::uint32_t>(P.size()));
   put_u32(out, static_cast<std::uint32_t>(L.size()));
@@ -194,9 +207,12 @@ CandidatesContent decode_candidates(std::string_view bytes, const CandidatesDeco
   if (std::memcmp(bytes.data(), kMagic.data(), kMagic.size()) != 0)
     bad("header", "not a candidates.bin file (magic)");
   const std::uint32_t version = get_u32(bytes, 4);
-  if (version != kVersion) {
-    bad("version", "unsupported version " + std::to_string(version) + " (this build reads 1)");
+  if (version != 1 && version != 2) {
+    bad("version",
+        "unsupported version " + std::to_string(version) + " (this build reads 1 and 2)");
   }
+  const Quanta tq = quanta(version);
+  const auto max_strength = static_cast<std::uint64_t>(tq.strength_scale * kMaxLogStrength);
   const std::uint64_t body_len = get_u32(bytes, 8);
   const std::uint64_t np = get_u32(bytes, 12), nl = get_u32(bytes, 16), nt = get_u32(bytes, 20);
   const std::uint32_t crc = get_u32(bytes, 24);
@@ -239,14 +255,15 @@ CandidatesContent decode_candidates(std::string_view bytes, const CandidatesDeco
   read_column(r, np, 1, "points.y", b);
   for (std::size_t i = 0; i < np; ++i) c.points[i].position_m = {a[i] * 1e-3, b[i] * 1e-3};
   {
-    const auto st = read_unsigned(r, np, "points.strength", kMaxStrengthCode);
-    for (std::size_t i = 0; i < np; ++i) c.points[i].strength = strength_value(st[i]);
+    const auto st = read_unsigned(r, np, "points.strength", max_strength);
+    for (std::size_t i = 0; i < np; ++i)
+      c.points[i].strength = strength_value(st[i], tq.strength_scale);
   }
   for (std::size_t i = 0; i < np; ++i) {
     const std::int64_t v = r.s("points.power_db");
     if (v > 100'000 || v < -100'000)
       bad("points.power_db", "out of range at element " + std::to_string(i));
-    c.points[i].power_db = double(v) * 0.05;
+    c.points[i].power_db = double(v) * tq.power_db;
   }
   {
     const auto sc = read_unsigned(r, np, "points.scattering", 3);
@@ -270,23 +287,24 @@ CandidatesContent decode_candidates(std::string_view bytes, const CandidatesDeco
     }
   }
   {
-    const auto st = read_unsigned(r, nl, "lines.strength", kMaxStrengthCode);
-    for (std::size_t i = 0; i < nl; ++i) c.lines[i].strength = strength_value(st[i]);
+    const auto st = read_unsigned(r, nl, "lines.strength", max_strength);
+    for (std::size_t i = 0; i < nl; ++i)
+      c.lines[i].strength = strength_value(st[i], tq.strength_scale);
   }
   c.trajectory.resize(nt);
   auto& T = c.trajectory;
   read_column(r, nt, 2, "trajectory.time", a);
-  for (std::size_t i = 0; i < nt; ++i) T[i].time_s = a[i] * 1e-6;
+  for (std::size_t i = 0; i < nt; ++i) T[i].time_s = double(a[i]) * tq.time_s;
   read_column(r, nt, 2, "trajectory.lat", a);
   for (std::size_t i = 0; i < nt; ++i) T[i].lat_deg = a[i] * 1e-8;
   read_column(r, nt, 2, "trajectory.lon", a);
   for (std::size_t i = 0; i < nt; ++i) T[i].lon_deg = a[i] * 1e-8;
   read_column(r, nt, 1, "trajectory.yaw", a);
-  for (std::size_t i = 0; i < nt; ++i) T[i].yaw_enu_rad = a[i] * 1e-6;
+  for (std::size_t i = 0; i < nt; ++i) T[i].yaw_enu_rad = double(a[i]) * tq.yaw_rad;
   read_column(r, nt, 1, "trajectory.speed", a);
   for (std::size_t i = 0; i < nt; ++i) T[i].speed_mps = a[i] * 1e-3;
   read_column(r, nt, 1, "trajectory.yaw_rate", a);
-  for (std::size_t i = 0; i < nt; ++i) T[i].yaw_rate_rps = a[i] * 1e-6;
+  for (std::size_t i = 0; i < nt; ++i) T[i].yaw_rate_rps = double(a[i]) * tq.yaw_rate_rps;
   const std::uint64_t kMaxStd = 1'000'000'000;  // 1000 km / 1000 rad
   {
     const auto e = read_unsigned(r, nt, "trajectory.std_east", kMaxStd);
@@ -296,7 +314,7 @@ CandidatesContent decode_candidates(std::string_view bytes, const CandidatesDeco
     for (std::size_t i = 0; i < nt; ++i) {
       T[i].std_east_m = static_cast<float>(double(e[i]) * 1e-3);
       T[i].std_north_m = static_cast<float>(double(n[i]) * 1e-3);
-      T[i].std_yaw_rad = static_cast<float>(double(y[i]) * 1e-6);
+      T[i].std_yaw_rad = static_cast<float>(double(y[i]) * tq.std_yaw_rad);
       T[i].solution = static_cast<GnssSolution>(s[i]);
     }
   }

@@ -1,8 +1,8 @@
 // `polmap doppler-residuals --recording R | --detections CSV --mounts JSON [--truth CSV]
 //  [--json]`: Doppler residuals of a drive's detection lists against the static world at the
 // reference motion (robust sigma of the static core, share with |residual| > 0.5 m/s), per
-// sensor and in total: the statistics ../shared/SIMULATION.md lists for real radars, to
-// compare simulated presets with real recordings (tools/sim/README.md "Realism").
+// sensor and in total: the statistics tools/sim/README.md "Realism" lists for real radars, to
+// compare simulated presets with real recordings.
 #include <CLI/CLI.hpp>
 #include <cstdio>
 #include <filesystem>

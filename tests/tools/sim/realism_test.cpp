@@ -135,7 +135,7 @@ TEST(Realism, DopplerResidualsOfRealisticNoiseInTheRealRange) {
   // Ideal: sigma_vr = 0.05 m/s plus the azimuth term; far below the real sensors.
   EXPECT_LT(a.robust_sigma_mps, 0.08);
   // Realistic noise alone: the static core of real front corner radars (0.08-0.12 m/s,
-  // ../shared/SIMULATION.md) and more outliers than ideal.
+  // tools/sim/README.md "Realism") and more outliers than ideal.
   EXPECT_GT(b.robust_sigma_mps, 0.08);
   EXPECT_LT(b.robust_sigma_mps, 0.13);
   EXPECT_GT(b.outlier_share, a.outlier_share + 0.02);

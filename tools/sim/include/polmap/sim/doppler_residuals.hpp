@@ -1,9 +1,9 @@
 #pragma once
 /// @file doppler_residuals.hpp
 /// Statistics of detection lists against the Doppler a static world gives at a known
-/// vehicle motion (v, yaw rate; zero side slip), as in ../shared/SIMULATION.md "What real
-/// radars look like": the robust sigma of the static core and the share of detections with
-/// |residual| > 0.5 m/s (moving objects, multipath, artefacts). Used to calibrate the
+/// vehicle motion (v, yaw rate; zero side slip), as measured on real corner radars
+/// (tools/sim/README.md "Realism"): the robust sigma of the static core and the share of detections
+/// with |residual| > 0.5 m/s (moving objects, multipath, artefacts). Used to calibrate the
 /// realistic preset against real recordings (tools/sim/README.md "Realism").
 #include <cstddef>
 #include <cstdint>

@@ -256,7 +256,7 @@ void from_json(const json& j, RecordingHeader& v) {
   if (j.contains("side_slip_gradient_rad_per_mps2")) {
     double g = 0.0;
     field(j, "side_slip_gradient_rad_per_mps2", g);
-    if (!std::isfinite(g) || g < 0.0 || g > kMaxSideSlipGradientRadPerMps2) {
+    if (!side_slip_gradient_valid(g)) {
       throw JsonFieldError(
           "side_slip_gradient_rad_per_mps2",
           "must be in [0, " + std::to_string(kMaxSideSlipGradientRadPerMps2) + "] rad per m/s^2");

@@ -547,8 +547,7 @@ RecordingWriter::RecordingWriter(const std::filesystem::path& path, const Record
   if (options.compression_level < 0 || options.compression_level > 9) {
     throw ValidationError(d.source + ": compression_level must be 0..9");
   }
-  if (const auto& g = header.side_slip_gradient_rad_per_mps2;
-      g && !(std::isfinite(*g) && *g >= 0.0 && *g <= kMaxSideSlipGradientRadPerMps2)) {
+  if (const auto& g = header.side_slip_gradient_rad_per_mps2; g && !side_slip_gradient_valid(*g)) {
     throw ValidationError(d.source + ": header.side_slip_gradient_rad_per_mps2 must be in [0, " +
                           std::to_string(kMaxSideSlipGradientRadPerMps2) + "]");
   }

@@ -3,6 +3,7 @@
 /// Value types of a recording: one drive's raw sensor data as a vehicle logs
 /// it (format documented in schema/recording.md). Frames: vehicle frame at the
 /// rear-axle centre; sensor frame at the antenna, azimuth positive to the left.
+#include <cmath>
 #include <cstdint>
 #include <optional>
 #include <string>
@@ -112,6 +113,11 @@ struct RecordingHeader {
 /// Largest side-slip gradient a recording may declare (0.05 rad per m/s², 2.9°: ten times a
 /// passenger car's).
 inline constexpr double kMaxSideSlipGradientRadPerMps2 = 0.05;
+
+/// The one range check of a declared side-slip gradient (reader and writer).
+inline bool side_slip_gradient_valid(double g) {
+  return std::isfinite(g) && g >= 0.0 && g <= kMaxSideSlipGradientRadPerMps2;
+}
 
 /// A record of the stream after the header.
 using RecordingRecord = std::variant<TrajectorySample, SensorFrame>;
